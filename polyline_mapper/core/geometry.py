@@ -1,0 +1,260 @@
+"""
+Segment geometry on arrays.
+
+Conventions used across the core:
+
+- points: ``(N, 2)`` float64 array, metres, in one fixed frame.
+- segments: ``(K, 2, 2)`` float64 array, ``segments[k] = [[x1, y1], [x2, y2]]``, metres.
+- pairs: parallel 1-D arrays ``(pt, seg)`` naming a point and a segment that are close.
+
+Nothing here loops over points in Python; the only index structure is a scipy ``cKDTree`` over
+the points, built once per point set and reused for every segment set.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def as_points(points, name: str = 'points') -> np.ndarray:
+    """
+    Validate and convert a point set.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 2)
+        Finite x, y coordinates in metres.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    (N, 2) float64 array (a copy only when conversion is needed).
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, non-numeric or non-finite values.
+
+    """
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f'{name} must be numeric, got {type(points).__name__}') from exc
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f'{name} must have shape (N, 2), got {arr.shape}')
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise ValueError(f'{name} has {int(bad.sum())} row(s) with NaN or inf '
+                         f'(first at row {int(np.argmax(bad))})')
+    return arr
+
+
+def as_segments(segments, name: str = 'segments') -> np.ndarray:
+    """Validate and convert segments to a ``(K, 2, 2)`` float64 array (K may be 0)."""
+    arr = np.asarray(segments, dtype=np.float64)
+    if arr.size == 0:
+        return np.zeros((0, 2, 2))
+    if arr.ndim == 2 and arr.shape[1] == 4:
+        arr = arr.reshape(-1, 2, 2)
+    if arr.ndim != 3 or arr.shape[1:] != (2, 2):
+        raise ValueError(f'{name} must have shape (K, 2, 2) or (K, 4), got {arr.shape}')
+    if not np.isfinite(arr).all():
+        raise ValueError(f'{name} contains NaN or inf')
+    return arr
+
+
+def lengths(segments: np.ndarray) -> np.ndarray:
+    """Segment lengths, shape (K,), metres."""
+    return np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
+
+
+def directions(segments: np.ndarray) -> tuple:
+    """
+    Unit directions and lengths of segments.
+
+    Returns
+    -------
+    u : (K, 2) unit vectors from the first to the second end point ([1, 0] for zero length).
+    length : (K,) metres.
+
+    """
+    d = segments[:, 1] - segments[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    u = np.zeros_like(d)
+    ok = length > 0
+    u[ok] = d[ok] / length[ok, None]
+    u[~ok, 0] = 1.0
+    return u, length
+
+
+def project(points: np.ndarray, segments: np.ndarray) -> tuple:
+    """
+    Project points onto segments, element by element.
+
+    Parameters
+    ----------
+    points : (M, 2)
+    segments : (M, 2, 2)
+        Segment m is paired with point m.
+
+    Returns
+    -------
+    dist : (M,) distance from the point to the segment (not the infinite line), metres.
+    along : (M,) signed position of the projection on the line, metres from the first end.
+    normal : (M,) signed offset from the infinite line, metres (left of the direction > 0).
+
+    """
+    u, length = directions(segments)
+    rel = points - segments[:, 0]
+    along = np.einsum('ij,ij->i', rel, u)
+    normal = u[:, 0] * rel[:, 1] - u[:, 1] * rel[:, 0]
+    beyond = np.clip(along, 0.0, length) - along
+    dist = np.hypot(normal, beyond)
+    return dist, along, normal
+
+
+def sample_segments(segments: np.ndarray, step: float) -> tuple:
+    """
+    Sample points along segments, at most ``step`` apart, end points included.
+
+    Returns
+    -------
+    samples : (S, 2) metres.
+    owner : (S,) index of the segment each sample lies on.
+
+    """
+    if len(segments) == 0:
+        return np.zeros((0, 2)), np.zeros(0, dtype=np.intp)
+    length = lengths(segments)
+    n = np.maximum(1, np.ceil(length / step).astype(np.intp)) + 1
+    owner = np.repeat(np.arange(len(segments)), n)
+    first = np.cumsum(n) - n
+    frac = (np.arange(owner.size) - first[owner]) / (n[owner] - 1)
+    a = segments[owner, 0]
+    b = segments[owner, 1]
+    return a + (b - a) * frac[:, None], owner
+
+
+@dataclass
+class Pairs:
+    """Point-segment pairs closer than a radius, with their projection geometry."""
+
+    pt: np.ndarray
+    seg: np.ndarray
+    dist: np.ndarray
+    along: np.ndarray
+    normal: np.ndarray
+
+    def select(self, mask: np.ndarray) -> 'Pairs':
+        """Return the pairs where ``mask`` is true."""
+        return Pairs(self.pt[mask], self.seg[mask], self.dist[mask], self.along[mask],
+                     self.normal[mask])
+
+
+class PointIndex:
+    """
+    A point set with a k-d tree, answering segment queries.
+
+    Building costs O(N log N) once; every query costs about the number of pairs it returns
+    plus the number of segment samples, so fitting scales with points, not points x segments.
+    """
+
+    def __init__(self, points: np.ndarray, weights: np.ndarray = None):
+        self.points = as_points(points)
+        self.weights = (np.ones(len(self.points)) if weights is None
+                        else np.asarray(weights, dtype=np.float64))
+        if self.weights.shape != (len(self.points),):
+            raise ValueError(f'weights must have shape ({len(self.points)},), '
+                             f'got {self.weights.shape}')
+        self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def pairs(self, segments: np.ndarray, radius: float) -> Pairs:
+        """
+        All (point, segment) pairs with point-to-segment distance <= radius.
+
+        Segments are sampled every ``radius`` metres; a point within ``radius`` of a segment
+        is within ``radius * sqrt(5) / 2`` of its nearest sample, so querying samples with that
+        radius finds every pair, which are then deduplicated and filtered exactly.
+        """
+        empty = Pairs(*(np.zeros(0, dtype=np.intp),) * 2, *(np.zeros(0),) * 3)
+        if len(segments) == 0 or len(self.points) == 0 or radius <= 0:
+            return empty
+        step = radius
+        samples, owner = sample_segments(segments, step)
+        reach = np.hypot(radius, 0.5 * step) * (1 + 1e-9)
+        stree = cKDTree(samples)
+        hits = stree.sparse_distance_matrix(self.tree, reach, output_type='ndarray')
+        if hits.size == 0:
+            return empty
+        seg = owner[hits['i']]
+        pt = hits['j'].astype(np.intp)
+        key = np.unique(pt * np.int64(len(segments)) + seg)
+        pt = key // len(segments)
+        seg = key % len(segments)
+        dist, along, normal = project(self.points[pt], segments[seg])
+        keep = dist <= radius
+        return Pairs(pt[keep], seg[keep], dist[keep], along[keep], normal[keep])
+
+    def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
+        """Total point weight within ``radius`` of each centre, shape (len(centres),)."""
+        if len(centres) == 0:
+            return np.zeros(0)
+        if np.all(self.weights == 1.0):
+            return self.tree.query_ball_point(centres, radius, return_length=True).astype(float)
+        hits = cKDTree(centres).sparse_distance_matrix(self.tree, radius, output_type='ndarray')
+        return np.bincount(hits['i'], weights=self.weights[hits['j']], minlength=len(centres))
+
+
+def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,
+                     radius: float = 0.5, chunk: int = 4_000_000) -> tuple:
+    """
+    Exact distance from every point to its nearest segment.
+
+    Points within ``radius`` of some segment are resolved through the index; the rest (usually
+    few) are compared with every segment, in chunks of at most ``chunk`` point-segment pairs.
+
+    Returns
+    -------
+    dist : (N,) metres (inf when there are no segments).
+    nearest : (N,) index of the nearest segment (-1 when there are no segments).
+
+    """
+    n = len(points)
+    dist = np.full(n, np.inf)
+    nearest = np.full(n, -1, dtype=np.intp)
+    if len(segments) == 0 or n == 0:
+        return dist, nearest
+    index = index if index is not None else PointIndex(points)
+    p = index.pairs(segments, radius)
+    if len(p.pt):
+        order = np.lexsort((p.dist, p.pt))
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = p.pt[order][1:] != p.pt[order][:-1]
+        sel = order[first]
+        dist[p.pt[sel]] = p.dist[sel]
+        nearest[p.pt[sel]] = p.seg[sel]
+    rest = np.flatnonzero(~np.isfinite(dist))
+    k = len(segments)
+    step = max(1, chunk // k)
+    for s in range(0, rest.size, step):
+        ix = rest[s:s + step]
+        d, _, _ = project(np.repeat(points[ix], k, axis=0), np.tile(segments, (ix.size, 1, 1)))
+        d = d.reshape(ix.size, k)
+        j = np.argmin(d, axis=1)
+        dist[ix] = d[np.arange(ix.size), j]
+        nearest[ix] = j
+    return dist, nearest
+
+
+def group_minmax(values: np.ndarray, groups: np.ndarray, n_groups: int) -> tuple:
+    """Per-group minimum and maximum of ``values`` (inf / -inf for empty groups)."""
+    lo = np.full(n_groups, np.inf)
+    hi = np.full(n_groups, -np.inf)
+    np.minimum.at(lo, groups, values)
+    np.maximum.at(hi, groups, values)
+    return lo, hi

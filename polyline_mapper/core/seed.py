@@ -1,0 +1,48 @@
+"""
+Seeding: segments for points that no segment explains.
+
+The paper starts from the two diagonals of the bounding box and relies on far points pulling
+segments. Our E-step cuts points off beyond ``kappa * sigma`` (see ``emsf.py``), so points that no
+segment reaches would never be explained; and the incremental mapper must add walls it has not
+seen before. Both are served by seeding: unexplained points are binned in a square grid, and every
+cell with enough point weight gets the orthogonal-regression segment of its points, trimmed to
+their projections. Split, EM and merge then treat seeds like any other segment (a wall cut by the
+grid is joined again by merging; a blob of clutter keeps a short segment or loses its support).
+"""
+
+import numpy as np
+
+from .emsf import weighted_lines
+from .geometry import group_minmax
+
+
+def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
+                  min_mass: float, min_density: float = 0.0, r: float = 1.0) -> np.ndarray:
+    """
+    Seed segments from points, one per occupied grid cell.
+
+    Parameters
+    ----------
+    points : (U, 2) metres, the unexplained points.
+    weights : (U,) their multiplicities.
+    cell : grid cell side, metres.
+    min_mass : a cell needs at least this much point weight to seed a segment,
+    min_density, r : and at least ``min_density`` per ``2 r`` of the seed's length.
+
+    Returns
+    -------
+    (S, 2, 2) metres.
+
+    """
+    if len(points) == 0:
+        return np.zeros((0, 2, 2))
+    ij = np.floor(points / cell).astype(np.int64)
+    _, cell_id = np.unique(ij, axis=0, return_inverse=True)
+    cell_id = cell_id.ravel()
+    k = int(cell_id.max()) + 1
+    centre, direction, mass = weighted_lines(points, cell_id, weights, k)
+    t = np.einsum('ij,ij->i', points - centre[cell_id], direction[cell_id])
+    lo, hi = group_minmax(t, cell_id, k)
+    keep = (mass >= min_mass) & (mass >= min_density * (hi - lo) / (2.0 * r)) & (hi > lo)
+    c, u = centre[keep], direction[keep]
+    return np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)

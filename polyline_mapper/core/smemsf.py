@@ -1,0 +1,310 @@
+"""
+SMEMSF: split-and-merge EM segment fitting, the batch loop.
+
+One iteration, at the current noise scale sigma (metres) and LSS half-size r = r_over_sigma *
+sigma:
+
+1. EMSF on the current segments; points no segment reaches (beyond kappa * sigma) are seeded
+   (``seed.py``);
+2. LSS with r and the per-segment threshold C (``split.py``);
+3. EMSF again;
+4. merging by perceptual grouping (``merge.py``).
+
+Coarse to fine: sigma starts at 1/20 of the bounding-box diagonal (the paper's diagonals can only
+move if they see points), then follows the data: sigma_next is the robust scale (1.4826 x median)
+of the distances of supported points to their segments, but never shrinks by more than
+``shrink_fast`` nor by less than ``shrink_slow`` per iteration (a bad model has residuals as wide
+as the window, so without forced shrinking it would stay coarse), and never goes below the floor.
+The floor is the sensor noise: ``config.sigma`` when given, otherwise the thickness of the
+point cloud's local structure (``noise.py``), and never below ``sigma_min``. So r, and with it the
+split resolution, the merge tolerance and the arc approximation error, all come from the data.
+
+Stop: once sigma sits at its floor, when the mean truncated distance of points to their nearest
+segment changes by less than ``tol`` (relative) between iterations; or at ``max_iterations``.
+The result is refitted once more (so merged segments sit on their points) and chained into
+polylines.
+"""
+
+from dataclasses import asdict, dataclass, field, fields
+import time
+from typing import Callable, Optional
+
+import numpy as np
+
+from .emsf import emsf_step
+from .geometry import as_points, as_segments, PointIndex
+from .merge import merge_segments
+from .noise import estimate_noise
+from .polylines import assemble_polylines
+from .seed import seed_segments
+from .split import split_segments
+
+
+@dataclass
+class SMEMSFConfig:
+    """
+    Every tunable of the batch and incremental fit, with units and defaults.
+
+    Lengths are metres, angles degrees, everything else dimensionless.
+    """
+
+    sigma: Optional[float] = None
+    """Sensor noise (m). None or 0: estimated from the points (local PCA thickness)."""
+    sigma_min: float = 0.01
+    """Lower bound of the noise scale (m); below it registration error dominates any laser."""
+    sigma_start: Optional[float] = None
+    """First noise scale (m). None or 0: 1/20 of the bounding-box diagonal."""
+    shrink_fast: float = 0.6
+    """Sigma never shrinks faster than this factor per iteration."""
+    shrink_slow: float = 0.8
+    """Sigma shrinks at least by this factor per iteration until it reaches its floor."""
+    kappa: float = 3.0
+    """E-step cut-off in sigmas; the outlier class has the kernel density at the cut-off."""
+    r_over_sigma: float = 2.0
+    """LSS half-size r in sigmas (sub-segments are 2r long, squares 2r wide)."""
+    split_fraction: float = 0.1
+    """LSS threshold C_j as a fraction of segment j's typical sub-segment support."""
+    gap_p: float = 1e-3
+    """A run of low squares is a gap when this unlikely under the segment's own density."""
+    merge_theta_ref: float = 10.0
+    """Angle (deg) at which the parallelism term reaches 1."""
+    merge_threshold: float = 1.0
+    """Pairs with grouping cost below this merge."""
+    merge_reach: float = 4.0
+    """Segments closer than merge_reach * r are merge candidates."""
+    min_support: float = 4.0
+    """A segment needs at least this much supporting point weight to survive trimming."""
+    min_density: float = 1.0
+    """A segment needs on average this much supporting point weight per 2r of its length."""
+    seed_cell: float = 8.0
+    """Grid cell for seeding unexplained points, in units of r."""
+    max_iterations: int = 30
+    """Iteration cap."""
+    tol: float = 0.01
+    """Stop when the mean truncated distance changes by less than this (relative)."""
+    noise_radius: float = 0.2
+    """Neighbourhood radius (m) for the noise estimate."""
+    join_over_r: float = 2.0
+    """Polyline ends closer than join_over_r * r are joined."""
+    init: str = 'diagonals'
+    """Initial segments: 'diagonals' (the paper), 'single' or 'random'."""
+    init_count: int = 20
+    """Number of segments for init='random'."""
+    seed: int = 0
+    """Seed for every random choice (noise-estimate subsample, random init)."""
+
+    def __post_init__(self):
+        """Reject values that cannot work, naming the field and the reason."""
+        for name in ('sigma', 'sigma_start'):       # 0 is "automatic" (ROS params have no None)
+            if getattr(self, name) == 0:
+                setattr(self, name, None)
+        positive = ['sigma_min', 'kappa', 'r_over_sigma', 'gap_p', 'merge_theta_ref',
+                    'merge_threshold', 'merge_reach', 'seed_cell', 'tol', 'noise_radius',
+                    'join_over_r']
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0):
+                raise ValueError(f'{name} must be a finite number > 0, got {v!r}')
+        for name in ('sigma', 'sigma_start'):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f'{name} must be None or a finite number > 0, got {v!r}')
+        for name in ('shrink_fast', 'shrink_slow'):
+            v = getattr(self, name)
+            if not 0 < v < 1:
+                raise ValueError(f'{name} must be in (0, 1), got {v!r}')
+        if self.shrink_fast > self.shrink_slow:
+            raise ValueError(f'shrink_fast ({self.shrink_fast}) must be <= shrink_slow '
+                             f'({self.shrink_slow})')
+        if not 0 <= self.split_fraction < 1:
+            raise ValueError(f'split_fraction must be in [0, 1), got {self.split_fraction!r}')
+        if not self.gap_p < 1:
+            raise ValueError(f'gap_p must be in (0, 1), got {self.gap_p!r}')
+        if not (np.isfinite(self.min_density) and self.min_density >= 0):
+            raise ValueError(f'min_density must be a finite number >= 0, got {self.min_density!r}')
+        if self.min_support < 2:
+            raise ValueError(f'min_support must be >= 2 points, got {self.min_support!r}')
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
+            raise ValueError(f'max_iterations must be an integer >= 1, '
+                             f'got {self.max_iterations!r}')
+        if self.init not in ('diagonals', 'single', 'random'):
+            raise ValueError(f"init must be 'diagonals', 'single' or 'random', got {self.init!r}")
+        if int(self.init_count) != self.init_count or self.init_count < 1:
+            raise ValueError(f'init_count must be an integer >= 1, got {self.init_count!r}')
+
+    @classmethod
+    def from_dict(cls, values: dict) -> 'SMEMSFConfig':
+        """Build from a mapping, rejecting unknown keys by name."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f'unknown config key(s): {", ".join(unknown)} '
+                             f'(known: {", ".join(sorted(known))})')
+        return cls(**values)
+
+    def to_dict(self) -> dict:
+        """Plain-dict form, for JSON and YAML."""
+        return asdict(self)
+
+
+@dataclass
+class FitResult:
+    """The output of a fit: the map, its polylines, and how the fit went."""
+
+    segments: np.ndarray
+    """(K, 2, 2) metres, ends joined where polylines meet."""
+    support: np.ndarray
+    """(K,) supporting point weight of each segment."""
+    polylines: list
+    """List of (M, 2) vertex arrays, metres."""
+    closed: list
+    """One bool per polyline."""
+    iterations: int
+    converged: bool
+    sigma: float
+    """Final noise scale (m)."""
+    r: float
+    """Final LSS half-size (m)."""
+    seconds: float
+    history: list = field(default_factory=list)
+    """One dict per iteration: sigma, r, segments, mean truncated distance, merges, seeds."""
+
+
+def initial_segments(points: np.ndarray, how: str, count: int, rng) -> np.ndarray:
+    """
+    Initial segments from the bounding box of the points.
+
+    'diagonals': its two diagonals (the paper); 'single': one segment along the longer axis
+    through the centre; 'random': ``count`` segments with ends drawn uniformly in the box.
+    """
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    if how == 'diagonals':
+        return np.array([[lo, hi], [[lo[0], hi[1]], [hi[0], lo[1]]]])
+    if how == 'single':
+        c = 0.5 * (lo + hi)
+        if hi[0] - lo[0] >= hi[1] - lo[1]:
+            return np.array([[[lo[0], c[1]], [hi[0], c[1]]]])
+        return np.array([[[c[0], lo[1]], [c[0], hi[1]]]])
+    return rng.uniform(lo, hi, size=(count, 2, 2))
+
+
+def _noise_floor(points: np.ndarray, config: SMEMSFConfig, rng) -> float:
+    if config.sigma is not None:
+        return max(config.sigma, config.sigma_min)
+    est = estimate_noise(points, radius=config.noise_radius, rng=rng)
+    return max(est if np.isfinite(est) else config.sigma_min, config.sigma_min)
+
+
+def check_fit_input(points, weights=None) -> tuple:
+    """Validate points (and optional weights) for fitting; raise ValueError saying why."""
+    pts = as_points(points)
+    if len(pts) < 2:
+        raise ValueError(f'need at least 2 points to fit segments, got {len(pts)}')
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (len(pts),) or not np.isfinite(weights).all() or (weights < 0).any():
+            raise ValueError(f'weights must be {len(pts)} finite values >= 0')
+    span = pts.max(axis=0) - pts.min(axis=0)
+    if not np.hypot(*span) > 0:
+        raise ValueError('all points are identical; there is no line to fit')
+    return pts, weights
+
+
+def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
+                     config: SMEMSFConfig) -> tuple:
+    """
+    One SMEMSF iteration at noise scale ``sigma`` (seed, EMSF, LSS, EMSF, merge).
+
+    Returns
+    -------
+    segments : (K', 2, 2), support : (K',), info : dict with r, residual scale, mean truncated
+    distance, seeds and merges.
+
+    """
+    r = config.r_over_sigma * sigma
+    segments, _, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
+                                 config.min_density, r)
+    covered = np.zeros(len(index), dtype=bool)
+    covered[est.pairs.pt] = True
+    seeds = seed_segments(index.points[~covered], index.weights[~covered],
+                          config.seed_cell * r, config.min_support, config.min_density, r)
+    segments = np.concatenate([segments, seeds])
+    segments, _ = split_segments(index, segments, r, config.split_fraction, config.gap_p)
+    segments, support, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
+                                       config.min_density, r)
+    segments, support, merges = merge_segments(
+        index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
+        config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
+    # Residuals of supported points (to their MAP segment) and the truncated nearest distance.
+    cap = config.kappa * sigma
+    nearest = np.full(len(index), cap)
+    if len(est.pairs.pt):
+        np.minimum.at(nearest, est.pairs.pt, est.pairs.dist)
+    sup = est.support >= 0
+    resid = nearest[sup]
+    scale = 1.4826 * float(np.median(resid)) if resid.size else sigma
+    w = index.weights
+    info = {'r': r, 'residual_scale': scale, 'seeds': int(len(seeds)), 'merges': int(merges),
+            'mean_truncated': float(np.sum(w * nearest) / np.sum(w))}
+    return segments, support, info
+
+
+def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
+        progress: Callable = None) -> FitResult:
+    """
+    Fit a segment map to 2D points with SMEMSF.
+
+    Parameters
+    ----------
+    points : (N, 2) array_like, metres. Order is not used.
+    config : SMEMSFConfig, default values when None.
+    init : (K, 2, 2) initial segments; None uses ``config.init``.
+    weights : (N,) point multiplicities (default 1).
+    progress : callable(iteration, info) called after each iteration.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    ValueError
+        On invalid points, weights, init or config.
+
+    """
+    t0 = time.perf_counter()
+    config = config or SMEMSFConfig()
+    pts, weights = check_fit_input(points, weights)
+    rng = np.random.default_rng(config.seed)
+    index = PointIndex(pts, weights)
+    floor = _noise_floor(pts, config, rng)
+    diag = float(np.hypot(*(pts.max(axis=0) - pts.min(axis=0))))
+    sigma = max(config.sigma_start or diag / 20.0, floor)
+    segments = (initial_segments(pts, config.init, config.init_count, rng) if init is None
+                else as_segments(init, 'init'))
+    history = []
+    converged = False
+    prev = None
+    it = 0
+    for it in range(1, int(config.max_iterations) + 1):
+        at_floor = sigma <= floor * (1 + 1e-9)
+        segments, support, info = smemsf_iteration(index, segments, sigma, config)
+        info.update(iteration=it, sigma=sigma, segments=int(len(segments)))
+        history.append(info)
+        if progress is not None:
+            progress(it, info)
+        cur = info['mean_truncated']
+        if at_floor and prev is not None and abs(cur - prev) <= config.tol * max(prev, 1e-12):
+            converged = True
+            break
+        prev = cur if at_floor else None
+        target = min(config.shrink_slow * sigma, max(config.shrink_fast * sigma,
+                                                     info['residual_scale']))
+        sigma = max(floor, target)
+    r = config.r_over_sigma * sigma
+    segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
+                                     config.min_density, r)
+    segments, polylines, closed = assemble_polylines(segments, config.join_over_r * r)
+    return FitResult(segments=segments, support=support, polylines=polylines, closed=closed,
+                     iterations=it, converged=converged, sigma=sigma, r=r,
+                     seconds=time.perf_counter() - t0, history=history)

@@ -1,0 +1,1 @@
+"""File formats: point files, CARMEN logs, the map JSON schema."""

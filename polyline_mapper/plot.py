@@ -1,0 +1,79 @@
+"""PNG rendering of points and a fitted map (matplotlib, Agg backend, no display needed)."""
+
+import numpy as np
+
+
+def plot_map(path: str, points: np.ndarray, segments: np.ndarray, polylines=None,
+             title: str = '', max_points: int = 200_000, truth=None, dpi: int = 150) -> None:
+    """
+    Write a PNG of the points (grey), the map (one colour per polyline) and end points.
+
+    Parameters
+    ----------
+    path : output file name (.png).
+    points : (N, 2) metres; at most ``max_points`` are drawn (evenly subsampled).
+    segments : (K, 2, 2) metres, drawn when ``polylines`` is None.
+    polylines : optional list of (M, 2) vertex arrays.
+    truth : optional (W, 2, 2) ground-truth walls, drawn thin and dashed underneath.
+
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    pts = np.asarray(points)
+    if len(pts) > max_points:
+        pts = pts[:: int(np.ceil(len(pts) / max_points))]
+    if len(pts):
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+    elif len(segments):
+        lo, hi = segments.reshape(-1, 2).min(axis=0), segments.reshape(-1, 2).max(axis=0)
+    else:
+        lo, hi = np.zeros(2), np.ones(2)
+    span = np.maximum(hi - lo, 1.0)
+    width = 12.0
+    height = float(np.clip(width * span[1] / span[0], 4.0, 16.0))
+    fig, ax = plt.subplots(figsize=(width, height))
+    if truth is not None and len(truth):
+        ax.add_collection(LineCollection(truth, colors='0.6', linewidths=0.6, linestyles='--',
+                                         zorder=1))
+    if len(pts):
+        ax.scatter(pts[:, 0], pts[:, 1], s=0.3, c='0.55', linewidths=0, zorder=2,
+                   rasterized=True)
+    if polylines:
+        cmap = plt.get_cmap('tab10')
+        lines = [np.asarray(p) for p in polylines]
+        ax.add_collection(LineCollection(lines, colors=[cmap(i % 10) for i in range(len(lines))],
+                                         linewidths=1.6, zorder=3))
+        verts = np.concatenate(lines)
+        ax.scatter(verts[:, 0], verts[:, 1], s=6, c='k', zorder=4)
+    elif len(segments):
+        ax.add_collection(LineCollection(segments, colors='tab:red', linewidths=1.6, zorder=3))
+        ax.scatter(segments[:, :, 0].ravel(), segments[:, :, 1].ravel(), s=6, c='k', zorder=4)
+    pad = 0.03 * span
+    ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+    ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+    ax.set_aspect('equal')
+    ax.set_xlabel('x [m]')
+    ax.set_ylabel('y [m]')
+    _scale_bar(ax, lo - pad, span)
+    if title:
+        ax.set_title(title, fontsize=10)
+    ax.grid(True, lw=0.3, alpha=0.5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
+def _scale_bar(ax, corner, span) -> None:
+    """Draw a 1-2-5 scale bar of about a fifth of the width in the lower-left corner."""
+    target = span[0] / 5.0
+    exp = 10.0 ** np.floor(np.log10(target))
+    length = max(m * exp for m in (1, 2, 5) if m * exp <= target)
+    x0 = corner[0] + 0.04 * span[0]
+    y0 = corner[1] + 0.04 * span[1]
+    ax.plot([x0, x0 + length], [y0, y0], color='k', lw=3, zorder=5)
+    label = f'{length:g} m' if length >= 1 else f'{length * 100:g} cm'
+    ax.text(x0 + length / 2, y0 + 0.015 * span[1], label, ha='center', va='bottom', fontsize=9,
+            zorder=5)

@@ -1,0 +1,61 @@
+"""
+Laser scans to points: ranges + beam angles + sensor pose -> points in the fixed frame.
+
+Filtering follows REP 117: NaN (erroneous reading), +inf (no return, beyond range) and -inf (too
+close) are dropped, and so are finite readings outside [range_min, range_max) - a reading at the
+maximum range is a no-return on most lasers. Poses are (x, y, yaw) in metres and radians
+(REP 103), of the laser frame in the fixed frame.
+"""
+
+import numpy as np
+
+
+def beam_angles(angle_min: float, angle_increment: float, count: int) -> np.ndarray:
+    """Beam angles (rad) of a LaserScan-like description, shape (count,)."""
+    if not np.isfinite(angle_min) or not np.isfinite(angle_increment):
+        raise ValueError('angle_min and angle_increment must be finite')
+    if angle_increment == 0 and count > 1:
+        raise ValueError('angle_increment must not be 0 for a scan with more than one beam')
+    return angle_min + angle_increment * np.arange(count)
+
+
+def valid_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """Mask of usable readings: finite and in [range_min, range_max)."""
+    r = np.asarray(ranges, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        return np.isfinite(r) & (r >= range_min) & (r < range_max)
+
+
+def scan_to_points(ranges, angles, pose, range_min: float = 0.0,
+                   range_max: float = np.inf) -> np.ndarray:
+    """
+    Convert one scan to fixed-frame points, dropping unusable readings.
+
+    Parameters
+    ----------
+    ranges : (B,) metres; NaN / inf / out-of-range readings are dropped.
+    angles : (B,) radians in the laser frame.
+    pose : (x, y, yaw) of the laser in the fixed frame, metres and radians.
+    range_min, range_max : valid interval [range_min, range_max), metres.
+
+    Returns
+    -------
+    (M, 2) float64 points, M <= B.
+
+    Raises
+    ------
+    ValueError
+        When ranges and angles differ in length or the pose is not 3 finite numbers.
+
+    """
+    r = np.asarray(ranges, dtype=np.float64).ravel()
+    a = np.asarray(angles, dtype=np.float64).ravel()
+    if r.shape != a.shape:
+        raise ValueError(f'ranges ({r.size}) and angles ({a.size}) differ in length')
+    pose = np.asarray(pose, dtype=np.float64).ravel()
+    if pose.shape != (3,) or not np.isfinite(pose).all():
+        raise ValueError(f'pose must be 3 finite numbers (x, y, yaw), got {pose.tolist()}')
+    ok = valid_ranges(r, range_min, range_max) & np.isfinite(a)
+    x, y, yaw = pose
+    ang = a[ok] + yaw
+    return np.stack([x + r[ok] * np.cos(ang), y + r[ok] * np.sin(ang)], axis=1)

@@ -1,0 +1,118 @@
+"""
+A 2D laser scanner, simulated by ray casting, with the failure modes real ones have.
+
+Readings follow the LaserScan / REP 117 conventions: a beam that hits nothing within
+``range_max`` reads +inf, a dropout (no echo from a dark or specular surface) reads NaN, and a
+hit gets Gaussian range noise. Everything random comes from one seeded generator.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .world import path_poses, World
+from ..scan import scan_to_points
+
+
+@dataclass
+class LaserSpec:
+    """Scanner geometry and noise; angles in radians, lengths in metres."""
+
+    beams: int = 541
+    fov: float = np.deg2rad(270.0)
+    range_min: float = 0.05
+    range_max: float = 12.0
+    noise: float = 0.01
+    """Standard deviation of the range noise (m)."""
+    dropout: float = 0.01
+    """Probability that a beam returns NaN."""
+
+    def __post_init__(self):
+        """Reject impossible geometry."""
+        if int(self.beams) != self.beams or self.beams < 1:
+            raise ValueError(f'beams must be an integer >= 1, got {self.beams!r}')
+        if not 0 < self.fov <= 2 * np.pi:
+            raise ValueError(f'fov must be in (0, 2 pi], got {self.fov!r}')
+        if not 0 <= self.range_min < self.range_max:
+            raise ValueError('need 0 <= range_min < range_max')
+        if self.noise < 0 or not 0 <= self.dropout < 1:
+            raise ValueError('need noise >= 0 and 0 <= dropout < 1')
+
+    @property
+    def angle_min(self) -> float:
+        """First beam angle (rad), the scan is centred on the x axis."""
+        return -0.5 * self.fov
+
+    @property
+    def angle_increment(self) -> float:
+        """Angle between beams (rad)."""
+        full = np.isclose(self.fov, 2 * np.pi)
+        return self.fov / (self.beams if full else max(self.beams - 1, 1))
+
+    def angles(self) -> np.ndarray:
+        """Beam angles (rad) in the laser frame, shape (beams,)."""
+        return self.angle_min + self.angle_increment * np.arange(self.beams)
+
+
+def simulate_scan(world: World, pose, spec: LaserSpec, rng) -> tuple:
+    """
+    One scan from ``pose`` = (x, y, yaw).
+
+    Returns
+    -------
+    ranges : (beams,) metres with +inf for no return and NaN for dropouts.
+    hit : (beams,) index of the object hit (see ``World.cast``), -1 for none.
+
+    """
+    ang = spec.angles() + pose[2]
+    d = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    true, hit = world.cast(pose[:2], d)
+    ranges = true + rng.normal(0.0, spec.noise, size=true.shape)
+    ranges[(true >= spec.range_max) | ~np.isfinite(true)] = np.inf
+    hit = np.where(np.isfinite(ranges), hit, -1)
+    ranges[ranges < spec.range_min] = -np.inf
+    drop = rng.random(true.shape) < spec.dropout
+    ranges[drop] = np.nan
+    hit[drop] = -1
+    return ranges, hit
+
+
+@dataclass
+class SimulatedDrive:
+    """Scans along a path: poses (P, 3), ranges (P, B), hit ids (P, B), and the laser."""
+
+    world: World
+    spec: LaserSpec
+    poses: np.ndarray
+    ranges: np.ndarray
+    hits: np.ndarray
+    stamps: np.ndarray
+
+    def points(self, with_hits: bool = False):
+        """All valid readings registered with the true poses, (N, 2) metres (and hit ids)."""
+        angles = self.spec.angles()
+        pts = [scan_to_points(r, angles, p, self.spec.range_min, self.spec.range_max)
+               for r, p in zip(self.ranges, self.poses)]
+        pts = np.concatenate(pts) if pts else np.zeros((0, 2))
+        if not with_hits:
+            return pts
+        hits = np.concatenate([h[np.isfinite(r) & (r >= self.spec.range_min)
+                                 & (r < self.spec.range_max)]
+                               for r, h in zip(self.ranges, self.hits)])
+        return pts, hits
+
+
+def simulate_drive(world: World, spec: LaserSpec = None, step: float = 0.25, rate: float = 10.0,
+                   rng=0, waypoints=None) -> SimulatedDrive:
+    """
+    Drive along ``waypoints`` (default: the world's path), one scan every ``step`` metres.
+
+    ``rate`` (Hz) only sets the time stamps. ``rng`` is a seed or a numpy Generator.
+    """
+    spec = spec or LaserSpec()
+    rng = np.random.default_rng(rng)
+    poses = path_poses(world.path if waypoints is None else waypoints, step)
+    scans = [simulate_scan(world, p, spec, rng) for p in poses]
+    ranges = np.array([s[0] for s in scans])
+    hits = np.array([s[1] for s in scans])
+    return SimulatedDrive(world, spec, poses, ranges, hits, np.arange(len(poses)) / rate)
