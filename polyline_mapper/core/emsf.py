@@ -48,18 +48,25 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float) 
     pairs = index.pairs(segments, kappa * sigma)
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
-    g = np.exp(-0.5 * (pairs.dist / sigma) ** 2)
-    norm = np.bincount(pairs.pt, weights=g, minlength=n) + np.exp(-0.5 * kappa ** 2)
+    # Kernel and outlier class relative to each point's nearest segment, so nothing underflows
+    # however far the cut-off (log-sum-exp shift).
+    z = (pairs.dist / sigma) ** 2
+    zmin = np.full(n, np.inf)
+    np.minimum.at(zmin, pairs.pt, z)
+    g = np.exp(-0.5 * (z - zmin[pairs.pt]))
+    outlier = np.zeros(n)
+    has = np.isfinite(zmin)
+    outlier[has] = np.exp(-0.5 * (kappa ** 2 - zmin[has]))
+    norm = np.bincount(pairs.pt, weights=g, minlength=n) + outlier
     w = g / norm[pairs.pt]
-    # MAP support: the pair with the largest weight of its point, if it beats the outlier class.
-    order = np.lexsort((-w, pairs.pt))
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = pairs.pt[order][1:] != pairs.pt[order][:-1]
-    best = order[first]
-    outlier_w = np.exp(-0.5 * kappa ** 2) / norm[pairs.pt[best]]
+    # MAP support: the pair with the largest weight of its point, if it beats the outlier class
+    # (ties go to the later pair; both are equally good).
+    best = np.zeros(n)
+    np.maximum.at(best, pairs.pt, w)
+    outlier_w = outlier[pairs.pt] / norm[pairs.pt]
+    win = (w == best[pairs.pt]) & (w >= outlier_w)
     support = np.full(n, -1, dtype=np.intp)
-    win = w[best] >= outlier_w
-    support[pairs.pt[best[win]]] = pairs.seg[best[win]]
+    support[pairs.pt[win]] = pairs.seg[win]
     return EStep(pairs, w, support)
 
 
@@ -96,14 +103,63 @@ def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int) -
     return np.stack([cx, cy], axis=1), direction, mass
 
 
+def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, fraction):
+    """
+    Move each group's [lo, hi] inwards past end bins where it owns too few of the nearby points.
+
+    ``t, seg, w``: projections, groups and weights of the support (owned) points; ``t_near,
+    seg_near, w_near``: the same for every point near the segment. Bins are ``width`` long from
+    lo. An end bin is kept when the owned weight is at least ``fraction`` of the nearby weight.
+    """
+    k = len(lo)
+    ok = hi > lo
+    nb = np.where(ok, np.maximum(1, np.ceil((hi - lo) / width)).astype(np.intp), 1)
+    off = np.cumsum(nb) - nb
+    total = int(nb.sum())
+
+    def bins(tt, ss):
+        return off[ss] + np.clip(np.floor((tt - lo[ss]) / width), 0, nb[ss] - 1).astype(np.intp)
+
+    b_own = bins(t, seg)
+    owned = np.bincount(b_own, weights=w, minlength=total)
+    inside = (t_near >= lo[seg_near]) & (t_near <= hi[seg_near])
+    near = np.bincount(bins(t_near[inside], seg_near[inside]), weights=w_near[inside],
+                       minlength=total)
+    good = (owned > 0) & (owned >= fraction * np.maximum(near, owned))
+    owner = np.repeat(np.arange(k), nb)
+    pos = np.arange(total) - off[owner]
+    first = np.zeros(k, dtype=np.intp)
+    last = nb - 1
+    gi = np.flatnonzero(good)
+    if gi.size:
+        f = np.full(k, np.iinfo(np.intp).max, dtype=np.intp)
+        g = np.full(k, -1, dtype=np.intp)
+        np.minimum.at(f, owner[gi], pos[gi])
+        np.maximum.at(g, owner[gi], pos[gi])
+        has = g >= 0
+        first = np.where(has, f, first)
+        last = np.where(has, g, last)
+    b = b_own - off[seg]
+    keep = (b >= first[seg]) & (b <= last[seg])
+    return group_minmax(t[keep], seg[keep], k) if keep.any() else (lo, hi)
+
+
 def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
-              min_support: float, min_density: float = 0.0, r: float = 1.0) -> tuple:
+              min_support: float, min_density: float = 0.0, r: float = 1.0,
+              tail_fraction: float = 0.0) -> tuple:
     """
     One EM iteration followed by MAP trimming.
 
     A trimmed segment survives when its supporting point weight is at least ``min_support`` and
     at least ``min_density`` per ``2 r`` of its length (sparse scattered points that merely line
     up over a long stretch do not make a wall).
+
+    With ``tail_fraction > 0`` the ends ignore foreign tails of the support: along the new line,
+    in bins 2r wide, an end bin is dropped while the segment owns (as MAP support) less than
+    ``tail_fraction`` of the points within r of it. Where two segments meet at a shallow angle,
+    noise hands a few points of one to the other, and plain min/max trimming would let them
+    stretch it over its neighbour; a far, sparse end of a wall is kept, since there the wall
+    owns all the points near it, however few.
 
     Returns
     -------
@@ -124,7 +180,14 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     sup_mass = np.bincount(sup_seg, weights=index.weights[sup_pts], minlength=k)
     t = np.einsum('ij,ij->i', index.points[sup_pts] - centre[sup_seg], direction[sup_seg])
     lo, hi = group_minmax(t, sup_seg, k)
-    keep = ((sup_mass >= min_support) & (sup_mass >= min_density * (hi - lo) / (2.0 * r))
+    if tail_fraction > 0:
+        near = est.pairs.dist <= r
+        pn, sn = est.pairs.pt[near], est.pairs.seg[near]
+        t_near = np.einsum('ij,ij->i', index.points[pn] - centre[sn], direction[sn])
+        lo, hi = _trim_foreign_tails(t, sup_seg, index.weights[sup_pts], t_near, sn,
+                                     index.weights[pn], lo, hi, 2.0 * r, tail_fraction)
+    extent = np.where(hi > lo, hi - lo, 0.0)
+    keep = ((sup_mass >= min_support) & (sup_mass >= min_density * extent / (2.0 * r))
             & (mass > 0) & (hi > lo))
     c, u = centre[keep], direction[keep]
     new = np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)

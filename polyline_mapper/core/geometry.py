@@ -177,27 +177,32 @@ class PointIndex:
         """
         All (point, segment) pairs with point-to-segment distance <= radius.
 
-        Segments are sampled every ``radius`` metres; a point within ``radius`` of a segment
-        is within ``radius * sqrt(5) / 2`` of its nearest sample, so querying samples with that
-        radius finds every pair, which are then deduplicated and filtered exactly.
+        Each segment is sampled at ``n + 1`` evenly spaced points at most ``radius`` apart. A
+        point within ``radius`` of a segment is within ``reach = hypot(radius, step / 2)`` of the
+        sample nearest to its projection (its *home* sample), so one k-d tree query of all
+        samples with ``reach`` finds every pair; keeping only hits on the home sample leaves
+        each pair exactly once, without sorting.
         """
-        empty = Pairs(*(np.zeros(0, dtype=np.intp),) * 2, *(np.zeros(0),) * 3)
         if len(segments) == 0 or len(self.points) == 0 or radius <= 0:
-            return empty
-        step = radius
-        samples, owner = sample_segments(segments, step)
-        reach = np.hypot(radius, 0.5 * step) * (1 + 1e-9)
-        stree = cKDTree(samples)
-        hits = stree.sparse_distance_matrix(self.tree, reach, output_type='ndarray')
-        if hits.size == 0:
-            return empty
-        seg = owner[hits['i']]
+            return Pairs(*(np.zeros(0, dtype=np.intp),) * 2, *(np.zeros(0),) * 3)
+        u, length = directions(segments)
+        n = np.maximum(1, np.ceil(length / radius).astype(np.intp))
+        step = length / n
+        samples, owner = sample_segments(segments, radius)
+        first = np.cumsum(n + 1) - (n + 1)
+        reach = np.hypot(radius, 0.5 * step.max()) * (1 + 1e-9)
+        hits = cKDTree(samples).sparse_distance_matrix(self.tree, reach, output_type='ndarray')
+        si = hits['i']
+        seg = owner[si]
         pt = hits['j'].astype(np.intp)
-        key = np.unique(pt * np.int64(len(segments)) + seg)
-        pt = key // len(segments)
-        seg = key % len(segments)
-        dist, along, normal = project(self.points[pt], segments[seg])
-        keep = dist <= radius
+        rel = self.points[pt] - segments[seg, 0]
+        along = rel[:, 0] * u[seg, 0] + rel[:, 1] * u[seg, 1]
+        clipped = np.clip(along, 0.0, length[seg])
+        home = first[seg] + np.rint(clipped / np.where(step[seg] > 0, step[seg], 1.0)).astype(
+            np.intp)
+        normal = u[seg, 0] * rel[:, 1] - u[seg, 1] * rel[:, 0]
+        dist = np.hypot(normal, clipped - along)
+        keep = (si == home) & (dist <= radius)
         return Pairs(pt[keep], seg[keep], dist[keep], along[keep], normal[keep])
 
     def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
@@ -232,12 +237,9 @@ def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex
     index = index if index is not None else PointIndex(points)
     p = index.pairs(segments, radius)
     if len(p.pt):
-        order = np.lexsort((p.dist, p.pt))
-        first = np.ones(order.size, dtype=bool)
-        first[1:] = p.pt[order][1:] != p.pt[order][:-1]
-        sel = order[first]
-        dist[p.pt[sel]] = p.dist[sel]
-        nearest[p.pt[sel]] = p.seg[sel]
+        np.minimum.at(dist, p.pt, p.dist)
+        win = p.dist == dist[p.pt]
+        nearest[p.pt[win]] = p.seg[win]
     rest = np.flatnonzero(~np.isfinite(dist))
     k = len(segments)
     step = max(1, chunk // k)

@@ -128,7 +128,7 @@ def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: f
     lam = np.maximum(density[check], 1.0)
     c = np.floor(split_fraction * lam)
     p_low = np.clip(poisson.cdf(c, lam), 1e-300, 1 - 1e-12)
-    min_run = np.log(gap_p) / np.log(p_low)
+    min_run = np.log(gap_p / n) / np.log(p_low)
     low = counts <= c[owner]
     # Longest run of low squares per gap.
     start = np.ones(low.size, dtype=bool)

@@ -4,8 +4,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def estimate_noise(points: np.ndarray, radius: float = 0.2, sample: int = 20000,
-                   min_neighbours: int = 8, rng=None) -> float:
+def estimate_noise(points: np.ndarray, radius: float = 0.2, sample: int = 4000,
+                   min_neighbours: int = 8, target_neighbours: int = 60, rng=None) -> float:
     """
     Robust noise scale of 2D laser points, in metres.
 
@@ -13,7 +13,9 @@ def estimate_noise(points: np.ndarray, radius: float = 0.2, sample: int = 20000,
     square root of the smallest eigenvalue is the local thickness (the normal spread about a
     wall). The median over the subset ignores corners and clutter, which are thicker, as long as
     most neighbourhoods lie on walls. Straight structure over ``radius`` is assumed: a noise above
-    about radius / 4 is underestimated.
+    about radius / 4 is underestimated. Dense clouds are thinned at random (the same noise, fewer
+    points) so that a neighbourhood holds about ``target_neighbours`` points; the cost is then
+    about ``sample * target_neighbours`` whatever the density.
 
     Returns
     -------
@@ -26,11 +28,18 @@ def estimate_noise(points: np.ndarray, radius: float = 0.2, sample: int = 20000,
         return float('nan')
     pick = rng.choice(n, size=min(sample, n), replace=False)
     tree = cKDTree(points)
+    probe = tree.query_ball_point(points[pick[:200]], radius, return_length=True)
+    keep = min(1.0, target_neighbours / max(float(np.median(probe)), 1.0))
+    if keep < 1.0:
+        pool = points[rng.random(n) < keep]
+        tree = cKDTree(pool)
+    else:
+        pool = points
     hits = cKDTree(points[pick]).sparse_distance_matrix(tree, radius, output_type='ndarray')
     grp = hits['i']
     m = len(pick)
     cnt = np.bincount(grp, minlength=m).astype(float)
-    p = points[hits['j']]
+    p = pool[hits['j']]
     safe = np.maximum(cnt, 1.0)
     mx = np.bincount(grp, p[:, 0], minlength=m) / safe
     my = np.bincount(grp, p[:, 1], minlength=m) / safe

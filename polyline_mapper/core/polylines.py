@@ -13,14 +13,20 @@ def _line_intersection(p, u, q, v):
 
 
 def assemble_polylines(segments: np.ndarray, join: float,
-                       min_angle: float = np.deg2rad(10.0)) -> tuple:
+                       min_angle: float = np.deg2rad(5.0), corner_reach: float = 4.0) -> tuple:
     """
     Chain segments into polylines.
 
-    Two segment ends closer than ``join`` are joined, closest pairs first, each end at most once.
-    The shared vertex is the intersection of the two lines when they meet at an angle of at least
-    ``min_angle`` and the intersection lies within ``join`` of both ends (a corner); otherwise it
-    is the midpoint of the two ends.
+    Two segment ends are joined, best pairs first and each end at most once, when either
+
+    - the two lines meet at an angle theta of at least ``min_angle`` and their intersection lies
+      within ``join * max(corner_reach, 1 / sin(theta))`` of both ends, moving neither end by
+      more than half its segment: the shared vertex is the intersection. Fitted segments that
+      meet at a shallow angle, as along an arc, overlap or fall short by about the noise band
+      over tan(theta / 2), because near the crossing noise decides which line a point supports;
+      hence the 1 / sin(theta) reach. Or
+    - the ends are closer than ``join`` and the lines are nearly collinear: the shared vertex is
+      the midpoint of the two ends.
 
     Parameters
     ----------
@@ -40,31 +46,38 @@ def assemble_polylines(segments: np.ndarray, join: float,
         return segments, [], []
     ends = segments.reshape(-1, 2)
     partner = np.full(2 * k, -1, dtype=np.intp)
-    pairs = cKDTree(ends).query_pairs(join, output_type='ndarray')
+    widest = join * max(corner_reach, 1.0 / np.sin(min_angle))
+    pairs = cKDTree(ends).query_pairs(widest, output_type='ndarray')
     pairs = pairs[pairs[:, 0] // 2 != pairs[:, 1] // 2]
     if len(pairs):
-        gap = np.linalg.norm(ends[pairs[:, 0]] - ends[pairs[:, 1]], axis=1)
-        pairs = pairs[np.argsort(gap, kind='stable')]
-        for a, b in pairs:                      # greedy over end pairs (segments, not points)
-            if partner[a] < 0 and partner[b] < 0:
-                partner[a], partner[b] = b, a
-        a = np.flatnonzero(partner >= 0)
-        a = a[a < partner[a]]
-        b = partner[a]
+        a, b = pairs[:, 0], pairs[:, 1]
         sa, sb = a // 2, b // 2
         ua = segments[sa, 1] - segments[sa, 0]
         ub = segments[sb, 1] - segments[sb, 0]
-        na = np.linalg.norm(ua, axis=1)
-        nb = np.linalg.norm(ub, axis=1)
-        sin = np.abs(ua[:, 0] * ub[:, 1] - ua[:, 1] * ub[:, 0]) / np.maximum(na * nb, 1e-300)
-        x = _line_intersection(segments[sa, 0], ua, segments[sb, 0], ub)
-        mid = 0.5 * (ends[a] + ends[b])
-        near = (np.linalg.norm(x - ends[a], axis=1) <= join) & \
-               (np.linalg.norm(x - ends[b], axis=1) <= join)
-        corner = (sin >= np.sin(min_angle)) & near & np.isfinite(x).all(axis=1)
-        vertex = np.where(corner[:, None], x, mid)
-        ends[a] = vertex
-        ends[b] = vertex
+        la = np.linalg.norm(ua, axis=1)
+        lb = np.linalg.norm(ub, axis=1)
+        sin = np.abs(ua[:, 0] * ub[:, 1] - ua[:, 1] * ub[:, 0]) / np.maximum(la * lb, 1e-300)
+        with np.errstate(invalid='ignore'):
+            x = _line_intersection(segments[sa, 0], ua, segments[sb, 0], ub)
+        xa = np.linalg.norm(x - ends[a], axis=1)
+        xb = np.linalg.norm(x - ends[b], axis=1)
+        gap = np.linalg.norm(ends[a] - ends[b], axis=1)
+        reach = join * np.maximum(corner_reach, 1.0 / np.maximum(sin, np.sin(min_angle)))
+        corner = ((sin >= np.sin(min_angle)) & np.isfinite(x).all(axis=1)
+                  & (np.fmax(xa, xb) <= reach) & (xa <= la / 2) & (xb <= lb / 2))
+        straight = ~corner & (gap <= join) & (sin < np.sin(min_angle))
+        ok = corner | straight
+        cost = np.where(corner, np.fmax(xa, xb), gap)
+        vertex = np.where(corner[:, None], x, 0.5 * (ends[a] + ends[b]))
+        order = np.flatnonzero(ok)[np.argsort(cost[ok], kind='stable')]
+        chosen = []
+        for m in order:                         # greedy over end pairs (segments, not points)
+            if partner[a[m]] < 0 and partner[b[m]] < 0:
+                partner[a[m]], partner[b[m]] = b[m], a[m]
+                chosen.append(m)
+        chosen = np.asarray(chosen, dtype=np.intp)
+        ends[a[chosen]] = vertex[chosen]
+        ends[b[chosen]] = vertex[chosen]
     segments = ends.reshape(-1, 2, 2)
 
     polylines, closed = [], []

@@ -76,6 +76,9 @@ class SMEMSFConfig:
     """A segment needs at least this much supporting point weight to survive trimming."""
     min_density: float = 1.0
     """A segment needs on average this much supporting point weight per 2r of its length."""
+    tail_fraction: float = 0.5
+    """Trimming drops end bins (2r wide) where a segment owns less than this share of the points
+    near it (0 disables: the paper's plain min/max trimming)."""
     seed_cell: float = 8.0
     """Grid cell for seeding unexplained points, in units of r."""
     max_iterations: int = 30
@@ -231,7 +234,7 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     segments = np.concatenate([segments, seeds])
     segments, _ = split_segments(index, segments, r, config.split_fraction, config.gap_p)
     segments, support, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
-                                       config.min_density, r)
+                                       config.min_density, r, config.tail_fraction)
     segments, support, merges = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
         config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
@@ -303,7 +306,7 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         sigma = max(floor, target)
     r = config.r_over_sigma * sigma
     segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
-                                     config.min_density, r)
+                                     config.min_density, r, config.tail_fraction)
     segments, polylines, closed = assemble_polylines(segments, config.join_over_r * r)
     return FitResult(segments=segments, support=support, polylines=polylines, closed=closed,
                      iterations=it, converged=converged, sigma=sigma, r=r,

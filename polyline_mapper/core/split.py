@@ -13,8 +13,9 @@ dense gaps):
 - ``lam_j`` = the 80th percentile of segment j's sub-segment supports (its density where it has
   data; at least 1),
 - ``C_j = floor(split_fraction * lam_j)``; a sub-segment with support <= C_j is *low*,
-- a run of m consecutive low sub-segments is removed only when it is unlikely under the
-  segment's own density: ``P(support <= C_j | Poisson(lam_j)) ** m <= gap_p``. On a dense wall a
+- a run of m consecutive low sub-segments is removed only when a run that long is unlikely
+  anywhere on the segment under its own density: ``n_j * P(support <= C_j | Poisson(lam_j)) ** m
+  <= gap_p`` with n_j sub-segments (a Bonferroni bound over the positions). On a dense wall a
   single empty square splits; on a sparse far wall only a longer gap does.
 
 Connected remainders become the new segments; a segment with no survivors disappears.
@@ -84,7 +85,7 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     lam = np.maximum(support[order][pos], 1.0)
     c = np.floor(split_fraction * lam)
     p_low = np.clip(poisson.cdf(c, lam), 1e-300, 1.0)
-    min_run = np.where(p_low < 1.0, np.log(gap_p) / np.log(np.minimum(p_low, 1 - 1e-12)), np.inf)
+    min_run = np.log(gap_p / n_sub) / np.log(np.minimum(p_low, 1 - 1e-12))
 
     low = support <= c[sub_seg]
     run, n_runs = _runs(low, sub_seg)

@@ -131,20 +131,23 @@ def office_floor() -> World:
     A 20 m x 12 m office floor: a corridor, five rooms, 1 m doors, a curved wall, a pillar.
 
     The corridor runs along y in [5, 7]. Three rooms lie below it, two above. The top-right
-    room's far corner is a quarter circle of radius 3.5 m; the top-left room holds a round
-    pillar of radius 0.3 m. The path drives the corridor and into every room.
+    room's far corner is cut by a curved wall (radius 5.39 m, from (20, 9) to (17, 12), meeting
+    the straight walls at 22 degree corners, bulging 0.44 m outwards); the top-left room holds a
+    round pillar of radius 0.3 m. The path drives the corridor and into every room.
     """
     walls = _segs(
         (0, 0, 20, 0),            # south outer wall
         (0, 0, 0, 12),            # west outer wall
-        (20, 0, 20, 8.5),         # east outer wall, up to the curved corner
-        (0, 12, 16.5, 12),        # north outer wall, up to the curved corner
+        (20, 0, 20, 9),           # east outer wall, up to the curved wall
+        (0, 12, 17, 12),          # north outer wall, up to the curved wall
         (0, 5, 2.5, 5), (3.5, 5, 9, 5), (10, 5, 15.5, 5), (16.5, 5, 20, 5),   # corridor south
         (0, 7, 4.5, 7), (5.5, 7, 14, 7), (15, 7, 20, 7),                      # corridor north
         (7, 0, 7, 5), (13, 0, 13, 5),                                         # rooms below
         (10, 7, 10, 12),                                                      # rooms above
     )
-    arcs = [Arc((16.5, 8.5), 3.5, 0.0, np.pi / 2), Arc((4.0, 9.5), 0.3)]
+    arcs = [Arc((15.0, 7.0), float(np.hypot(5.0, 2.0)), float(np.arctan2(2.0, 5.0)),
+                float(np.arctan2(5.0, 2.0))),
+            Arc((4.0, 9.5), 0.3)]
     path = [(1.0, 6.0), (3.0, 6.0), (3.0, 2.5), (5.0, 1.5), (3.0, 2.5), (3.0, 6.0), (9.5, 6.0),
             (9.5, 2.5), (11.5, 1.5), (9.5, 2.5), (9.5, 6.0), (16.0, 6.0), (16.0, 2.5),
             (18.5, 1.5), (16.0, 2.5), (16.0, 6.0), (14.5, 6.0), (14.5, 9.0), (17.0, 9.5),

@@ -1,0 +1,43 @@
+"""Shared fixtures: seeded simulated data and the location of the shared real datasets."""
+
+import os
+import pathlib
+
+import numpy as np
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+DATASETS = pathlib.Path(os.environ.get('POLYLINE_MAPPER_DATASETS',
+                                       REPO.parent / 'shared' / 'datasets'))
+
+
+def radish_log(name: str) -> pathlib.Path:
+    """Path of a shared Radish log, or skip the test when the datasets are not here."""
+    path = DATASETS / 'radish' / name
+    if not path.is_file():
+        pytest.skip(f'{path} not present (set POLYLINE_MAPPER_DATASETS to the datasets folder)')
+    return path
+
+
+def noisy_line(a, b, n, sigma, rng):
+    """N points uniformly along segment ab with Gaussian normal noise sigma (m)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    t = rng.uniform(0, 1, n)
+    d = b - a
+    nrm = np.array([-d[1], d[0]]) / np.hypot(*d)
+    return a + t[:, None] * d + rng.normal(0, sigma, n)[:, None] * nrm
+
+
+@pytest.fixture(scope='session')
+def office_drive():
+    """A seeded drive through the simulated office floor (1 cm noise, a scan every 0.4 m)."""
+    from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
+    return simulate_drive(office_floor(), LaserSpec(noise=0.01), step=0.4, rng=7)
+
+
+@pytest.fixture(scope='session')
+def office_fit(office_drive):
+    """The batch fit of the office drive, shared by several tests."""
+    from polyline_mapper.core import fit
+    pts, hits = office_drive.points(with_hits=True)
+    return pts, hits, fit(pts)

@@ -1,0 +1,65 @@
+"""Segment geometry and the spatial index, against brute force."""
+
+import numpy as np
+import pytest
+
+from polyline_mapper.core.geometry import (as_points, nearest_distance, PointIndex, project,
+                                           sample_segments)
+
+
+def brute_distance(points, segments):
+    k, n = len(segments), len(points)
+    d, _, _ = project(np.repeat(points, k, axis=0), np.tile(segments, (n, 1, 1)))
+    return d.reshape(n, k)
+
+
+def test_project_distance_to_segment_not_line():
+    seg = np.array([[[0.0, 0.0], [1.0, 0.0]]] * 4)
+    pts = np.array([[0.5, 2.0], [3.0, 0.0], [-1.0, -1.0], [0.25, -0.5]])
+    d, along, normal = project(pts, seg)
+    np.testing.assert_allclose(d, [2.0, 2.0, np.sqrt(2.0), 0.5])
+    np.testing.assert_allclose(along, [0.5, 3.0, -1.0, 0.25])
+    np.testing.assert_allclose(normal, [2.0, 0.0, -1.0, -0.5])
+
+
+@pytest.mark.parametrize('radius', [0.02, 0.3, 1.5, 6.0])
+def test_pairs_equal_brute_force(radius):
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-5, 5, (3000, 2))
+    segs = rng.uniform(-5, 5, (40, 2, 2))
+    segs[0, 1] = segs[0, 0]                          # a zero-length segment too
+    p = PointIndex(pts).pairs(segs, radius)
+    d = brute_distance(pts, segs)
+    want = set(zip(*np.nonzero(d <= radius)))
+    got = list(zip(p.pt.tolist(), p.seg.tolist()))
+    assert len(got) == len(set(got)), 'pairs must be unique'
+    assert set(got) == want
+    np.testing.assert_allclose(p.dist, d[p.pt, p.seg], atol=1e-12)
+
+
+def test_nearest_distance_exact_including_far_points():
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-20, 20, (2000, 2))
+    segs = rng.uniform(-2, 2, (15, 2, 2))
+    d, j = nearest_distance(pts, segs, radius=0.5)
+    bd = brute_distance(pts, segs)
+    np.testing.assert_allclose(d, bd.min(axis=1), atol=1e-12)
+    np.testing.assert_allclose(bd[np.arange(len(pts)), j], d, atol=1e-12)
+
+
+def test_sample_segments_spacing_and_ends():
+    segs = np.array([[[0, 0], [1, 0]], [[0, 1], [0, 1.05]]], dtype=float)
+    s, owner = sample_segments(segs, 0.3)
+    first = s[owner == 0]
+    assert np.allclose(first[0], [0, 0]) and np.allclose(first[-1], [1, 0])
+    assert np.diff(first[:, 0]).max() <= 0.3 + 1e-12
+    assert (owner == 1).sum() == 2
+
+
+@pytest.mark.parametrize('bad, why', [
+    (np.zeros((3, 3)), 'shape'), (np.zeros(4), 'shape'), ([[0, np.nan]], 'NaN'),
+    ([[np.inf, 0]], 'NaN or inf'), ('abc', 'numeric'),
+])
+def test_as_points_rejects_bad_input(bad, why):
+    with pytest.raises(ValueError, match=why):
+        as_points(bad)
