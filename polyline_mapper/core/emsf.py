@@ -110,6 +110,8 @@ def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, frac
     ``t, seg, w``: projections, groups and weights of the support (owned) points; ``t_near,
     seg_near, w_near``: the same for every point near the segment. Bins are ``width`` long from
     lo. An end bin is kept when the owned weight is at least ``fraction`` of the nearby weight.
+    A group that owns less than that in every bin is a redundant twin of others: its interval
+    comes back empty (lo == hi), so it is dropped.
     """
     k = len(lo)
     ok = hi > lo
@@ -128,20 +130,65 @@ def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, frac
     good = (owned > 0) & (owned >= fraction * np.maximum(near, owned))
     owner = np.repeat(np.arange(k), nb)
     pos = np.arange(total) - off[owner]
-    first = np.zeros(k, dtype=np.intp)
-    last = nb - 1
     gi = np.flatnonzero(good)
-    if gi.size:
-        f = np.full(k, np.iinfo(np.intp).max, dtype=np.intp)
-        g = np.full(k, -1, dtype=np.intp)
-        np.minimum.at(f, owner[gi], pos[gi])
-        np.maximum.at(g, owner[gi], pos[gi])
-        has = g >= 0
-        first = np.where(has, f, first)
-        last = np.where(has, g, last)
+    first = np.full(k, np.iinfo(np.intp).max, dtype=np.intp)
+    last = np.full(k, -1, dtype=np.intp)
+    np.minimum.at(first, owner[gi], pos[gi])
+    np.maximum.at(last, owner[gi], pos[gi])
     b = b_own - off[seg]
     keep = (b >= first[seg]) & (b <= last[seg])
-    return group_minmax(t[keep], seg[keep], k) if keep.any() else (lo, hi)
+    new_lo, new_hi = group_minmax(t[keep], seg[keep], k)
+    gone = ~np.isfinite(new_lo)
+    new_lo[gone] = new_hi[gone] = 0.0
+    return new_lo, new_hi
+
+
+def redundant_segments(est: EStep, segments: np.ndarray, r: float,
+                       share: float = 0.9) -> np.ndarray:
+    """
+    Segments whose support another segment already explains.
+
+    A segment is redundant when at least ``share`` of its MAP-support weight has another segment
+    within ``r`` and the segment that most often provides that alternative is longer (for equal
+    lengths, the one with the larger index survives). Twins lose their shorter member; a long
+    chord laid over a chain of shorter ones that already follow the points is dropped, while a
+    segment whose points only it explains is never dropped.
+
+    Returns
+    -------
+    (K,) bool mask.
+
+    """
+    k = len(segments)
+    p = est.pairs
+    mine = est.support[p.pt]
+    other = (mine >= 0) & (p.seg != mine) & (p.dist <= r)
+    if not other.any():
+        return np.zeros(k, dtype=bool)
+    alt_d = np.full(len(est.support), np.inf)
+    np.minimum.at(alt_d, p.pt[other], p.dist[other])
+    win = other & (p.dist == alt_d[p.pt])
+    alt = np.full(len(est.support), -1, dtype=np.intp)
+    alt[p.pt[win]] = p.seg[win]
+    sup = np.flatnonzero(est.support >= 0)
+    owner = est.support[sup]
+    covered = np.bincount(owner, weights=(alt[sup] >= 0).astype(float), minlength=k)
+    total = np.bincount(owner, minlength=k).astype(float)
+    frac = covered / np.maximum(total, 1.0)
+    # The most frequent alternative of each segment (mode over its support), via sorted keys.
+    has = alt[sup] >= 0
+    key, cnt = np.unique(owner[has] * np.int64(k) + alt[sup][has], return_counts=True)
+    seg_of = key // k
+    order = np.lexsort((cnt, seg_of))
+    last = np.ones(order.size, dtype=bool)
+    last[:-1] = seg_of[order][1:] != seg_of[order][:-1]
+    main = np.full(k, -1, dtype=np.intp)
+    main[seg_of[order][last]] = (key % k)[order][last]
+    length = np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
+    cand = (frac >= share) & (main >= 0)
+    m = np.where(main >= 0, main, 0)
+    longer = (length[m] > length) | ((length[m] == length) & (m > np.arange(k)))
+    return cand & longer
 
 
 def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
@@ -189,6 +236,8 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     extent = np.where(hi > lo, hi - lo, 0.0)
     keep = ((sup_mass >= min_support) & (sup_mass >= min_density * extent / (2.0 * r))
             & (mass > 0) & (hi > lo))
+    if tail_fraction > 0:
+        keep &= ~redundant_segments(est, segments, r)
     c, u = centre[keep], direction[keep]
     new = np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)
     return new, sup_mass[keep], est

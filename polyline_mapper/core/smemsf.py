@@ -21,8 +21,8 @@ split resolution, the merge tolerance and the arc approximation error, all come 
 
 Stop: once sigma sits at its floor, when the mean truncated distance of points to their nearest
 segment changes by less than ``tol`` (relative) between iterations; or at ``max_iterations``.
-The result is refitted once more (so merged segments sit on their points) and chained into
-polylines.
+The result is refitted once more (so merged segments sit on their points), merged once more
+(pieces the refit made collinear), and chained into polylines.
 """
 
 from dataclasses import asdict, dataclass, field, fields
@@ -50,7 +50,7 @@ class SMEMSFConfig:
 
     sigma: Optional[float] = None
     """Sensor noise (m). None or 0: estimated from the points (local PCA thickness)."""
-    sigma_min: float = 0.01
+    sigma_min: float = 0.005
     """Lower bound of the noise scale (m); below it registration error dominates any laser."""
     sigma_start: Optional[float] = None
     """First noise scale (m). None or 0: 1/20 of the bounding-box diagonal."""
@@ -60,8 +60,9 @@ class SMEMSFConfig:
     """Sigma shrinks at least by this factor per iteration until it reaches its floor."""
     kappa: float = 3.0
     """E-step cut-off in sigmas; the outlier class has the kernel density at the cut-off."""
-    r_over_sigma: float = 2.0
-    """LSS half-size r in sigmas (sub-segments are 2r long, squares 2r wide)."""
+    r_over_sigma: float = 2.5
+    """LSS half-size r in sigmas (sub-segments are 2r long, squares 2r wide; +-2.5 sigma holds
+    99% of a wall's Gaussian spread)."""
     split_fraction: float = 0.1
     """LSS threshold C_j as a fraction of segment j's typical sub-segment support."""
     gap_p: float = 1e-3
@@ -307,6 +308,10 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     r = config.r_over_sigma * sigma
     segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                      config.min_density, r, config.tail_fraction)
+    # Pieces the refit made collinear are joined before chaining.
+    segments, support, _ = merge_segments(
+        index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
+        config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
     segments, polylines, closed = assemble_polylines(segments, config.join_over_r * r)
     return FitResult(segments=segments, support=support, polylines=polylines, closed=closed,
                      iterations=it, converged=converged, sigma=sigma, r=r,
