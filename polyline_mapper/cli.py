@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from .core import fit, map_metrics, SMEMSFConfig
-from .io.mapjson import map_to_dict, set_default_mode, write_json_atomic
+from .formats.mapjson import map_to_dict, set_default_mode, write_json_atomic
 
 EXIT_USAGE = 2
 
@@ -51,12 +51,19 @@ def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
         key, sep, raw = item.partition('=')
         if not sep:
             raise CliError(f'--set expects key=value, got {item!r}')
-        import yaml
-        values[key.strip()] = yaml.safe_load(raw)
+        values[key.strip()] = _yaml_value(raw)
     try:
         return SMEMSFConfig.from_dict(values)
     except (TypeError, ValueError) as exc:
         raise CliError(f'bad config: {exc}') from None
+
+
+def _yaml_value(text: str):
+    import yaml
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise CliError(f'cannot parse value {text!r}') from None
 
 
 def _flatten_ros_params(data: dict) -> dict:
@@ -74,7 +81,7 @@ def read_input(path: str, range_max: float = None, progress: bool = True) -> tup
     """Read an (N, 2) point file or a CARMEN log; return points and a description."""
     low = path.lower()
     if low.endswith(('.log', '.log.gz', '.clf', '.clf.gz')):
-        from .io.carmen import read_carmen
+        from .formats.carmen import read_carmen
         log = read_carmen(path)
         bar = _progress_factory(progress, 'register', 'scan')
         pts = log.points(range_max=range_max, progress=bar)
@@ -85,7 +92,7 @@ def read_input(path: str, range_max: float = None, progress: bool = True) -> tup
                   f'record(s), e.g. {log.skipped_examples[0]}', file=sys.stderr)
         return pts, desc
     if low.endswith(('.npy', '.csv', '.txt', '.xy')):
-        from .io.points import read_points
+        from .formats.points import read_points
         pts = read_points(path)
         if range_max is not None:
             raise CliError('--range-max applies to laser logs only')

@@ -10,11 +10,22 @@ def plot_map(path: str, points: np.ndarray, segments: np.ndarray, polylines=None
 
     Parameters
     ----------
-    path : output file name (.png).
-    points : (N, 2) metres; at most ``max_points`` are drawn (evenly subsampled).
-    segments : (K, 2, 2) metres, drawn when ``polylines`` is None.
-    polylines : optional list of (M, 2) vertex arrays.
-    truth : optional (W, 2, 2) ground-truth walls, drawn thin and dashed underneath.
+    path : str
+        Output file name (.png).
+    points : (N, 2) array
+        Metres; at most ``max_points`` are drawn (evenly subsampled).
+    segments : (K, 2, 2) array
+        Metres, drawn when ``polylines`` is None.
+    polylines : list, optional
+        (M, 2) vertex arrays.
+    title : str
+        Figure title.
+    max_points : int
+        Most points drawn.
+    truth : (W, 2, 2) array, optional
+        Ground-truth walls, drawn thin and dashed underneath.
+    dpi : int
+        Resolution.
 
     """
     import matplotlib

@@ -33,10 +33,16 @@ def scan_to_points(ranges, angles, pose, range_min: float = 0.0,
 
     Parameters
     ----------
-    ranges : (B,) metres; NaN / inf / out-of-range readings are dropped.
-    angles : (B,) radians in the laser frame.
-    pose : (x, y, yaw) of the laser in the fixed frame, metres and radians.
-    range_min, range_max : valid interval [range_min, range_max), metres.
+    ranges : (B,) array
+        Metres; NaN / inf / out-of-range readings are dropped.
+    angles : (B,) array
+        Radians in the laser frame.
+    pose : (3,) array
+        (x, y, yaw) of the laser in the fixed frame, metres and radians.
+    range_min : float
+        Smallest valid range, metres.
+    range_max : float
+        Valid ranges are below this, metres.
 
     Returns
     -------

@@ -28,16 +28,26 @@ def noisy_line(a, b, n, sigma, rng):
     return a + t[:, None] * d + rng.normal(0, sigma, n)[:, None] * nrm
 
 
+def end_errors(found, a, b):
+    """End-point error (m) of each found segment against segment ab, either way round."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d0a = np.linalg.norm(found[:, 0] - a, axis=1)
+    d1b = np.linalg.norm(found[:, 1] - b, axis=1)
+    d0b = np.linalg.norm(found[:, 0] - b, axis=1)
+    d1a = np.linalg.norm(found[:, 1] - a, axis=1)
+    return np.minimum(np.maximum(d0a, d1b), np.maximum(d0b, d1a))
+
+
 @pytest.fixture(scope='session')
 def office_drive():
-    """A seeded drive through the simulated office floor (1 cm noise, a scan every 0.4 m)."""
+    """Drive through the simulated office floor (1 cm noise, a scan every 0.4 m)."""
     from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
     return simulate_drive(office_floor(), LaserSpec(noise=0.01), step=0.4, rng=7)
 
 
 @pytest.fixture(scope='session')
 def office_fit(office_drive):
-    """The batch fit of the office drive, shared by several tests."""
+    """Fit the office drive once, shared by several tests."""
     from polyline_mapper.core import fit
     pts, hits = office_drive.points(with_hits=True)
     return pts, hits, fit(pts)

@@ -1,8 +1,7 @@
 """EMSF: E-step weights, weighted orthogonal regression, MAP trimming."""
 
-import numpy as np
-
 from conftest import noisy_line
+import numpy as np
 from polyline_mapper.core.emsf import e_step, emsf_step, weighted_lines
 from polyline_mapper.core.geometry import PointIndex
 

@@ -1,10 +1,9 @@
 """Segment geometry and the spatial index, against brute force."""
 
 import numpy as np
-import pytest
-
 from polyline_mapper.core.geometry import (as_points, nearest_distance, PointIndex, project,
                                            sample_segments)
+import pytest
 
 
 def brute_distance(points, segments):

@@ -1,8 +1,7 @@
 """Merging: the paper's merged segment, the grouping cost and the data-backed gap test."""
 
-import numpy as np
-
 from conftest import noisy_line
+import numpy as np
 from polyline_mapper.core.geometry import PointIndex
 from polyline_mapper.core.merge import grouping_cost, merge_segments, merged_segment
 

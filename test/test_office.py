@@ -1,11 +1,11 @@
 """A simulated office floor with known walls: every wall found, nothing invented."""
 
+from conftest import end_errors
 import numpy as np
-import pytest
-
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.geometry import sample_segments
 from polyline_mapper.sim import hall_with_arc, LaserSpec, simulate_drive
+import pytest
 
 
 def observed_extent(points, hits, wall_index, wall):
@@ -23,10 +23,8 @@ def test_every_wall_found_with_end_points_within_10cm(office_fit, office_drive):
     for i, wall in enumerate(walls):
         assert np.linalg.norm(wall[1] - wall[0]) > 1.0
         p, q = observed_extent(pts, hits, i, wall)
-        err = np.minimum(
-            np.maximum(np.linalg.norm(segs[:, 0] - p, axis=1), np.linalg.norm(segs[:, 1] - q, axis=1)),
-            np.maximum(np.linalg.norm(segs[:, 0] - q, axis=1), np.linalg.norm(segs[:, 1] - p, axis=1)))
-        assert err.min() <= 0.10, f'wall {i} {wall.tolist()}: best end-point error {err.min():.3f} m'
+        err = end_errors(segs, p, q)
+        assert err.min() <= 0.10, f'wall {i} {wall.tolist()}: end-point error {err.min():.3f} m'
 
 
 def test_no_segment_where_no_wall_is(office_fit, office_drive):
@@ -35,7 +33,7 @@ def test_no_segment_where_no_wall_is(office_fit, office_drive):
     d = office_drive.world.distance(samples)
     worst = np.zeros(len(res.segments))
     np.maximum.at(worst, owner, d)
-    assert worst.max() <= 0.10, f'segment {int(worst.argmax())} strays {worst.max():.3f} m from walls'
+    assert worst.max() <= 0.10, f'segment {int(worst.argmax())} strays {worst.max():.3f} m'
 
 
 def test_office_map_quality_and_doors_open(office_fit):

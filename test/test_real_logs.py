@@ -1,10 +1,9 @@
 """The Intel lab log (Radish): convergence, accuracy and coverage of the batch fit."""
 
-import numpy as np
-
 from conftest import radish_log
+import numpy as np
 from polyline_mapper.core import fit, map_metrics
-from polyline_mapper.io.carmen import read_carmen
+from polyline_mapper.formats.carmen import read_carmen
 
 
 def test_intel_lab_batch_fit():

@@ -1,12 +1,12 @@
 """The paper's cases: local optima of plain EM, split, arcs, independence of the start."""
 
+from conftest import end_errors, noisy_line
 import numpy as np
-import pytest
-
-from conftest import noisy_line
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.emsf import emsf_step
 from polyline_mapper.core.geometry import nearest_distance, PointIndex
+import pytest
+
 
 SIGMA = 0.01
 
@@ -21,11 +21,8 @@ def plain_em(points, init, sigma, iterations=50):
 
 
 def end_error(found, a, b):
-    """Smallest end-point error (m) of any found segment against segment ab, either way round."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    e1 = np.maximum(np.linalg.norm(found[:, 0] - a, axis=1), np.linalg.norm(found[:, 1] - b, axis=1))
-    e2 = np.maximum(np.linalg.norm(found[:, 0] - b, axis=1), np.linalg.norm(found[:, 1] - a, axis=1))
-    return float(np.minimum(e1, e2).min())
+    """Smallest end-point error (m) of any found segment against segment ab."""
+    return float(end_errors(found, a, b).min())
 
 
 def test_a_crossing_lines_plain_em_stuck_smemsf_recovers():
@@ -69,11 +66,11 @@ def test_c_arc_becomes_a_chain_within_two_sigma():
     a = np.linspace(0.02, np.pi - 0.02, 2000)
     truth = radius * np.stack([np.cos(a), np.sin(a)], axis=1)
     dev, _ = nearest_distance(truth, res.segments)
-    assert dev.max() <= 2 * res.sigma, f'arc deviates {dev.max():.4f} m > 2 sigma = {2 * res.sigma}'
+    assert dev.max() <= 2 * res.sigma, f'arc deviates {dev.max():.4f} m > 2 sigma {res.sigma:.4f}'
 
 
 def room_scene(rng):
-    """A room with an L-shaped inner wall and a short free-standing wall."""
+    """Sample a room with an L-shaped inner wall and a short free-standing wall."""
     walls = [([0, 0], [6, 0]), ([6, 0], [6, 4]), ([6, 4], [0, 4]), ([0, 4], [0, 0]),
              ([2, 1], [4, 1]), ([4, 1], [4, 2.5]), ([1, 3], [2.5, 3])]
     pts = np.concatenate([noisy_line(a, b, int(400 * np.hypot(*np.subtract(b, a))), SIGMA, rng)

@@ -1,8 +1,7 @@
 """LSS: split where support drops, with a threshold that follows each segment's density."""
 
-import numpy as np
-
 from conftest import noisy_line
+import numpy as np
 from polyline_mapper.core.geometry import PointIndex
 from polyline_mapper.core.split import split_segments
 

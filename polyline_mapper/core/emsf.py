@@ -37,7 +37,8 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float) 
     ----------
     index : PointIndex
         The points (and their multiplicities).
-    segments : (K, 2, 2) metres.
+    segments : (K, 2, 2) array
+        Metres.
     sigma : float
         Kernel width in metres.
     kappa : float
@@ -76,10 +77,14 @@ def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int) -
 
     Parameters
     ----------
-    points : (P, 2) the point of each weighted pair.
-    seg : (P,) group of each pair, in [0, k).
-    w : (P,) non-negative weights.
-    k : number of groups.
+    points : (P, 2) array
+        The point of each weighted pair.
+    seg : (P,) int array
+        Group of each pair, in [0, k).
+    w : (P,) array
+        Non-negative weights.
+    k : int
+        Number of groups.
 
     Returns
     -------

@@ -72,7 +72,7 @@ def lengths(segments: np.ndarray) -> np.ndarray:
 
 def directions(segments: np.ndarray) -> tuple:
     """
-    Unit directions and lengths of segments.
+    Return unit directions and lengths of segments.
 
     Returns
     -------
@@ -95,8 +95,9 @@ def project(points: np.ndarray, segments: np.ndarray) -> tuple:
 
     Parameters
     ----------
-    points : (M, 2)
-    segments : (M, 2, 2)
+    points : (M, 2) array
+        Points, metres.
+    segments : (M, 2, 2) array
         Segment m is paired with point m.
 
     Returns

@@ -39,11 +39,14 @@ from .geometry import directions, PointIndex, sample_segments
 
 def merged_segment(s1: np.ndarray, s2: np.ndarray) -> dict:
     """
-    The paper's merged segment of pairs of segments, with the quantities the cost needs.
+    Build the paper's merged segment of pairs of segments, with the quantities the cost needs.
 
     Parameters
     ----------
-    s1, s2 : (M, 2, 2) metres, pair m is (s1[m], s2[m]).
+    s1 : (M, 2, 2) array
+        First segment of each pair, metres.
+    s2 : (M, 2, 2) array
+        Second segment of each pair, metres.
 
     Returns
     -------
@@ -151,11 +154,27 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
     Parameters
     ----------
     index : PointIndex
-    segments : (K, 2, 2) metres.
-    support : (K,) supporting point weight of each segment (used for the gap test's density).
-    sigma, r : current noise scale and LSS half-size, metres.
-    theta_ref, threshold : see the module docstring.
-    reach : candidate distance, metres (default 4 r).
+        The points.
+    segments : (K, 2, 2) array
+        Metres.
+    support : (K,) array
+        Supporting point weight of each segment (for the gap test's density).
+    sigma : float
+        Current noise scale, metres.
+    r : float
+        Current LSS half-size, metres.
+    theta_ref : float
+        Angle (rad) at which the parallelism term is 1.
+    threshold : float
+        Pairs with a lower cost merge.
+    reach : float
+        Candidate distance, metres (default 4 r).
+    split_fraction : float
+        As in LSS, for the gap test.
+    gap_p : float
+        As in LSS, for the gap test.
+    max_rounds : int
+        Cap on merge rounds.
 
     Returns
     -------

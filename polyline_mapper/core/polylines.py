@@ -30,8 +30,14 @@ def assemble_polylines(segments: np.ndarray, join: float,
 
     Parameters
     ----------
-    segments : (K, 2, 2) metres.
-    join : float, metres.
+    segments : (K, 2, 2) array
+        Metres.
+    join : float
+        Join distance, metres.
+    min_angle : float
+        Smallest angle (rad) between two lines that makes a corner.
+    corner_reach : float
+        How far (in units of ``join``) an end may move to a corner.
 
     Returns
     -------

@@ -23,11 +23,18 @@ def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
 
     Parameters
     ----------
-    points : (U, 2) metres, the unexplained points.
-    weights : (U,) their multiplicities.
-    cell : grid cell side, metres.
-    min_mass : a cell needs at least this much point weight to seed a segment,
-    min_density, r : and at least ``min_density`` per ``2 r`` of the seed's length.
+    points : (U, 2) array
+        The unexplained points, metres.
+    weights : (U,) array
+        Their multiplicities.
+    cell : float
+        Grid cell side, metres.
+    min_mass : float
+        A cell needs at least this much point weight to seed a segment,
+    min_density : float
+        and at least this much per ``2 r`` of the seed's length.
+    r : float
+        The current LSS half-size, metres.
 
     Returns
     -------

@@ -176,7 +176,7 @@ class FitResult:
 
 def initial_segments(points: np.ndarray, how: str, count: int, rng) -> np.ndarray:
     """
-    Initial segments from the bounding box of the points.
+    Make initial segments from the bounding box of the points.
 
     'diagonals': its two diagonals (the paper); 'single': one segment along the longer axis
     through the centre; 'random': ``count`` segments with ends drawn uniformly in the box.
@@ -260,11 +260,16 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
 
     Parameters
     ----------
-    points : (N, 2) array_like, metres. Order is not used.
-    config : SMEMSFConfig, default values when None.
-    init : (K, 2, 2) initial segments; None uses ``config.init``.
-    weights : (N,) point multiplicities (default 1).
-    progress : callable(iteration, info) called after each iteration.
+    points : (N, 2) array_like
+        Metres. Order is not used.
+    config : SMEMSFConfig
+        Default values when None.
+    init : (K, 2, 2) array_like
+        Initial segments; None uses ``config.init``.
+    weights : (N,) array_like
+        Point multiplicities (default 1).
+    progress : callable
+        ``progress(iteration, info)`` is called after each iteration.
 
     Returns
     -------

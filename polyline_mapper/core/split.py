@@ -44,7 +44,9 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     Parameters
     ----------
     index : PointIndex
-    segments : (K, 2, 2) metres.
+        The points.
+    segments : (K, 2, 2) array
+        Metres.
     r : float
         Half the sub-segment length and half the square's side, metres.
     split_fraction : float

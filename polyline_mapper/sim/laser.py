@@ -50,7 +50,7 @@ class LaserSpec:
         return self.fov / (self.beams if full else max(self.beams - 1, 1))
 
     def angles(self) -> np.ndarray:
-        """Beam angles (rad) in the laser frame, shape (beams,)."""
+        """Compute each beam's angle in the laser frame, radians, shape (beams,)."""
         return self.angle_min + self.angle_increment * np.arange(self.beams)
 
 

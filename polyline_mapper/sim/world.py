@@ -128,7 +128,7 @@ def _segs(*rows) -> np.ndarray:
 
 def office_floor() -> World:
     """
-    A 20 m x 12 m office floor: a corridor, five rooms, 1 m doors, a curved wall, a pillar.
+    Build a 20 m x 12 m office floor: a corridor, five rooms, 1 m doors, a curved wall, a pillar.
 
     The corridor runs along y in [5, 7]. Three rooms lie below it, two above. The top-right
     room's far corner is cut by a curved wall (radius 5.39 m, from (20, 9) to (17, 12), meeting
@@ -157,7 +157,7 @@ def office_floor() -> World:
 
 
 def hall_with_arc() -> World:
-    """A 12 m x 8 m hall whose east side is a half circle of radius 4 m, driven round its middle."""
+    """Build a 12 m x 8 m hall whose east side is a half circle of radius 4 m, driven round it."""
     walls = _segs((0, 0, 8, 0), (0, 0, 0, 8), (0, 8, 8, 8))
     arcs = [Arc((8.0, 4.0), 4.0, -np.pi / 2, np.pi / 2)]
     path = [(2.0, 2.0), (8.0, 2.0), (9.0, 4.0), (8.0, 6.0), (2.0, 6.0), (2.0, 2.0)]
@@ -165,7 +165,7 @@ def hall_with_arc() -> World:
 
 
 def corridor_loop(width: float = 2.0, side: float = 30.0) -> World:
-    """A square corridor loop (outer side ``side`` m, corridor ``width`` m), driven once round."""
+    """Build a square corridor loop (outer side ``side`` m, ``width`` m wide), driven round."""
     s, w = side, width
     walls = _segs((0, 0, s, 0), (s, 0, s, s), (s, s, 0, s), (0, s, 0, 0),
                   (w, w, s - w, w), (s - w, w, s - w, s - w), (s - w, s - w, w, s - w),

@@ -17,6 +17,8 @@ def read_points(path: str) -> np.ndarray:
     if not os.path.isfile(path):
         raise ValueError(f'{path}: no such file')
     ext = os.path.splitext(path)[1].lower()
+    if os.path.getsize(path) == 0:
+        raise ValueError(f'{path}: empty file, no points')
     try:
         if ext == '.npy':
             arr = np.load(path, allow_pickle=False)

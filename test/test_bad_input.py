@@ -1,0 +1,108 @@
+"""Bad input: clear ValueErrors from the core, exit code 2 and one line from the CLI, no output."""
+
+import gzip
+import os
+import subprocess
+import sys
+
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.core import fit, SMEMSFConfig
+import pytest
+
+
+@pytest.mark.parametrize('pts, why', [
+    (np.zeros((0, 2)), 'at least 2 points'),
+    (np.ones((1, 2)), 'at least 2 points'),
+    (np.ones((50, 2)), 'identical'),
+    (np.array([[0.0, 0.0], [1.0, np.nan], [2.0, 0.0]]), 'NaN'),
+    (np.array([[0.0, 0.0], [np.inf, 1.0]]), 'NaN or inf'),
+    (np.zeros((10, 3)), 'shape'),
+    (np.zeros(10), 'shape'),
+])
+def test_fit_rejects_bad_points(pts, why):
+    with pytest.raises(ValueError, match=why):
+        fit(pts)
+
+
+@pytest.mark.parametrize('kwargs, why', [
+    ({'kappa': 0}, 'kappa'), ({'sigma': -1.0}, 'sigma'), ({'shrink_fast': 1.5}, 'shrink_fast'),
+    ({'shrink_fast': 0.9, 'shrink_slow': 0.7}, 'shrink_fast'), ({'init': 'magic'}, 'init'),
+    ({'max_iterations': 0}, 'max_iterations'), ({'min_support': 1}, 'min_support'),
+    ({'r_over_sigma': float('nan')}, 'r_over_sigma'),
+])
+def test_config_rejects_bad_values_with_reason(kwargs, why):
+    with pytest.raises(ValueError, match=why):
+        SMEMSFConfig(**kwargs)
+
+
+def test_unknown_config_key_named():
+    with pytest.raises(ValueError, match='sigmaa'):
+        SMEMSFConfig.from_dict({'sigmaa': 0.1})
+
+
+def run_cli(args, tmp_path, capsys):
+    out = tmp_path / 'out' / 'map.json'
+    png = tmp_path / 'out' / 'map.png'
+    code = main(['fit', *args, '-o', str(out), '--plot', str(png), '-q'])
+    err = capsys.readouterr().err.strip()
+    return code, err, out, png
+
+
+def write(tmp_path, name, data, mode='w'):
+    p = tmp_path / name
+    with open(p, mode) as fh:
+        fh.write(data)
+    return str(p)
+
+
+@pytest.mark.parametrize('name, content, why', [
+    ('nan.csv', 'x,y\n0,0\n1,nan\n2,0\n', 'NaN'),
+    ('empty.txt', '', 'usable|points|shape|empty'),
+    ('one.txt', '1.0 2.0\n', 'at least 2'),
+    ('same.txt', '1 1\n' * 20, 'identical'),
+    ('three.csv', '1,2,3\n4,5,6\n', 'shape'),
+    ('words.txt', 'hello world\nfoo bar\n', 'unreadable|shape|numeric'),
+    ('no_laser.log', 'ODOM 1 2 3 0 0 0 1.0 host 1.0\n', 'no usable FLASER'),
+    ('bad_flaser.log', 'FLASER 180 1 2 3\n', 'no usable FLASER'),
+    ('unknown.xyz', '1 2\n', 'unknown input type'),
+])
+def test_cli_bad_files_exit_2_one_line_no_output(tmp_path, capsys, name, content, why):
+    path = write(tmp_path, name, content)
+    code, err, out, png = run_cli([path], tmp_path, capsys)
+    assert code == 2
+    assert len(err.splitlines()) == 1 and err.startswith('polyline-mapper: error:')
+    import re
+    assert re.search(why, err), err
+    assert not out.exists() and not png.exists()
+    assert list(tmp_path.glob('out/*')) == []           # no partial or temporary file
+
+
+def test_cli_truncated_gzip_log(tmp_path, capsys):
+    line = 'FLASER 4 1.0 1.0 1.0 1.0 0 0 0 0 0 0 1.0 host 1.0\n' * 200
+    blob = gzip.compress(line.encode())
+    path = write(tmp_path, 'cut.log.gz', blob[: len(blob) // 2], mode='wb')
+    code, err, out, _ = run_cli([path], tmp_path, capsys)
+    assert code == 2 and 'truncated' in err and not out.exists()
+
+
+def test_cli_missing_file_and_bad_config(tmp_path, capsys):
+    code, err, out, _ = run_cli([str(tmp_path / 'nope.npy')], tmp_path, capsys)
+    assert code == 2 and 'no such file' in err
+    pts = tmp_path / 'ok.npy'
+    np.save(pts, np.random.default_rng(0).uniform(0, 1, (100, 2)))
+    cfg = write(tmp_path, 'cfg.yaml', 'kappa: -3\n')
+    code, err, out, _ = run_cli([str(pts), '--config', cfg], tmp_path, capsys)
+    assert code == 2 and 'kappa' in err and not out.exists()
+    code, err, out, _ = run_cli([str(pts), '--set', 'nonsense=1'], tmp_path, capsys)
+    assert code == 2 and 'nonsense' in err
+
+
+def test_cli_no_traceback_as_a_process(tmp_path):
+    """The installed console script prints no traceback on bad input."""
+    bad = write(tmp_path, 'bad.csv', '0,0\nnan,1\n')
+    proc = subprocess.run([sys.executable, '-m', 'polyline_mapper.cli', 'fit', bad, '-o',
+                           str(tmp_path / 'm.json')], capture_output=True, text=True,
+                          env={**os.environ, 'PYTHONWARNINGS': 'ignore'})
+    assert proc.returncode == 2
+    assert 'Traceback' not in proc.stderr and proc.stderr.count('\n') == 1

@@ -1,0 +1,87 @@
+"""The fit and demo commands end to end: schema, plot, config files, CARMEN logs."""
+
+import gzip
+import json
+
+from conftest import noisy_line, REPO
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.formats.mapjson import read_map
+
+
+def square_room_points(rng):
+    corners = [(0, 0), (4, 0), (4, 3), (0, 3), (0, 0)]
+    sides = zip(corners[:-1], corners[1:])
+    return np.concatenate([noisy_line(a, b, 800, 0.01, rng) for a, b in sides])
+
+
+def test_fit_writes_schema_and_png(tmp_path, capsys):
+    pts = square_room_points(np.random.default_rng(0))
+    src = tmp_path / 'room.csv'
+    np.savetxt(src, pts, delimiter=',', header='x,y', comments='')
+    out, png = tmp_path / 'm.json', tmp_path / 'm.png'
+    assert main(['fit', str(src), '-o', str(out), '--plot', str(png)]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith(f'wrote {out}: 4 segments in 1 polylines')
+    data = read_map(str(out))
+    assert data['frame_id'] == 'map'
+    assert len(data['segments']) == 4 and all(len(s) == 4 for s in data['segments'])
+    assert len(data['polylines']) == 1 and data['closed'] == [True]
+    stats = data['stats']
+    for key in ('points', 'segments', 'iterations', 'mean_distance', 'p95_distance',
+                'coverage_0_10m', 'seconds'):
+        assert key in stats
+    assert stats['points'] == len(pts) and stats['mean_distance'] < 0.012
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and png.stat().st_size > 10_000
+    corners = {tuple(np.round(v, 1)) for v in data['polylines'][0]}
+    assert corners == {(0.0, 0.0), (4.0, 0.0), (4.0, 3.0), (0.0, 3.0)}
+
+
+def test_fit_reads_npy_txt_and_the_shipped_ros_param_file(tmp_path):
+    pts = square_room_points(np.random.default_rng(1))
+    np.save(tmp_path / 'p.npy', pts)
+    np.savetxt(tmp_path / 'p.txt', pts)
+    cfg = REPO / 'config' / 'polyline_mapper.yaml'
+    for name in ('p.npy', 'p.txt'):
+        out = tmp_path / (name + '.json')
+        assert main(['fit', str(tmp_path / name), '-o', str(out), '--config', str(cfg),
+                     '-q']) == 0
+        assert len(json.loads(out.read_text())['segments']) == 4
+    out = tmp_path / 'sig.json'
+    assert main(['fit', str(tmp_path / 'p.npy'), '-o', str(out), '--set', 'sigma=0.05',
+                 '-q']) == 0
+    assert json.loads(out.read_text())['config']['sigma'] == 0.05
+
+
+def test_fit_carmen_log_registers_scans(tmp_path):
+    # A robot in a 6 x 4 m room, FLASER with 181 beams (odd count: pi / 180 spacing).
+    from polyline_mapper.sim import LaserSpec, simulate_drive, World
+    walls = np.array([[[0, 0], [6, 0]], [[6, 0], [6, 4]], [[6, 4], [0, 4]], [[0, 4], [0, 0]]],
+                     dtype=float)
+    spec = LaserSpec(beams=181, fov=np.pi, range_max=50.0, noise=0.01, dropout=0.0)
+    drive = simulate_drive(World(walls, path=[(1, 1), (5, 1), (5, 3), (1, 3)]), spec, step=0.5,
+                           rng=2)
+    lines = []
+    for i, (pose, rng_) in enumerate(zip(drive.poses, drive.ranges)):
+        r = np.where(np.isfinite(rng_), rng_, 81.91)
+        vals = ' '.join(f'{v:.3f}' for v in r)
+        p = ' '.join(f'{v:.5f}' for v in pose)
+        lines.append(f'FLASER 181 {vals} {p} {p} {i * 0.1:.2f} host 0.0\n')
+    lines.insert(3, 'FLASER 181 1 2 3 garbage\n')
+    path = tmp_path / 'room.log.gz'
+    with gzip.open(path, 'wt') as fh:
+        fh.writelines(['# a comment\n', 'PARAM robot_front_laser_max 81.91 host 0\n'] + lines)
+    out = tmp_path / 'room.json'
+    assert main(['fit', str(path), '-o', str(out), '-q']) == 0
+    data = json.loads(out.read_text())
+    assert len(data['segments']) == 4 and data['stats']['mean_distance'] < 0.012
+    assert '1 malformed' in data['stats']['input_type']
+
+
+def test_demo_runs(tmp_path, capsys):
+    out, png = tmp_path / 'd.json', tmp_path / 'd.png'
+    assert main(['demo', '-o', str(out), '--plot', str(png)]) == 0
+    assert 'segments' in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert 15 <= data['stats']['segments'] <= 45 and data['stats']['coverage_0_10m'] > 0.99
+    assert png.exists()
