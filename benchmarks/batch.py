@@ -1,0 +1,201 @@
+"""
+Batch SMEMSF on the shared Radish logs and the simulated worlds.
+
+Usage (from the repository root, after ``bash tools/dev.sh setup``)::
+
+    .venv/bin/python benchmarks/batch.py [--datasets DIR] [--only NAME ...] [--sweep]
+
+Writes the results table into benchmarks/README.md (between the ``batch`` markers), the raw
+numbers to benchmarks/results/batch.json and one PNG per dataset to benchmarks/results/. With
+--sweep it also fits the Intel log at several noise floors and plots mean distance against
+segment count.
+"""
+
+import argparse
+import datetime
+import json
+import os
+import pathlib
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
+from polyline_mapper.formats.carmen import read_carmen
+from polyline_mapper.plot import plot_map
+from polyline_mapper.sim import hall_with_arc, LaserSpec, office_floor, simulate_drive
+
+HERE = pathlib.Path(__file__).resolve().parent
+REPO = HERE.parent
+LOGS = ['intel-corrected', 'csail-corrected', 'infinite-corridor-corrected',
+        'freiburg-079-corrected', 'freiburg-campus-corrected']
+
+
+def machine() -> str:
+    """Describe the machine: CPU model, cores, memory, Python and numpy versions."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open('/proc/cpuinfo') as fh:
+            for line in fh:
+                if line.startswith('model name'):
+                    cpu = line.split(':', 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    mem = ''
+    try:
+        with open('/proc/meminfo') as fh:
+            kb = int(fh.readline().split()[1])
+            mem = f', {kb / 2 ** 20:.0f} GiB'
+    except (OSError, ValueError, IndexError):
+        pass
+    import scipy
+    return (f'{cpu}, {os.cpu_count()} cores{mem}; Python {platform.python_version()}, '
+            f'numpy {np.__version__}, scipy {scipy.__version__}')
+
+
+def git_rev() -> str:
+    """Return the short commit hash of the working tree (with -dirty when modified)."""
+    try:
+        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=REPO,
+                             capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        rev = 'unknown'
+    return rev
+
+
+def datasets(folder: pathlib.Path, only: list):
+    """Yield (name, points, truth walls or None) for every dataset available."""
+    sims = {'sim-office': (office_floor, 0.01), 'sim-hall-arc': (hall_with_arc, 0.02)}
+    for name, (world_fn, noise) in sims.items():
+        if only and name not in only:
+            continue
+        world = world_fn()
+        drive = simulate_drive(world, LaserSpec(noise=noise), step=0.25, rng=1)
+        yield name, drive.points(), world.walls
+    for name in LOGS:
+        if only and name not in only:
+            continue
+        path = folder / 'radish' / f'{name}.log.gz'
+        if not path.is_file():
+            print(f'skip {name}: {path} not found', file=sys.stderr)
+            continue
+        yield name, read_carmen(str(path)).points(), None
+
+
+def run_one(name, points, truth, out_dir: pathlib.Path, config: SMEMSFConfig) -> dict:
+    """Fit one dataset; return its row of numbers and write its PNG."""
+    t0 = time.perf_counter()
+    res = fit(points, config)
+    seconds = time.perf_counter() - t0
+    m = map_metrics(points, res.segments)
+    row = {'dataset': name, 'points': m['points'], 'segments': m['segments'],
+           'polylines': len(res.polylines), 'iterations': res.iterations,
+           'converged': res.converged, 'mean_cm': 100 * m['mean_distance'],
+           'p95_cm': 100 * m['p95_distance'], 'coverage_pct': 100 * m['coverage_0_10m'],
+           'compression': m['compression'], 'sigma_cm': 100 * res.sigma,
+           'seconds': seconds}
+    plot_map(str(out_dir / f'batch-{name}.png'), points, res.segments, res.polylines,
+             title=f'{name}: {m["segments"]} segments, mean {row["mean_cm"]:.2f} cm, '
+                   f'coverage {row["coverage_pct"]:.1f}%', truth=truth)
+    print(f'{name:30s} {m["points"]:8d} pts {m["segments"]:5d} segs {res.iterations:2d} it '
+          f'mean {row["mean_cm"]:.2f} cm cov {row["coverage_pct"]:.1f}% {seconds:6.1f} s',
+          flush=True)
+    return row
+
+
+def sweep(points, out_dir: pathlib.Path) -> list:
+    """Fit the Intel log at several noise floors; plot mean distance against segments."""
+    rows = []
+    for sigma in (0.015, 0.02, 0.03, 0.04, 0.05, 0.07):
+        res = fit(points, SMEMSFConfig(sigma=sigma))
+        m = map_metrics(points, res.segments)
+        rows.append({'sigma_cm': 100 * sigma, 'segments': m['segments'],
+                     'mean_cm': 100 * m['mean_distance'],
+                     'coverage_pct': 100 * m['coverage_0_10m']})
+        print(f'  sweep sigma {sigma:.3f}: {rows[-1]}', flush=True)
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot([r['segments'] for r in rows], [r['mean_cm'] for r in rows], 'o-')
+    for r in rows:
+        ax.annotate(f"sigma {r['sigma_cm']:.1f} cm", (r['segments'], r['mean_cm']), fontsize=7,
+                    xytext=(4, 4), textcoords='offset points')
+    ax.set_xlabel('segments')
+    ax.set_ylabel('mean point-to-map distance [cm]')
+    ax.set_title('Intel lab: accuracy against map size (noise floor sweep)')
+    ax.grid(True, alpha=0.4)
+    fig.tight_layout()
+    fig.savefig(out_dir / 'batch-intel-sweep.png', dpi=130)
+    plt.close(fig)
+    return rows
+
+
+def table(rows: list) -> str:
+    """Format rows as a Markdown table."""
+    head = ('| dataset | points | segments | polylines | iterations | mean (cm) | p95 (cm) | '
+            'coverage 0.10 m | compression | sigma (cm) | time (s) |\n'
+            '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n')
+    body = ''.join(
+        f"| {r['dataset']} | {r['points']} | {r['segments']} | {r['polylines']} | "
+        f"{r['iterations']}{'' if r['converged'] else ' (cap)'} | {r['mean_cm']:.2f} | "
+        f"{r['p95_cm']:.2f} | {r['coverage_pct']:.1f}% | {r['compression']:.0f} | "
+        f"{r['sigma_cm']:.2f} | {r['seconds']:.1f} |\n" for r in rows)
+    return head + body
+
+
+def write_readme(block: str) -> None:
+    """Replace the text between the batch markers of benchmarks/README.md."""
+    path = HERE / 'README.md'
+    begin, end = '<!-- batch:begin -->', '<!-- batch:end -->'
+    text = path.read_text() if path.exists() else f'# Benchmarks\n\n{begin}\n{end}\n'
+    if begin not in text:
+        text += f'\n{begin}\n{end}\n'
+    pre, rest = text.split(begin, 1)
+    _, post = rest.split(end, 1)
+    path.write_text(f'{pre}{begin}\n{block}{end}{post}')
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; return the exit code."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap.add_argument('--datasets', default=os.environ.get(
+        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    ap.add_argument('--only', nargs='*', default=[], help='dataset names to run')
+    ap.add_argument('--sweep', action='store_true', help='also sweep the Intel noise floor')
+    ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
+    args = ap.parse_args(argv)
+    out_dir = HERE / 'results'
+    out_dir.mkdir(exist_ok=True)
+    config = SMEMSFConfig()
+    rows, intel = [], None
+    for name, points, truth in datasets(pathlib.Path(args.datasets), args.only):
+        rows.append(run_one(name, points, truth, out_dir, config))
+        if name == 'intel-corrected':
+            intel = points
+    sweep_rows = sweep(intel, out_dir) if args.sweep and intel is not None else []
+    command = 'python benchmarks/batch.py ' + ' '.join(argv if argv is not None else sys.argv[1:])
+    meta = {'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
+            'machine': machine(), 'commit': git_rev(), 'command': command.strip()}
+    (out_dir / 'batch.json').write_text(json.dumps({'meta': meta, 'rows': rows,
+                                                    'sweep': sweep_rows}, indent=1))
+    block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
+             f"`{meta['command']}` (default SMEMSFConfig; time is the fit alone, one process, "
+             f'no other load).\n\n' + table(rows))
+    if sweep_rows:
+        block += ('\nNoise-floor sweep on the Intel log (`--sweep`, plot '
+                  '`results/batch-intel-sweep.png`):\n\n| sigma (cm) | segments | mean (cm) | '
+                  'coverage |\n|---:|---:|---:|---:|\n' + ''.join(
+                      f"| {r['sigma_cm']:.1f} | {r['segments']} | {r['mean_cm']:.2f} | "
+                      f"{r['coverage_pct']:.1f}% |\n" for r in sweep_rows))
+    if not args.no_readme:
+        write_readme(block)
+    print(block)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
