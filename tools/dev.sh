@@ -82,7 +82,8 @@ setup() {
   want="$(hash_of "$repo/setup.py" "$repo/setup.cfg" "$repo/package.xml")"
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     log "installing polyline_mapper (editable)"
-    "$vpy" -m pip install --quiet --no-deps --no-build-isolation -e "$repo"
+    "$vpy" -m pip install --no-deps --no-build-isolation -e "$repo" > "$venv/pip-package.log" 2>&1 \
+      || { tail -30 "$venv/pip-package.log" >&2; die "installing polyline_mapper failed"; }
     echo "$want" > "$stamp"
   fi
 }

@@ -162,13 +162,20 @@ class PointIndex:
     plus the number of segment samples, so fitting scales with points, not points x segments.
     """
 
-    def __init__(self, points: np.ndarray, weights: np.ndarray = None):
+    def __init__(self, points: np.ndarray, weights: np.ndarray = None, virtual: int = 0):
+        """
+        Index points with optional multiplicities.
+
+        The last ``virtual`` points are virtual (they stand for an old map, see
+        ``incremental.py``); the rest are measurements.
+        """
         self.points = as_points(points)
         self.weights = (np.ones(len(self.points)) if weights is None
                         else np.asarray(weights, dtype=np.float64))
         if self.weights.shape != (len(self.points),):
             raise ValueError(f'weights must have shape ({len(self.points)},), '
                              f'got {self.weights.shape}')
+        self.n_real = len(self.points) - int(virtual)
         self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
 
     def __len__(self) -> int:
@@ -178,18 +185,20 @@ class PointIndex:
         """
         All (point, segment) pairs with point-to-segment distance <= radius.
 
-        Each segment is sampled at ``n + 1`` evenly spaced points at most ``radius`` apart. A
+        Each segment is sampled at ``n + 1`` evenly spaced points at most ``3 radius`` apart. A
         point within ``radius`` of a segment is within ``reach = hypot(radius, step / 2)`` of the
         sample nearest to its projection (its *home* sample), so one k-d tree query of all
         samples with ``reach`` finds every pair; keeping only hits on the home sample leaves
-        each pair exactly once, without sorting.
+        each pair exactly once, without sorting. (Coarser samples mean fewer queries and a
+        wider reach; 3 radius balances the two.)
         """
         if len(segments) == 0 or len(self.points) == 0 or radius <= 0:
             return Pairs(*(np.zeros(0, dtype=np.intp),) * 2, *(np.zeros(0),) * 3)
         u, length = directions(segments)
-        n = np.maximum(1, np.ceil(length / radius).astype(np.intp))
+        spacing = 3.0 * radius
+        n = np.maximum(1, np.ceil(length / spacing).astype(np.intp))
         step = length / n
-        samples, owner = sample_segments(segments, radius)
+        samples, owner = sample_segments(segments, spacing)
         first = np.cumsum(n + 1) - (n + 1)
         reach = np.hypot(radius, 0.5 * step.max()) * (1 + 1e-9)
         hits = cKDTree(samples).sparse_distance_matrix(self.tree, reach, output_type='ndarray')

@@ -25,14 +25,15 @@ disks of radius r) and the same Poisson gap test as in LSS must not find a signi
 low squares there. Without that test a door opening between two collinear walls would be bridged,
 and a planner would see the door closed.
 
-Candidate pairs come from a k-d tree over points sampled along the segments, never from all
-pairs. Merging is greedy by increasing cost, each segment at most once per round, rounds
-repeated until nothing merges.
+Candidate pairs come from a k-d tree over points sampled along the segments (an exact all-pairs
+test only for sets of at most 64 segments, where it is cheaper). Merging is greedy by increasing
+cost, each segment at most once per round, rounds repeated until nothing merges; after the first
+round only pairs that involve a newly merged segment are examined, since nothing else changed.
 """
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import poisson
+from scipy.special import pdtr
 
 from .geometry import directions, PointIndex, sample_segments
 
@@ -96,17 +97,58 @@ def grouping_cost(ms: dict, sigma: float, theta_ref: float) -> np.ndarray:
     return 2.0 * par + 0.25 * col + 0.5 * prox
 
 
-def candidate_pairs(segments: np.ndarray, reach: float) -> np.ndarray:
-    """Pairs (i < j) of segments that come within about ``reach`` of each other, shape (M, 2)."""
-    if len(segments) < 2:
+def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None,
+                    dense_below: int = 64) -> np.ndarray:
+    """
+    Pairs (i < j) of segments that come within about ``reach`` of each other, shape (M, 2).
+
+    With ``among`` (a bool mask), only pairs with at least one segment in it. Small sets are
+    tested exactly against every pair (cheaper than a tree); larger ones go through a k-d tree
+    over points sampled along the segments.
+    """
+    k = len(segments)
+    if k < 2:
         return np.zeros((0, 2), dtype=np.intp)
-    samples, owner = sample_segments(segments, reach)
-    sp = cKDTree(samples).query_pairs(reach * 1.5, output_type='ndarray')
-    a, b = owner[sp[:, 0]], owner[sp[:, 1]]
-    keep = a != b
-    lo, hi = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
-    key = np.unique(lo * np.int64(len(segments)) + hi)
-    return np.stack([key // len(segments), key % len(segments)], axis=1).astype(np.intp)
+    if k <= dense_below:
+        if among is None:
+            i, j = np.triu_indices(k, 1)
+        else:
+            f = np.flatnonzero(among)
+            i, j = np.repeat(f, k), np.tile(np.arange(k), f.size)
+            ok = (j != i) & ~(among[j] & (j < i))            # each unordered pair once
+            i, j = np.minimum(i[ok], j[ok]), np.maximum(i[ok], j[ok])
+        lo = segments.min(axis=1) - reach
+        hi = segments.max(axis=1) + reach
+        box = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+        i, j = i[box], j[box]
+        keep = _segment_distance(segments[i], segments[j]) <= reach
+        return np.stack([i[keep], j[keep]], axis=1).astype(np.intp)
+    else:
+        samples, owner = sample_segments(segments, reach)
+        sp = cKDTree(samples).query_pairs(reach * 1.5, output_type='ndarray')
+        a, b = owner[sp[:, 0]], owner[sp[:, 1]]
+        keep = a != b
+        lo, hi = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
+        key = np.unique(lo * np.int64(k) + hi)
+        pairs = np.stack([key // k, key % k], axis=1).astype(np.intp)
+    if among is not None:
+        pairs = pairs[among[pairs[:, 0]] | among[pairs[:, 1]]]
+    return pairs
+
+
+def _segment_distance(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
+    """Distance between segments, pair by pair (0 where they cross)."""
+    from .geometry import project
+    d = np.minimum.reduce([project(s1[:, 0], s2)[0], project(s1[:, 1], s2)[0],
+                           project(s2[:, 0], s1)[0], project(s2[:, 1], s1)[0]])
+    a, b = s1[:, 0], s1[:, 1]
+    c, e = s2[:, 0], s2[:, 1]
+
+    def orient(p, q, r):
+        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
+                       - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+    cross = (orient(a, b, c) * orient(a, b, e) < 0) & (orient(c, e, a) * orient(c, e, b) < 0)
+    return np.where(cross, 0.0, d)
 
 
 def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: float,
@@ -130,7 +172,7 @@ def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: f
     counts = index.count_in_disks(centres, r)
     lam = np.maximum(density[check], 1.0)
     c = np.floor(split_fraction * lam)
-    p_low = np.clip(poisson.cdf(c, lam), 1e-300, 1 - 1e-12)
+    p_low = np.clip(pdtr(c, lam), 1e-300, 1 - 1e-12)
     min_run = np.log(gap_p / n) / np.log(p_low)
     low = counts <= c[owner]
     # Longest run of low squares per gap.
@@ -185,8 +227,9 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
     support = np.asarray(support, dtype=np.float64)
     reach = 4.0 * r if reach is None else reach
     merges = 0
+    fresh = None                      # after round 1 only pairs with a new segment can change
     for _ in range(max_rounds):
-        pairs = candidate_pairs(segments, reach)
+        pairs = candidate_pairs(segments, reach, fresh)
         if len(pairs) == 0:
             break
         i, j = pairs[:, 0], pairs[:, 1]
@@ -213,5 +256,7 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
         keep = ~used
         segments = np.concatenate([segments[keep], ms['segment'][chosen]])
         support = np.concatenate([support[keep], support[i[chosen]] + support[j[chosen]]])
+        fresh = np.zeros(len(segments), dtype=bool)
+        fresh[int(keep.sum()):] = True
         merges += chosen.size
     return segments, support, merges

@@ -6,23 +6,27 @@ Each segment is cut into ``n = max(1, round(L / 2r))`` equal sub-segments of len
 support of a sub-segment is the point weight inside the square of side 2r centred on it, two
 sides parallel to it (``|normal| <= r`` and the along-position inside the sub-segment).
 
-Threshold C, from the support statistics of each segment (density varies with range and with
-how often a place was seen, so one global C would cut sparse far walls and keep bridges over
-dense gaps):
+Threshold C, from the support statistics of the squares around each square (density varies
+with range, incidence and how often a place was seen, along one wall as much as between walls,
+so neither one global C nor one C per segment works):
 
-- ``lam_j`` = the 80th percentile of segment j's sub-segment supports (its density where it has
-  data; at least 1),
-- ``C_j = floor(split_fraction * lam_j)``; a sub-segment with support <= C_j is *low*,
-- a run of m consecutive low sub-segments is removed only when a run that long is unlikely
-  anywhere on the segment under its own density: ``n_j * P(support <= C_j | Poisson(lam_j)) ** m
-  <= gap_p`` with n_j sub-segments (a Bonferroni bound over the positions). On a dense wall a
-  single empty square splits; on a sparse far wall only a longer gap does.
+- ``lam_i`` = the larger of the mean supports of the 8 squares before and the 8 after square i
+  on its segment (its expected support; at least 1),
+- ``C_i = floor(split_fraction * lam_i)``; a square with support <= C_i is *low*,
+- a run of consecutive low squares is removed only when it is unlikely anywhere on the segment
+  under those expectations: ``n_j * prod_i P(support <= C_i | Poisson(lam_i)) <= gap_p`` over the
+  run, with n_j squares on the segment (a Bonferroni bound over the positions). On a dense wall a
+  single empty square splits; on a sparse far wall only a longer gap does; where density falls
+  off gradually (a wall running away from the sensor) nothing is low.
 
 Connected remainders become the new segments; a segment with no survivors disappears.
+
+In incremental mapping (``incremental.py``) squares supported only by virtual points, the old
+map's history outside the new points' reach, are never low: they were tested when observed.
 """
 
 import numpy as np
-from scipy.stats import poisson
+from scipy.special import pdtr
 
 from .geometry import directions, PointIndex
 
@@ -35,9 +39,22 @@ def _runs(flag: np.ndarray, group: np.ndarray) -> tuple:
     return run, int(run[-1]) + 1 if run.size else 0
 
 
+def _flank_level(support, group, pos, n, flank):
+    """Larger of the mean supports of the ``flank`` items before and after each, per group."""
+    csum = np.concatenate([[0.0], np.cumsum(support)])
+    idx = np.arange(support.size)
+    start = idx - pos                         # first item of the group
+    stop = start + n[group]                   # one past its last item
+    lo = np.maximum(idx - flank, start)
+    hi = np.minimum(idx + 1 + flank, stop)
+    left = (csum[idx] - csum[lo]) / np.maximum(idx - lo, 1)
+    right = (csum[hi] - csum[idx + 1]) / np.maximum(hi - idx - 1, 1)
+    return np.maximum(np.maximum(left, right), 1.0)
+
+
 def split_segments(index: PointIndex, segments: np.ndarray, r: float,
                    split_fraction: float = 0.1, gap_p: float = 1e-3,
-                   percentile: float = 80.0) -> tuple:
+                   flank: int = 8) -> tuple:
     """
     Split segments where their support drops (LSS).
 
@@ -53,8 +70,8 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         C_j as a fraction of the segment's typical sub-segment support.
     gap_p : float
         Significance of a low run (see the module docstring).
-    percentile : float
-        Percentile of a segment's sub-segment supports taken as its typical support.
+    flank : int
+        Squares on each side whose mean support is a square's expected support.
 
     Returns
     -------
@@ -81,18 +98,23 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     support = np.bincount(offset[seg] + kk, weights=index.weights[p.pt[inside]],
                           minlength=total)
 
-    # Typical support per segment: a within-segment percentile, vectorised by sorting.
-    order = np.lexsort((support, sub_seg))
-    pos = offset + np.floor((percentile / 100.0) * (n_sub - 1)).astype(np.intp)
-    lam = np.maximum(support[order][pos], 1.0)
+    # Expected support of each square from its flanks: the larger of the mean supports of the
+    # `flank` squares before and after it, within its segment (at least 1).
+    lam = _flank_level(support, sub_seg, sub_k, n_sub, flank)
     c = np.floor(split_fraction * lam)
-    p_low = np.clip(poisson.cdf(c, lam), 1e-300, 1.0)
-    min_run = np.log(gap_p / n_sub) / np.log(np.minimum(p_low, 1 - 1e-12))
-
-    low = support <= c[sub_seg]
+    low = support <= c
+    if index.n_real < len(index):
+        # Squares held only by virtual points (an old map's history, outside what the new
+        # points cover) were tested when they were observed: they are never low.
+        real = p.pt[inside] < index.n_real
+        seen = np.bincount(offset[seg[real]] + kk[real], minlength=total) > 0
+        low &= seen | (support == 0)
+    # A run of low squares is a gap when its probability under the local levels, summed over
+    # the run in logs, is below gap_p / (squares in the segment).
+    logp = np.where(low, np.log(np.clip(pdtr(c, lam), 1e-300, 1.0)), 0.0)
     run, n_runs = _runs(low, sub_seg)
-    run_len = np.bincount(run, minlength=n_runs)
-    drop = low & (run_len[run] >= min_run[sub_seg])
+    run_logp = np.bincount(run, weights=logp, minlength=n_runs)
+    drop = low & (run_logp[run] <= np.log(gap_p / n_sub[sub_seg]))
     keep = ~drop
     if not keep.any():
         return np.zeros((0, 2, 2)), np.zeros(0, dtype=np.intp)

@@ -1,0 +1,263 @@
+"""
+Incremental SMEMSF: the map G(t) plus the points of the last few scans give G(t+1).
+
+How G(t) takes part in EM without its old points (method.md leaves this open): every segment
+near the new points is represented by *virtual points* sampled along it every 2r metres (one
+per LSS square), each weighing the segment's past support per sample, capped at
+``virtual_cap``. Virtual points
+
+- hold an old wall in place: the M-step's weighted regression sees them like real points, so new
+  points move a wall only as far as their weight against its history allows, and consistent new
+  evidence wins after a few scans because the cap bounds the history;
+- keep the old extent: trimming, LSS and the merge gap test count them, so a long wall seen only
+  in part by the new scans is neither shortened nor split;
+- need no bookkeeping through split and merge (sufficient statistics would have to be divided
+  between pieces).
+
+Only the part of the map near the new points is refit: a grid hash over the segments (cells
+updated only for the segments that change) gives the *active* segments, those within
+``margin`` of a new point. The margin is at least the merge reach, so a wall seen again after a
+loop meets its old segments in the same fit and merges with them instead of doubling them.
+Segments outside stay exactly as they are. Memory is the map plus the buffer of the last
+``buffer_scans`` scans: no point is kept longer.
+
+The noise scale sigma is fixed during mapping: ``SMEMSFConfig.sigma`` when given, otherwise
+estimated from the first scans (median over the first updates that have enough points), never
+below ``sigma_min``. Each update runs ``iterations`` SMEMSF iterations at that sigma.
+"""
+
+from collections import deque
+from dataclasses import dataclass, field
+import time
+from typing import Optional
+
+import numpy as np
+
+from .geometry import as_points, lengths, PointIndex, sample_segments
+from .noise import estimate_noise
+from .polylines import assemble_polylines
+from .smemsf import smemsf_iteration, SMEMSFConfig
+from ..scan import scan_to_points
+
+
+@dataclass
+class IncrementalConfig:
+    """Tunables of the incremental mapper (lengths in metres)."""
+
+    buffer_scans: int = 3
+    """Scans whose points take part in each update (k)."""
+    iterations: int = 1
+    """SMEMSF iterations per update."""
+    margin: float = 0.0
+    """Extra distance (m) around the new points within which segments are refit (added to the
+    merge reach, which is always included)."""
+    virtual_cap: float = 10.0
+    """Largest weight of one virtual point (points per 2r of wall)."""
+    cell: float = 2.0
+    """Cell size (m) of the grid hash over the map."""
+    noise_updates: int = 5
+    """Updates whose noise estimates are pooled (median) before sigma is frozen."""
+    smemsf: SMEMSFConfig = field(default_factory=SMEMSFConfig)
+    """The fit parameters (sigma, r_over_sigma, merge and split thresholds ...)."""
+
+    def __post_init__(self):
+        """Reject values that cannot work, naming the field."""
+        for name in ('buffer_scans', 'iterations', 'noise_updates'):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f'{name} must be an integer >= 1, got {v!r}')
+        for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 1e-9)):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= lo):
+                raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
+
+
+class SegmentGrid:
+    """A grid hash from cells to segment ids; updates cost the cells of the changed segments."""
+
+    def __init__(self, cell: float):
+        self.cell = float(cell)
+        self._cells = {}
+        self._of = {}
+
+    def _keys(self, points: np.ndarray) -> np.ndarray:
+        ij = np.floor(points / self.cell).astype(np.int64) + (1 << 30)
+        return (ij[:, 0] << 32) | ij[:, 1]
+
+    def add(self, ids, segments) -> None:
+        """Register segments under their ids (in every cell they pass through)."""
+        if len(segments) == 0:
+            return
+        pts, owner = sample_segments(np.asarray(segments), 0.5 * self.cell)
+        ids = np.asarray(ids, dtype=np.int64)
+        pairs = np.unique(np.column_stack([ids[owner], self._keys(pts)]), axis=0).tolist()
+        for i, key in pairs:
+            self._of.setdefault(i, []).append(key)
+            self._cells.setdefault(key, set()).add(i)
+
+    def remove(self, ids) -> None:
+        """Forget segments."""
+        for i in ids:
+            for c in self._of.pop(int(i), ()):
+                bucket = self._cells.get(c)
+                if bucket is not None:
+                    bucket.discard(int(i))
+                    if not bucket:
+                        del self._cells[c]
+
+    def near(self, points: np.ndarray, dist: float) -> np.ndarray:
+        """Ids of segments registered in cells within ``dist`` of any point (a superset)."""
+        if len(points) == 0 or not self._cells:
+            return np.zeros(0, dtype=np.intp)
+        keys = np.unique(self._keys(points))
+        reach = int(np.ceil(dist / self.cell))
+        offs = np.arange(-reach, reach + 1, dtype=np.int64)
+        ox, oy = np.meshgrid(offs, offs)
+        shift = ((ox << 32) + oy).ravel()
+        found = set()
+        get = self._cells.get
+        for key in np.unique(keys[:, None] + shift[None]).tolist():
+            bucket = get(key)
+            if bucket:
+                found |= bucket
+        return np.fromiter(found, dtype=np.intp, count=len(found))
+
+
+@dataclass
+class UpdateInfo:
+    """What one update did."""
+
+    points: int
+    active: int
+    segments: int
+    seconds: float
+    skipped: Optional[str] = None
+
+
+class IncrementalMapper:
+    """
+    Online SMEMSF: feed scans (or point sets) one by one, read the map at any time.
+
+    >>> mapper = IncrementalMapper()
+    >>> info = mapper.update_scan(ranges, angles, pose, range_min, range_max)
+    >>> mapper.segments          # (K, 2, 2) metres
+    """
+
+    def __init__(self, config: IncrementalConfig = None):
+        self.config = config or IncrementalConfig()
+        self._seg = np.zeros((64, 2, 2))
+        self._sup = np.zeros(64)
+        self._alive = np.zeros(64, dtype=bool)
+        self._grid = SegmentGrid(self.config.cell)
+        self._buffer = deque(maxlen=int(self.config.buffer_scans))
+        self._noise = []
+        self.sigma = self.config.smemsf.sigma
+        self.updates = 0
+
+    # -- the map -------------------------------------------------------------------------------
+    @property
+    def segments(self) -> np.ndarray:
+        """Return the map's segments, (K, 2, 2) metres (a copy)."""
+        return self._seg[self._alive].copy()
+
+    @property
+    def support(self) -> np.ndarray:
+        """Return each segment's support (accumulated, capped point weight), (K,)."""
+        return self._sup[self._alive].copy()
+
+    def polylines(self) -> tuple:
+        """Chain the current map: (segments with joined ends, polylines, closed flags)."""
+        r = self.config.smemsf.r_over_sigma * (self.sigma or self.config.smemsf.sigma_min)
+        return assemble_polylines(self.segments, self.config.smemsf.join_over_r * r)
+
+    def reset(self) -> None:
+        """Forget the map and the buffer (sigma, once estimated, is kept)."""
+        self.__init__(self.config)
+
+    def nbytes(self) -> int:
+        """Bytes held by the map arrays and the scan buffer."""
+        return (self._seg.nbytes + self._sup.nbytes + self._alive.nbytes
+                + sum(p.nbytes for p in self._buffer))
+
+    # -- updates -------------------------------------------------------------------------------
+    def update_scan(self, ranges, angles, pose, range_min: float = 0.0,
+                    range_max: float = np.inf) -> UpdateInfo:
+        """
+        Add one laser scan: ranges (m) at angles (rad) from a laser at pose (x, y, yaw).
+
+        NaN, inf and out-of-range readings are dropped (REP 117). Raises ValueError on
+        mismatched lengths or a bad pose, leaving the map unchanged.
+        """
+        return self.update(scan_to_points(ranges, angles, pose, range_min, range_max))
+
+    def update(self, points) -> UpdateInfo:
+        """
+        Add the points of one scan (N, 2, fixed frame, metres) and refit the map near them.
+
+        An empty point set changes nothing. Raises ValueError on NaN / inf / wrong shapes,
+        leaving the map unchanged.
+        """
+        t0 = time.perf_counter()
+        pts = as_points(points)
+        if len(pts) == 0:
+            return UpdateInfo(0, 0, int(self._alive.sum()), 0.0, skipped='no valid points')
+        self._buffer.append(pts)
+        window = np.concatenate(self._buffer)
+        if not self._sigma_ready(window):
+            return UpdateInfo(len(pts), 0, int(self._alive.sum()),
+                              time.perf_counter() - t0, skipped='estimating noise')
+        cfg = self.config.smemsf
+        sigma = self.sigma
+        r = cfg.r_over_sigma * sigma
+        reach = cfg.merge_reach * r + cfg.kappa * sigma + self.config.margin
+        active = self._grid.near(window, reach)
+        active = active[self._alive[active]]
+        old = self._seg[active]
+        virt, vw = self._virtual_points(old, self._sup[active], r)
+        index = PointIndex(np.concatenate([window, virt]),
+                           np.concatenate([np.ones(len(window)), vw]), virtual=len(virt))
+        segs = old
+        for _ in range(int(self.config.iterations)):
+            segs, sup, _ = smemsf_iteration(index, segs, sigma, cfg)
+        cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
+        self._replace(active, segs, np.minimum(sup, cap))
+        self.updates += 1
+        return UpdateInfo(len(pts), int(active.size), int(self._alive.sum()),
+                          time.perf_counter() - t0)
+
+    # -- internals -----------------------------------------------------------------------------
+    def _sigma_ready(self, window: np.ndarray) -> bool:
+        if self.sigma is not None:
+            return True
+        cfg = self.config.smemsf
+        est = estimate_noise(window, radius=cfg.noise_radius, rng=len(self._noise))
+        if np.isfinite(est):
+            self._noise.append(est)
+        if len(self._noise) >= self.config.noise_updates:
+            self.sigma = max(float(np.median(self._noise)), cfg.sigma_min)
+            return True
+        return False
+
+    def _virtual_points(self, segs: np.ndarray, sup: np.ndarray, r: float) -> tuple:
+        if len(segs) == 0:
+            return np.zeros((0, 2)), np.zeros(0)
+        pts, owner = sample_segments(segs, 2.0 * r)
+        per = np.bincount(owner, minlength=len(segs))
+        w = np.minimum(sup / per, self.config.virtual_cap)
+        return pts, w[owner]
+
+    def _replace(self, old_ids: np.ndarray, segs: np.ndarray, sup: np.ndarray) -> None:
+        self._grid.remove(old_ids)
+        self._alive[old_ids] = False
+        free = np.flatnonzero(~self._alive)
+        if free.size < len(segs):
+            grow = max(len(self._alive), len(segs) - free.size)
+            self._seg = np.concatenate([self._seg, np.zeros((grow, 2, 2))])
+            self._sup = np.concatenate([self._sup, np.zeros(grow)])
+            self._alive = np.concatenate([self._alive, np.zeros(grow, dtype=bool)])
+            free = np.flatnonzero(~self._alive)
+        ids = free[:len(segs)]
+        self._seg[ids] = segs
+        self._sup[ids] = sup
+        self._alive[ids] = True
+        self._grid.add(ids, segs)
