@@ -162,7 +162,7 @@ class IncrementalMapper:
 
     @property
     def support(self) -> np.ndarray:
-        """Return each segment's support (accumulated, capped point weight), (K,)."""
+        """Return the accumulated, capped point weight behind each segment, shape (K,)."""
         return self._sup[self._alive].copy()
 
     def polylines(self) -> tuple:
