@@ -29,7 +29,8 @@ class EStep:
     support: np.ndarray      # (N,) MAP segment of each point, -1 for outliers / no candidate
 
 
-def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float) -> EStep:
+def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
+           extend: float = 0.0) -> EStep:
     """
     Compute responsibilities of the segments for the points.
 
@@ -43,9 +44,18 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float) 
         Kernel width in metres.
     kappa : float
         Cut-off in units of sigma; the outlier class has the kernel's density at the cut-off.
+    extend : float
+        Distances are measured to the segments extended by this much (m) at both ends: an end
+        is only known to about the LSS half-size r, and a wall must be able to claim the
+        collinear points just past its end (and so grow into a corner that a stray short piece
+        holds) - trimming still stops at its last supporting point.
 
     """
     n = len(index)
+    if extend > 0 and len(segments):
+        d = segments[:, 1] - segments[:, 0]
+        u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+        segments = np.stack([segments[:, 0] - extend * u, segments[:, 1] + extend * u], axis=1)
     pairs = index.pairs(segments, kappa * sigma)
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
@@ -222,7 +232,7 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
 
     """
     k = len(segments)
-    est = e_step(index, segments, sigma, kappa)
+    est = e_step(index, segments, sigma, kappa, extend=r if tail_fraction > 0 else 0.0)
     if k == 0 or len(est.pairs.pt) == 0:
         return np.zeros((0, 2, 2)), np.zeros(0), est
     pw = est.weight * index.weights[est.pairs.pt]
@@ -233,7 +243,15 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     t = np.einsum('ij,ij->i', index.points[sup_pts] - centre[sup_seg], direction[sup_seg])
     lo, hi = group_minmax(t, sup_seg, k)
     if tail_fraction > 0:
-        near = est.pairs.dist <= r
+        # Points near a segment that count against its ends: its own, and those of segments
+        # meeting it at a shallow angle (< 45 deg). Points of a wall crossing at a steep angle
+        # (a T-junction or a corner) say nothing about where this one ends.
+        owner = est.support[est.pairs.pt]
+        u_old = segments[:, 1] - segments[:, 0]
+        u_old = u_old / np.maximum(np.linalg.norm(u_old, axis=1), 1e-12)[:, None]
+        o = np.where(owner >= 0, owner, est.pairs.seg)
+        cos = np.abs(np.einsum('ij,ij->i', u_old[est.pairs.seg], u_old[o]))
+        near = (est.pairs.dist <= r) & (owner >= 0) & (cos > np.cos(np.pi / 4))
         pn, sn = est.pairs.pt[near], est.pairs.seg[near]
         t_near = np.einsum('ij,ij->i', index.points[pn] - centre[sn], direction[sn])
         lo, hi = _trim_foreign_tails(t, sup_seg, index.weights[sup_pts], t_near, sn,

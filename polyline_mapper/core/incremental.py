@@ -170,6 +170,21 @@ class IncrementalMapper:
         r = self.config.smemsf.r_over_sigma * (self.sigma or self.config.smemsf.sigma_min)
         return assemble_polylines(self.segments, self.config.smemsf.join_over_r * r)
 
+    def load(self, segments, support=None) -> None:
+        """
+        Replace the map by given segments (K, 2, 2) metres, e.g. a saved map to extend.
+
+        ``support`` (K,) defaults to the cap (a loaded map is trusted like a long-seen one).
+        """
+        from .geometry import as_segments
+        segs = as_segments(segments)
+        r = self.config.smemsf.r_over_sigma * (self.sigma or self.config.smemsf.sigma_min)
+        cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
+        sup = cap if support is None else np.asarray(support, dtype=np.float64)
+        if sup.shape != (len(segs),) or not np.all(np.isfinite(sup)) or np.any(sup < 0):
+            raise ValueError(f'support must be {len(segs)} finite values >= 0')
+        self._replace(np.flatnonzero(self._alive), segs, sup)
+
     def reset(self) -> None:
         """Forget the map and the buffer (sigma, once estimated, is kept)."""
         self.__init__(self.config)

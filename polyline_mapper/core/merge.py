@@ -19,6 +19,10 @@ alone starts to argue against grouping:
   separates); 0 when the projections overlap, tending to 1 for a gap much longer than the
   shorter segment.
 
+A pair with a segment shorter than 8 r that narrowly fails (cost < 3) gets a second chance from
+the data: it merges when the merged segment keeps 90 % of both supports within 2 sigma (short
+pieces fitted at junctions are tilted by the other wall's points, so their angle misleads).
+
 A pair merges when its cost is below ``merge_threshold`` (default 1) and, if the gap is longer
 than r, the gap is backed by data: the gap is tiled with squares of side 2r (approximated by
 disks of radius r) and the same Poisson gap test as in LSS must not find a significant run of
@@ -186,6 +190,26 @@ def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: f
     return ok
 
 
+def _second_chance(index, ms, cost, pair_support, sigma, r, threshold):
+    """
+    Let the data decide for pairs with a short member that narrowly fail the grouping cost.
+
+    A segment shorter than 8 r has an unreliable direction (a piece fitted at a junction is
+    tilted by the other wall's points), so the angle term can wrongly forbid its merge. For such
+    pairs with cost < 3 x threshold, the merge is accepted (cost set to 0) when the merged
+    segment still has at least 90 % of both segments' support within 2 sigma of it.
+    """
+    short = np.minimum(ms['l1'], ms['l2']) <= 8.0 * r
+    idx = np.flatnonzero(short & (cost >= threshold) & (cost < 3.0 * threshold))
+    if idx.size == 0:
+        return cost
+    p = index.pairs(ms['segment'][idx], 2.0 * sigma)
+    held = np.bincount(p.seg, weights=index.weights[p.pt], minlength=idx.size)
+    cost = cost.copy()
+    cost[idx[held >= 0.9 * pair_support[idx]]] = 0.0
+    return cost
+
+
 def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray, sigma: float,
                    r: float, theta_ref: float = np.deg2rad(10.0), threshold: float = 1.0,
                    reach: float = None, split_fraction: float = 0.1, gap_p: float = 1e-3,
@@ -235,6 +259,7 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
         i, j = pairs[:, 0], pairs[:, 1]
         ms = merged_segment(segments[i], segments[j])
         cost = grouping_cost(ms, sigma, theta_ref)
+        cost = _second_chance(index, ms, cost, support[i] + support[j], sigma, r, threshold)
         cand = np.flatnonzero(cost < threshold)
         if cand.size == 0:
             break

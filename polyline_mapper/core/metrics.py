@@ -28,3 +28,40 @@ def map_metrics(points: np.ndarray, segments: np.ndarray, index: PointIndex = No
                coverage_0_10m=float(np.mean(d <= coverage_radius)),
                compression=float(n / (2.0 * k)))
     return out
+
+
+def twin_fraction(segments: np.ndarray, distance: float = 0.10,
+                  max_angle: float = np.deg2rad(10.0), min_overlap: float = 0.2) -> float:
+    """
+    Share of segments that have a near-parallel, overlapping twin closer than ``distance``.
+
+    Two segments are twins when they differ in direction by less than ``max_angle``, their
+    projections on the longer one overlap by at least ``min_overlap`` of the shorter one's
+    length, and both ends of the shorter one lie within ``distance`` of the longer one's line.
+    A doubled wall shows up as twins; pieces of one wall that meet end to end do not.
+    """
+    from .merge import candidate_pairs
+    k = len(segments)
+    if k < 2:
+        return 0.0
+    pairs = candidate_pairs(segments, distance)
+    if len(pairs) == 0:
+        return 0.0
+    a, b = segments[pairs[:, 0]], segments[pairs[:, 1]]
+    la = np.linalg.norm(a[:, 1] - a[:, 0], axis=1)
+    lb = np.linalg.norm(b[:, 1] - b[:, 0], axis=1)
+    swap = lb > la
+    long_ = np.where(swap[:, None, None], b, a)
+    short = np.where(swap[:, None, None], a, b)
+    ll, ls = np.maximum(la, lb), np.minimum(la, lb)
+    u = (long_[:, 1] - long_[:, 0]) / np.maximum(ll, 1e-12)[:, None]
+    v = (short[:, 1] - short[:, 0]) / np.maximum(ls, 1e-12)[:, None]
+    angle = np.arccos(np.clip(np.abs(np.einsum('ij,ij->i', u, v)), 0.0, 1.0))
+    rel = short - long_[:, :1]
+    t = np.einsum('mkj,mj->mk', rel, u)
+    off = np.abs(rel[:, :, 0] * u[:, None, 1] - rel[:, :, 1] * u[:, None, 0]).max(axis=1)
+    overlap = np.minimum(t.max(axis=1), ll) - np.maximum(t.min(axis=1), 0.0)
+    twin = (angle < max_angle) & (off < distance) & (overlap >= min_overlap * ls)
+    has = np.zeros(k, dtype=bool)
+    has[pairs[twin].ravel()] = True
+    return float(has.mean())

@@ -1,0 +1,120 @@
+"""Incremental SMEMSF: G(t) + the last scans -> G(t+1), on simulated drives."""
+
+from conftest import end_errors
+import numpy as np
+from polyline_mapper.core import fit, map_metrics
+from polyline_mapper.core.geometry import sample_segments
+from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
+from polyline_mapper.core.metrics import twin_fraction
+from polyline_mapper.sim import corridor_loop, LaserSpec, simulate_drive
+import pytest
+
+
+def run_drive(drive, mapper=None):
+    mapper = mapper or IncrementalMapper()
+    angles = drive.spec.angles()
+    infos = [mapper.update_scan(r, angles, p, drive.spec.range_min, drive.spec.range_max)
+             for r, p in zip(drive.ranges, drive.poses)]
+    return mapper, infos
+
+
+@pytest.fixture(scope='module')
+def office_incremental(office_drive):
+    mapper, infos = run_drive(office_drive)
+    return mapper, infos
+
+
+def test_incremental_finds_every_wall_like_batch(office_incremental, office_drive, office_fit):
+    mapper, _ = office_incremental
+    pts, hits, batch = office_fit
+    segs = mapper.segments
+    for i, wall in enumerate(office_drive.world.walls):
+        a, b = wall
+        u = (b - a) / np.linalg.norm(b - a)
+        t = (pts[hits == i] - a) @ u
+        err = end_errors(segs, a + t.min() * u, a + t.max() * u).min()
+        assert err <= 0.10, f'wall {i}: end-point error {err:.3f} m'
+    samples, owner = sample_segments(segs, 0.02)
+    assert office_drive.world.distance(samples).max() <= 0.10
+    inc, bat = map_metrics(pts, segs), map_metrics(pts, batch.segments)
+    assert inc['mean_distance'] <= 1.25 * bat['mean_distance']
+    assert inc['segments'] <= 1.5 * bat['segments']
+    assert inc['coverage_0_10m'] >= bat['coverage_0_10m'] - 0.03
+
+
+def test_revisiting_a_corridor_does_not_double_it():
+    world = corridor_loop(width=2.0, side=16.0)
+    spec = LaserSpec(beams=361, fov=np.deg2rad(270), range_max=8.0, noise=0.01)
+    once = simulate_drive(world, spec, step=0.3, rng=3)
+    twice = simulate_drive(world, spec, step=0.3, rng=4,
+                           waypoints=world.path + world.path[1:])
+    m1, _ = run_drive(once)
+    m2, _ = run_drive(twice)
+    assert twin_fraction(m2.segments) < 0.05
+    assert len(m2.segments) <= 1.2 * len(m1.segments) + 2
+    pts = twice.points()
+    assert map_metrics(pts, m2.segments)['coverage_0_10m'] > 0.98
+
+
+def test_only_segments_near_the_scan_are_refit():
+    world = corridor_loop(width=2.0, side=30.0)
+    spec = LaserSpec(beams=361, fov=np.deg2rad(270), range_max=4.0, noise=0.01)
+    drive = simulate_drive(world, spec, step=0.3, rng=5)
+    mapper, infos = run_drive(drive)
+    total = len(mapper.segments)
+    late = [i.active for i in infos[-20:]]
+    assert total >= 8 and max(late) < total
+    # The far side of the loop is untouched by the last scans.
+    before = mapper.segments
+    far = np.all(before.reshape(-1, 4)[:, [0, 2]] > 20, axis=1)
+    last = simulate_drive(world, spec, step=0.3, rng=6, waypoints=[(1, 1), (1, 5)])
+    run_drive(last, mapper)
+    after = mapper.segments
+    kept = [s for s in before[far] if np.any(np.all(np.isclose(after, s), axis=(1, 2)))]
+    assert len(kept) == int(far.sum()) and far.any()
+
+
+@pytest.mark.parametrize('ranges, angles, why', [
+    (np.full(100, np.nan), np.linspace(-1, 1, 100), None),
+    (np.zeros(0), np.zeros(0), None),
+    (np.full(100, np.inf), np.linspace(-1, 1, 100), None),
+    (np.ones(100), np.linspace(-1, 1, 90), 'differ in length'),
+])
+def test_bad_scans_leave_the_map_unchanged(office_incremental, ranges, angles, why):
+    mapper, _ = office_incremental
+    before, sup = mapper.segments, mapper.support
+    if why is None:
+        info = mapper.update_scan(ranges, angles, (5.0, 6.0, 0.0), 0.05, 12.0)
+        assert info.skipped == 'no valid points'
+    else:
+        with pytest.raises(ValueError, match=why):
+            mapper.update_scan(ranges, angles, (5.0, 6.0, 0.0), 0.05, 12.0)
+    with pytest.raises(ValueError):
+        mapper.update_scan(np.ones(10), np.zeros(10), (np.nan, 0.0, 0.0))
+    np.testing.assert_array_equal(mapper.segments, before)
+    np.testing.assert_array_equal(mapper.support, sup)
+
+
+def test_memory_is_bounded_by_map_and_buffer():
+    world = corridor_loop(width=2.0, side=16.0)
+    spec = LaserSpec(beams=361, fov=np.deg2rad(270), range_max=8.0, noise=0.01)
+    mapper = IncrementalMapper(IncrementalConfig(buffer_scans=3))
+    drive = simulate_drive(world, spec, step=0.3, rng=7,
+                           waypoints=world.path + world.path[1:] + world.path[1:])
+    n = len(drive.poses)
+    sizes = []
+    angles = spec.angles()
+    for i, (r, p) in enumerate(zip(drive.ranges, drive.poses)):
+        mapper.update_scan(r, angles, p, spec.range_min, spec.range_max)
+        if i in (n // 3, n - 1):
+            sizes.append((mapper.nbytes(), len(mapper.segments)))
+    assert len(mapper._buffer) == 3
+    (b1, k1), (b3, k3) = sizes
+    assert b3 <= 1.2 * b1 + 64 * abs(k3 - k1) * 40
+
+
+def test_batch_and_incremental_agree_on_the_same_points(office_drive, office_incremental):
+    pts = office_drive.points()
+    batch = fit(pts)
+    mapper, _ = office_incremental
+    assert abs(len(mapper.segments) - len(batch.segments)) <= 0.5 * len(batch.segments)
