@@ -12,16 +12,13 @@ segment count.
 """
 
 import argparse
-import datetime
 import json
 import os
 import pathlib
-import platform
-import subprocess
 import sys
 import time
 
-import numpy as np
+from common import stamp, write_readme
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.plot import plot_map
@@ -31,39 +28,6 @@ HERE = pathlib.Path(__file__).resolve().parent
 REPO = HERE.parent
 LOGS = ['intel-corrected', 'csail-corrected', 'infinite-corridor-corrected',
         'freiburg-079-corrected', 'freiburg-campus-corrected']
-
-
-def machine() -> str:
-    """Describe the machine: CPU model, cores, memory, Python and numpy versions."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open('/proc/cpuinfo') as fh:
-            for line in fh:
-                if line.startswith('model name'):
-                    cpu = line.split(':', 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    mem = ''
-    try:
-        with open('/proc/meminfo') as fh:
-            kb = int(fh.readline().split()[1])
-            mem = f', {kb / 2 ** 20:.0f} GiB'
-    except (OSError, ValueError, IndexError):
-        pass
-    import scipy
-    return (f'{cpu}, {os.cpu_count()} cores{mem}; Python {platform.python_version()}, '
-            f'numpy {np.__version__}, scipy {scipy.__version__}')
-
-
-def git_rev() -> str:
-    """Return the short commit hash of the working tree (with -dirty when modified)."""
-    try:
-        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=REPO,
-                             capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        rev = 'unknown'
-    return rev
 
 
 def datasets(folder: pathlib.Path, only: list):
@@ -147,18 +111,6 @@ def table(rows: list) -> str:
     return head + body
 
 
-def write_readme(block: str) -> None:
-    """Replace the text between the batch markers of benchmarks/README.md."""
-    path = HERE / 'README.md'
-    begin, end = '<!-- batch:begin -->', '<!-- batch:end -->'
-    text = path.read_text() if path.exists() else f'# Benchmarks\n\n{begin}\n{end}\n'
-    if begin not in text:
-        text += f'\n{begin}\n{end}\n'
-    pre, rest = text.split(begin, 1)
-    _, post = rest.split(end, 1)
-    path.write_text(f'{pre}{begin}\n{block}{end}{post}')
-
-
 def main(argv=None) -> int:
     """Run the benchmark; return the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
@@ -178,8 +130,7 @@ def main(argv=None) -> int:
             intel = points
     sweep_rows = sweep(intel, out_dir) if args.sweep and intel is not None else []
     command = 'python benchmarks/batch.py ' + ' '.join(argv if argv is not None else sys.argv[1:])
-    meta = {'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
-            'machine': machine(), 'commit': git_rev(), 'command': command.strip()}
+    meta = stamp(command)
     (out_dir / 'batch.json').write_text(json.dumps({'meta': meta, 'rows': rows,
                                                     'sweep': sweep_rows}, indent=1))
     block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
@@ -192,7 +143,7 @@ def main(argv=None) -> int:
                       f"| {r['sigma_cm']:.1f} | {r['segments']} | {r['mean_cm']:.2f} | "
                       f"{r['coverage_pct']:.1f}% |\n" for r in sweep_rows))
     if not args.no_readme:
-        write_readme(block)
+        write_readme('batch', block)
     print(block)
     return 0
 

@@ -1,0 +1,63 @@
+"""Helpers shared by the benchmark scripts: machine description, commit, README blocks."""
+
+import datetime
+import os
+import pathlib
+import platform
+import subprocess
+
+import numpy as np
+
+HERE = pathlib.Path(__file__).resolve().parent
+REPO = HERE.parent
+
+
+def machine() -> str:
+    """Describe the machine: CPU model, cores, memory, Python and numpy versions."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open('/proc/cpuinfo') as fh:
+            for line in fh:
+                if line.startswith('model name'):
+                    cpu = line.split(':', 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    mem = ''
+    try:
+        with open('/proc/meminfo') as fh:
+            kb = int(fh.readline().split()[1])
+            mem = f', {kb / 2 ** 20:.0f} GiB'
+    except (OSError, ValueError, IndexError):
+        pass
+    import scipy
+    return (f'{cpu}, {os.cpu_count()} cores{mem}; Python {platform.python_version()}, '
+            f'numpy {np.__version__}, scipy {scipy.__version__}')
+
+
+def git_rev() -> str:
+    """Return the short commit hash of the working tree (with -dirty when modified)."""
+    try:
+        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=REPO,
+                             capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        rev = 'unknown'
+    return rev
+
+
+def stamp(command: str) -> dict:
+    """Return the date, machine, commit and command of a measurement."""
+    return {'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
+            'machine': machine(), 'commit': git_rev(), 'command': command.strip()}
+
+
+def write_readme(name: str, block: str) -> None:
+    """Replace the text between the ``name`` markers of benchmarks/README.md."""
+    path = HERE / 'README.md'
+    begin, end = f'<!-- {name}:begin -->', f'<!-- {name}:end -->'
+    text = path.read_text() if path.exists() else f'# Benchmarks\n\n{begin}\n{end}\n'
+    if begin not in text:
+        text += f'\n{begin}\n{end}\n'
+    pre, rest = text.split(begin, 1)
+    _, post = rest.split(end, 1)
+    path.write_text(f'{pre}{begin}\n{block}{end}{post}')
