@@ -58,7 +58,7 @@ def run_mapper(scans, mapper=None, on_scan=None):
 
 
 def sim_scans(beams: int, rng: int = 1):
-    """Simulated office drive with a full-circle laser of ``beams`` beams."""
+    """Simulate an office drive with a full-circle laser of ``beams`` beams."""
     spec = LaserSpec(beams=beams, fov=2 * np.pi, range_max=12.0, noise=0.01, dropout=0.01)
     drive = simulate_drive(office_floor(), spec, step=0.25, rng=rng)
     angles = spec.angles()
@@ -68,7 +68,7 @@ def sim_scans(beams: int, rng: int = 1):
 
 
 def log_scans(path: pathlib.Path):
-    """Scans of a CARMEN log with its no-return code applied, and all its points."""
+    """Read the scans of a CARMEN log (no-return code applied) and all its points."""
     log = read_carmen(str(path))
     top = log.no_return * 0.99
     scans = [(rec.ranges, rec.angles, rec.pose, 0.0, min(rec.range_max, top))
@@ -180,7 +180,7 @@ def memory(path: pathlib.Path) -> dict:
            'map_500_kb': b500 / 1024, 'map_end_kb': bend / 1024, 'segments_500': k500,
            'segments_end': kend, 'bound_mb': (1.2 * r500 + bend) / 2 ** 20}
     row['within_bound'] = bool(rend <= 1.2 * r500 + bend)
-    print(f"memory: {row}", flush=True)
+    print(f'memory: {row}', flush=True)
     return row
 
 
