@@ -21,9 +21,15 @@ loop meets its old segments in the same fit and merges with them instead of doub
 Segments outside stay exactly as they are. Memory is the map plus the buffer of the last
 ``buffer_scans`` scans: no point is kept longer.
 
-The noise scale sigma is fixed during mapping: ``SMEMSFConfig.sigma`` when given, otherwise
-estimated from the first scans (median over the first updates that have enough points), never
-below ``sigma_min``. Each update runs ``iterations`` SMEMSF iterations at that sigma.
+The noise scale sigma is ``SMEMSFConfig.sigma`` when given (then fixed). Otherwise it starts
+from the local thickness of the first scans and then follows the scan-to-map spread: after every
+update the robust residual scale (1.4826 x median distance) of the new points the map explains
+feeds a running median over the last ``sigma_window`` updates, never below the first estimate
+(a single scan's thickness is the range noise; registration error can only add to it). A map
+built from many scans is as thick as their registration error; with sigma too small a wall seen again a few centimetres off would be
+doubled. The running median has that spread as its fixed point: when sigma is too small the
+truncated residuals look uniform and their scale is about 2 sigma, so sigma grows; when it is
+large enough the scale is the spread itself. Each update runs ``iterations`` SMEMSF iterations.
 """
 
 from collections import deque
@@ -56,13 +62,15 @@ class IncrementalConfig:
     cell: float = 2.0
     """Cell size (m) of the grid hash over the map."""
     noise_updates: int = 5
-    """Updates whose noise estimates are pooled (median) before sigma is frozen."""
+    """Updates whose thickness estimates are pooled (median) for the first sigma."""
+    sigma_window: int = 50
+    """Updates whose residual scales are pooled (running median) for sigma."""
     smemsf: SMEMSFConfig = field(default_factory=SMEMSFConfig)
     """The fit parameters (sigma, r_over_sigma, merge and split thresholds ...)."""
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
-        for name in ('buffer_scans', 'iterations', 'noise_updates'):
+        for name in ('buffer_scans', 'iterations', 'noise_updates', 'sigma_window'):
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f'{name} must be an integer >= 1, got {v!r}')
@@ -151,6 +159,7 @@ class IncrementalMapper:
         self._grid = SegmentGrid(self.config.cell)
         self._buffer = deque(maxlen=int(self.config.buffer_scans))
         self._noise = []
+        self._scales = deque(maxlen=int(self.config.sigma_window))
         self.sigma = self.config.smemsf.sigma
         self.updates = 0
 
@@ -233,7 +242,10 @@ class IncrementalMapper:
                            np.concatenate([np.ones(len(window)), vw]), virtual=len(virt))
         segs = old
         for _ in range(int(self.config.iterations)):
-            segs, sup, _ = smemsf_iteration(index, segs, sigma, cfg)
+            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg)
+        if cfg.sigma is None and np.isfinite(info['residual_scale']):
+            self._scales.append(info['residual_scale'])
+            self.sigma = max(float(np.median(self._scales)), self._sigma0)
         cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
         self._replace(active, segs, np.minimum(sup, cap))
         self.updates += 1
@@ -249,7 +261,7 @@ class IncrementalMapper:
         if np.isfinite(est):
             self._noise.append(est)
         if len(self._noise) >= self.config.noise_updates:
-            self.sigma = max(float(np.median(self._noise)), cfg.sigma_min)
+            self.sigma = self._sigma0 = max(float(np.median(self._noise)), cfg.sigma_min)
             return True
         return False
 

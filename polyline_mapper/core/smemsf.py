@@ -245,11 +245,13 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     if len(est.pairs.pt):
         np.minimum.at(nearest, est.pairs.pt, est.pairs.dist)
     sup = est.support >= 0
+    sup[index.n_real:] = False                 # virtual points sit on their segments exactly
     resid = nearest[sup]
     scale = 1.4826 * float(np.median(resid)) if resid.size else sigma
-    w = index.weights
+    w = index.weights[:index.n_real]
+    mean = float(np.sum(w * nearest[:index.n_real]) / max(np.sum(w), 1e-300))
     info = {'r': r, 'residual_scale': scale, 'seeds': int(len(seeds)), 'merges': int(merges),
-            'mean_truncated': float(np.sum(w * nearest) / np.sum(w))}
+            'mean_truncated': mean}
     return segments, support, info
 
 

@@ -21,8 +21,9 @@ so neither one global C nor one C per segment works):
 
 Connected remainders become the new segments; a segment with no survivors disappears.
 
-In incremental mapping (``incremental.py``) squares supported only by virtual points, the old
-map's history outside the new points' reach, are never low: they were tested when observed.
+In incremental mapping (``incremental.py``) squares holding virtual points, the old map, are never
+low: they were tested when observed, and a sparse new look is no evidence that a wall is gone
+(that would need free-space evidence from ray casting). LSS cuts new extensions and new segments.
 """
 
 import numpy as np
@@ -104,11 +105,11 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     c = np.floor(split_fraction * lam)
     low = support <= c
     if index.n_real < len(index):
-        # Squares held only by virtual points (an old map's history, outside what the new
-        # points cover) were tested when they were observed: they are never low.
-        real = p.pt[inside] < index.n_real
-        seen = np.bincount(offset[seg[real]] + kk[real], minlength=total) > 0
-        low &= seen | (support == 0)
+        # Squares holding virtual points (the old map) were tested when they were observed;
+        # a sparse new look at them is no evidence that the wall is gone: never low.
+        virtual = p.pt[inside] >= index.n_real
+        held = np.bincount(offset[seg[virtual]] + kk[virtual], minlength=total) > 0
+        low &= ~held
     # A run of low squares is a gap when its probability under the local levels, summed over
     # the run in logs, is below gap_p / (squares in the segment).
     logp = np.where(low, np.log(np.clip(pdtr(c, lam), 1e-300, 1.0)), 0.0)
