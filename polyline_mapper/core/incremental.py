@@ -26,8 +26,8 @@ from the local thickness of the first scans and then follows the scan-to-map spr
 update the robust residual scale (1.4826 x median distance) of the new points the map explains
 feeds a running median over the last ``sigma_window`` updates, never below the first estimate
 (a single scan's thickness is the range noise; registration error can only add to it). A map
-built from many scans is as thick as their registration error; with sigma too small a wall seen again a few centimetres off would be
-doubled. The running median has that spread as its fixed point: when sigma is too small the
+built from many scans is as thick as their registration error; with sigma too small a wall seen
+again a few centimetres off would be doubled. The running median has that spread as its fixed point: when sigma is too small the
 truncated residuals look uniform and their scale is about 2 sigma, so sigma grows; when it is
 large enough the scale is the spread itself. Each update runs ``iterations`` SMEMSF iterations.
 """
