@@ -27,6 +27,7 @@ class EStep:
     pairs: Pairs
     weight: np.ndarray       # (P,) responsibility w_ij of each pair, in [0, 1]
     support: np.ndarray      # (N,) MAP segment of each point, -1 for outliers / no candidate
+    kept: np.ndarray = None  # indices of the input segments emsf_step kept, in output order
 
 
 def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
@@ -45,10 +46,9 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     kappa : float
         Cut-off in units of sigma; the outlier class has the kernel's density at the cut-off.
     extend : float
-        Distances are measured to the segments extended by this much (m) at both ends: an end
-        is only known to about the LSS half-size r, and a wall must be able to claim the
-        collinear points just past its end (and so grow into a corner that a stray short piece
-        holds) - trimming still stops at its last supporting point.
+        Distances are measured to the segments extended by this much (m) at both ends, so that
+        a wall can claim the collinear points just past its end and grow as it comes into view;
+        trimming still stops at its last supporting point.
 
     """
     n = len(index)
@@ -81,7 +81,8 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     return EStep(pairs, w, support)
 
 
-def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int) -> tuple:
+def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int,
+                   return_thickness: bool = False) -> tuple:
     """
     Weighted orthogonal regression lines for ``k`` groups (the M-step).
 
@@ -95,6 +96,8 @@ def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int) -
         Non-negative weights.
     k : int
         Number of groups.
+    return_thickness : bool
+        Also return each group's thickness: the weighted RMS distance from its line (m).
 
     Returns
     -------
@@ -115,6 +118,10 @@ def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int) -
     sxy = np.bincount(seg, weights=w * dx * dy, minlength=k)
     theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     direction = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    if return_thickness:
+        lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
+        return (np.stack([cx, cy], axis=1), direction, mass,
+                np.sqrt(np.maximum(lam_min, 0.0) / safe))
     return np.stack([cx, cy], axis=1), direction, mass
 
 
@@ -232,8 +239,13 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
 
     """
     k = len(segments)
-    est = e_step(index, segments, sigma, kappa, extend=r if tail_fraction > 0 else 0.0)
+    # Incremental mapping (an old map present as virtual points): walls grow as they come into
+    # view, so distances are measured to segments extended by r. A batch fit grows walls by
+    # going coarse to fine, and extending there would overshoot shallow corners.
+    extend = r if index.n_real < len(index) else 0.0
+    est = e_step(index, segments, sigma, kappa, extend=extend)
     if k == 0 or len(est.pairs.pt) == 0:
+        est.kept = np.zeros(0, dtype=np.intp)
         return np.zeros((0, 2, 2)), np.zeros(0), est
     pw = est.weight * index.weights[est.pairs.pt]
     centre, direction, mass = weighted_lines(index.points[est.pairs.pt], est.pairs.seg, pw, k)
@@ -263,4 +275,5 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
         keep &= ~redundant_segments(est, segments, r)
     c, u = centre[keep], direction[keep]
     new = np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)
+    est.kept = np.flatnonzero(keep)
     return new, sup_mass[keep], est

@@ -27,9 +27,10 @@ update the robust residual scale (1.4826 x median distance) of the new points th
 feeds a running median over the last ``sigma_window`` updates, never below the first estimate
 (a single scan's thickness is the range noise; registration error can only add to it). A map
 built from many scans is as thick as their registration error; with sigma too small a wall seen
-again a few centimetres off would be doubled. The running median has that spread as its fixed point: when sigma is too small the
-truncated residuals look uniform and their scale is about 2 sigma, so sigma grows; when it is
-large enough the scale is the spread itself. Each update runs ``iterations`` SMEMSF iterations.
+again a few centimetres off would be doubled. The running median has that spread as its fixed
+point: when sigma is too small the truncated residuals look uniform and their scale is about
+2 sigma, so sigma grows; when it is large enough the scale is the spread itself. Each update
+runs ``iterations`` SMEMSF iterations.
 """
 
 from collections import deque
@@ -242,7 +243,7 @@ class IncrementalMapper:
                            np.concatenate([np.ones(len(window)), vw]), virtual=len(virt))
         segs = old
         for _ in range(int(self.config.iterations)):
-            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg)
+            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, merge_fresh_only=True)
         if cfg.sigma is None and np.isfinite(info['residual_scale']):
             self._scales.append(info['residual_scale'])
             self.sigma = max(float(np.median(self._scales)), self._sigma0)

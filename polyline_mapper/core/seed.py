@@ -17,7 +17,8 @@ from .geometry import group_minmax
 
 
 def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
-                  min_mass: float, min_density: float = 0.0, r: float = 1.0) -> np.ndarray:
+                  min_mass: float, min_density: float = 0.0, r: float = 1.0,
+                  max_thickness: float = np.inf) -> np.ndarray:
     """
     Seed segments from points, one per occupied grid cell.
 
@@ -35,6 +36,10 @@ def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
         and at least this much per ``2 r`` of the seed's length.
     r : float
         The current LSS half-size, metres.
+    max_thickness : float
+        A cell's points must lie within this RMS distance of their line (m): a cell straddling
+        a corner holds an L of points whose line is a tilted stub that would then own the
+        corner; left unseeded, the corner is reached by the walls seeded beside it.
 
     Returns
     -------
@@ -47,9 +52,11 @@ def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
     _, cell_id = np.unique(ij, axis=0, return_inverse=True)
     cell_id = cell_id.ravel()
     k = int(cell_id.max()) + 1
-    centre, direction, mass = weighted_lines(points, cell_id, weights, k)
+    centre, direction, mass, thick = weighted_lines(points, cell_id, weights, k,
+                                                    return_thickness=True)
     t = np.einsum('ij,ij->i', points - centre[cell_id], direction[cell_id])
     lo, hi = group_minmax(t, cell_id, k)
-    keep = (mass >= min_mass) & (mass >= min_density * (hi - lo) / (2.0 * r)) & (hi > lo)
+    keep = ((mass >= min_mass) & (mass >= min_density * (hi - lo) / (2.0 * r)) & (hi > lo)
+            & (thick <= max_thickness))
     c, u = centre[keep], direction[keep]
     return np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)

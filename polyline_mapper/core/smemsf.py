@@ -32,7 +32,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .emsf import emsf_step
-from .geometry import as_points, as_segments, PointIndex
+from .geometry import as_points, as_segments, lengths, PointIndex
 from .merge import merge_segments
 from .noise import estimate_noise
 from .polylines import assemble_polylines
@@ -82,6 +82,8 @@ class SMEMSFConfig:
     near it (0 disables: the paper's plain min/max trimming)."""
     seed_cell: float = 8.0
     """Grid cell for seeding unexplained points, in units of r."""
+    seed_thickness: float = 2.0
+    """A seed cell's points must lie within this many sigmas (RMS) of their line."""
     max_iterations: int = 30
     """Iteration cap."""
     tol: float = 0.01
@@ -103,8 +105,8 @@ class SMEMSFConfig:
             if getattr(self, name) == 0:
                 setattr(self, name, None)
         positive = ['sigma_min', 'kappa', 'r_over_sigma', 'gap_p', 'merge_theta_ref',
-                    'merge_threshold', 'merge_reach', 'seed_cell', 'tol', 'noise_radius',
-                    'join_over_r']
+                    'merge_threshold', 'merge_reach', 'seed_cell', 'seed_thickness', 'tol',
+                    'noise_radius', 'join_over_r']
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0):
@@ -214,10 +216,24 @@ def check_fit_input(points, weights=None) -> tuple:
     return pts, weights
 
 
+def _ends_moved(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Largest end-point displacement between segment arrays, either orientation, (K,)."""
+    same = np.maximum(np.linalg.norm(a[:, 0] - b[:, 0], axis=1),
+                      np.linalg.norm(a[:, 1] - b[:, 1], axis=1))
+    swap = np.maximum(np.linalg.norm(a[:, 0] - b[:, 1], axis=1),
+                      np.linalg.norm(a[:, 1] - b[:, 0], axis=1))
+    return np.minimum(same, swap)
+
+
 def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
-                     config: SMEMSFConfig) -> tuple:
+                     config: SMEMSFConfig, merge_fresh_only: bool = False) -> tuple:
     """
     One SMEMSF iteration at noise scale ``sigma`` (seed, EMSF, LSS, EMSF, merge).
+
+    With ``merge_fresh_only`` (the incremental mapper) merging examines only pairs involving a
+    seed, a piece that LSS cut from a longer segment, a segment whose ends moved by more than
+    r / 2 in this iteration (it grew into view and may now touch another), or a short segment
+    (<= 8 r, whose direction is still settling).
 
     Returns
     -------
@@ -226,19 +242,26 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
 
     """
     r = config.r_over_sigma * sigma
+    before = segments
     segments, _, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                  config.min_density, r)
+    moved = _ends_moved(before[est.kept], segments) > 0.5 * r
     covered = np.zeros(len(index), dtype=bool)
     covered[est.pairs.pt] = True
     seeds = seed_segments(index.points[~covered], index.weights[~covered],
-                          config.seed_cell * r, config.min_support, config.min_density, r)
+                          config.seed_cell * r, config.min_support, config.min_density, r,
+                          config.seed_thickness * sigma)
+    n_old = len(segments)
     segments = np.concatenate([segments, seeds])
-    segments, _ = split_segments(index, segments, r, config.split_fraction, config.gap_p)
+    segments, parent = split_segments(index, segments, r, config.split_fraction, config.gap_p)
+    fresh = ((parent >= n_old) | (np.bincount(parent, minlength=n_old + len(seeds))[parent] > 1)
+             | np.concatenate([moved, np.ones(len(seeds), dtype=bool)])[parent])
     segments, support, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                        config.min_density, r, config.tail_fraction)
     segments, support, merges = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
-        config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
+        config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p,
+        fresh=(fresh[est.kept] | (lengths(segments) <= 8.0 * r)) if merge_fresh_only else None)
     # Residuals of supported points (to their MAP segment) and the truncated nearest distance.
     cap = config.kappa * sigma
     nearest = np.full(len(index), cap)

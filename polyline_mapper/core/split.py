@@ -29,7 +29,7 @@ low: they were tested when observed, and a sparse new look is no evidence that a
 import numpy as np
 from scipy.special import pdtr
 
-from .geometry import directions, PointIndex
+from .geometry import directions, group_minmax, PointIndex
 
 
 def _runs(flag: np.ndarray, group: np.ndarray) -> tuple:
@@ -91,24 +91,32 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     sub_seg = np.repeat(np.arange(k), n_sub)
     sub_k = np.arange(total) - offset[sub_seg]
 
-    p = index.pairs(segments, r)
+    incremental = index.n_real < len(index)
+    p = index.pairs(segments, 2.0 * r if incremental else r)
     inside = (p.along >= 0) & (p.along <= length[p.seg])
+    band = (np.abs(p.normal) <= r)[inside]
     seg = p.seg[inside]
     kk = np.clip((p.along[inside] / np.where(sub_len[seg] > 0, sub_len[seg], 1.0)).astype(np.intp),
                  0, n_sub[seg] - 1)
-    support = np.bincount(offset[seg] + kk, weights=index.weights[p.pt[inside]],
-                          minlength=total)
+    support = np.bincount(offset[seg[band]] + kk[band],
+                          weights=index.weights[p.pt[inside][band]], minlength=total)
 
     # Expected support of each square from its flanks: the larger of the mean supports of the
     # `flank` squares before and after it, within its segment (at least 1).
     lam = _flank_level(support, sub_seg, sub_k, n_sub, flank)
     c = np.floor(split_fraction * lam)
     low = support <= c
-    if index.n_real < len(index):
-        # Squares holding virtual points (the old map) were tested when they were observed;
-        # a sparse new look at them is no evidence that the wall is gone: never low.
+    if incremental:
+        # Squares within the span the old map's virtual points cover on a segment were tested
+        # when they were observed; a sparse new look at them is no evidence that the wall is
+        # gone: never low. (The span, not each square's count: virtual points and squares are
+        # both about 2r apart and their phases drift. Within 2r of the line: a refit may tilt a
+        # long wall a little.)
         virtual = p.pt[inside] >= index.n_real
-        held = np.bincount(offset[seg[virtual]] + kk[virtual], minlength=total) > 0
+        vlo, vhi = group_minmax(p.along[inside][virtual], seg[virtual], k)
+        centre = (sub_k + 0.5) * sub_len[sub_seg]
+        held = (centre >= vlo[sub_seg] - 0.5 * sub_len[sub_seg]) & \
+               (centre <= vhi[sub_seg] + 0.5 * sub_len[sub_seg])
         low &= ~held
     # A run of low squares is a gap when its probability under the local levels, summed over
     # the run in logs, is below gap_p / (squares in the segment).
