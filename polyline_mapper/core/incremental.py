@@ -162,6 +162,7 @@ class IncrementalMapper:
         self._noise = []
         self._scales = deque(maxlen=int(self.config.sigma_window))
         self.sigma = self.config.smemsf.sigma
+        self._sigma0 = self.sigma
         self.updates = 0
 
     # -- the map -------------------------------------------------------------------------------
