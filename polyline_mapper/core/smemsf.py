@@ -82,7 +82,7 @@ class SMEMSFConfig:
     near it (0 disables: the paper's plain min/max trimming)."""
     seed_cell: float = 8.0
     """Grid cell for seeding unexplained points, in units of r."""
-    seed_thickness: float = 2.0
+    seed_thickness: float = 3.0
     """A seed cell's points must lie within this many sigmas (RMS) of their line."""
     max_iterations: int = 30
     """Iteration cap."""
