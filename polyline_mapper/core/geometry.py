@@ -148,11 +148,6 @@ class Pairs:
     along: np.ndarray
     normal: np.ndarray
 
-    def select(self, mask: np.ndarray) -> 'Pairs':
-        """Return the pairs where ``mask`` is true."""
-        return Pairs(self.pt[mask], self.seg[mask], self.dist[mask], self.along[mask],
-                     self.normal[mask])
-
 
 class PointIndex:
     """
