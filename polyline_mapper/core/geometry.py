@@ -258,6 +258,22 @@ def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex
     return dist, nearest
 
 
+def label_runs(flag: np.ndarray, group: np.ndarray) -> tuple:
+    """
+    Label runs of equal ``flag`` inside each ``group`` (items ordered by group).
+
+    Returns
+    -------
+    run : (M,) run id of each item, from 0.
+    n_runs : int
+
+    """
+    start = np.ones(flag.size, dtype=bool)
+    start[1:] = (flag[1:] != flag[:-1]) | (group[1:] != group[:-1])
+    run = np.cumsum(start) - 1
+    return run, int(run[-1]) + 1 if run.size else 0
+
+
 def group_minmax(values: np.ndarray, groups: np.ndarray, n_groups: int) -> tuple:
     """Per-group minimum and maximum of ``values`` (inf / -inf for empty groups)."""
     lo = np.full(n_groups, np.inf)

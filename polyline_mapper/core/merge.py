@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import pdtr
 
-from .geometry import directions, PointIndex, sample_segments
+from .geometry import directions, label_runs, PointIndex, project, sample_segments
 
 
 def merged_segment(s1: np.ndarray, s2: np.ndarray) -> dict:
@@ -142,7 +142,6 @@ def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None
 
 def _segment_distance(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
     """Distance between segments, pair by pair (0 where they cross)."""
-    from .geometry import project
     d = np.minimum.reduce([project(s1[:, 0], s2)[0], project(s1[:, 1], s2)[0],
                            project(s2[:, 0], s1)[0], project(s2[:, 1], s1)[0]])
     a, b = s1[:, 0], s1[:, 1]
@@ -180,10 +179,8 @@ def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: f
     min_run = np.log(gap_p / n) / np.log(p_low)
     low = counts <= c[owner]
     # Longest run of low squares per gap.
-    start = np.ones(low.size, dtype=bool)
-    start[1:] = (low[1:] != low[:-1]) | (owner[1:] != owner[:-1])
-    run = np.cumsum(start) - 1
-    run_len = np.bincount(run)
+    run, n_runs = label_runs(low, owner)
+    run_len = np.bincount(run, minlength=n_runs)
     longest = np.zeros(check.size)
     np.maximum.at(longest, owner[low], run_len[run[low]])
     ok[check] = longest < min_run

@@ -29,15 +29,7 @@ low: they were tested when observed, and a sparse new look is no evidence that a
 import numpy as np
 from scipy.special import pdtr
 
-from .geometry import directions, group_minmax, PointIndex
-
-
-def _runs(flag: np.ndarray, group: np.ndarray) -> tuple:
-    """Label runs of equal ``flag`` inside each ``group``; return run id per item and count."""
-    start = np.ones(flag.size, dtype=bool)
-    start[1:] = (flag[1:] != flag[:-1]) | (group[1:] != group[:-1])
-    run = np.cumsum(start) - 1
-    return run, int(run[-1]) + 1 if run.size else 0
+from .geometry import directions, group_minmax, label_runs, PointIndex
 
 
 def _flank_level(support, group, pos, n, flank):
@@ -121,14 +113,14 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     # A run of low squares is a gap when its probability under the local levels, summed over
     # the run in logs, is below gap_p / (squares in the segment).
     logp = np.where(low, np.log(np.clip(pdtr(c, lam), 1e-300, 1.0)), 0.0)
-    run, n_runs = _runs(low, sub_seg)
+    run, n_runs = label_runs(low, sub_seg)
     run_logp = np.bincount(run, weights=logp, minlength=n_runs)
     drop = low & (run_logp[run] <= np.log(gap_p / n_sub[sub_seg]))
     keep = ~drop
     if not keep.any():
         return np.zeros((0, 2, 2)), np.zeros(0, dtype=np.intp)
 
-    run, n_runs = _runs(keep, sub_seg)
+    run, n_runs = label_runs(keep, sub_seg)
     kept_runs = np.unique(run[keep])
     first = np.full(n_runs, total, dtype=np.intp)
     last = np.full(n_runs, -1, dtype=np.intp)
