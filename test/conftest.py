@@ -30,12 +30,8 @@ def noisy_line(a, b, n, sigma, rng):
 
 def end_errors(found, a, b):
     """End-point error (m) of each found segment against segment ab, either way round."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    d0a = np.linalg.norm(found[:, 0] - a, axis=1)
-    d1b = np.linalg.norm(found[:, 1] - b, axis=1)
-    d0b = np.linalg.norm(found[:, 0] - b, axis=1)
-    d1a = np.linalg.norm(found[:, 1] - a, axis=1)
-    return np.minimum(np.maximum(d0a, d1b), np.maximum(d0b, d1a))
+    from polyline_mapper.core.geometry import end_distance
+    return end_distance(np.asarray(found, float), np.array([[a, b]], dtype=float))
 
 
 @pytest.fixture(scope='session')

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import group_minmax, Pairs, PointIndex
+from .geometry import directions, group_minmax, lengths, Pairs, PointIndex
 
 
 @dataclass
@@ -53,8 +53,7 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     """
     n = len(index)
     if extend > 0 and len(segments):
-        d = segments[:, 1] - segments[:, 0]
-        u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+        u, _ = directions(segments)
         segments = np.stack([segments[:, 0] - extend * u, segments[:, 1] + extend * u], axis=1)
     pairs = index.pairs(segments, kappa * sigma)
     if len(pairs.pt) == 0:
@@ -206,7 +205,7 @@ def redundant_segments(est: EStep, segments: np.ndarray, r: float,
     last[:-1] = seg_of[order][1:] != seg_of[order][:-1]
     main = np.full(k, -1, dtype=np.intp)
     main[seg_of[order][last]] = (key % k)[order][last]
-    length = np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
+    length = lengths(segments)
     cand = (frac >= share) & (main >= 0)
     m = np.where(main >= 0, main, 0)
     longer = (length[m] > length) | ((length[m] == length) & (m > np.arange(k)))
@@ -259,8 +258,7 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
         # meeting it at a shallow angle (< 45 deg). Points of a wall crossing at a steep angle
         # (a T-junction or a corner) say nothing about where this one ends.
         owner = est.support[est.pairs.pt]
-        u_old = segments[:, 1] - segments[:, 0]
-        u_old = u_old / np.maximum(np.linalg.norm(u_old, axis=1), 1e-12)[:, None]
+        u_old, _ = directions(segments)
         o = np.where(owner >= 0, owner, est.pairs.seg)
         cos = np.abs(np.einsum('ij,ij->i', u_old[est.pairs.seg], u_old[o]))
         near = (est.pairs.dist <= r) & (owner >= 0) & (cos > np.cos(np.pi / 4))

@@ -258,6 +258,24 @@ def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex
     return dist, nearest
 
 
+def end_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """
+    Distance between segments matched pair by pair, end to end, either way round.
+
+    Returns
+    -------
+    (K,) the larger of the two end-point distances, for the better orientation, metres.
+
+    """
+    a = np.broadcast_to(a, np.broadcast_shapes(np.shape(a), np.shape(b)))
+    b = np.broadcast_to(b, a.shape)
+    same = np.maximum(np.linalg.norm(a[:, 0] - b[:, 0], axis=1),
+                      np.linalg.norm(a[:, 1] - b[:, 1], axis=1))
+    swap = np.maximum(np.linalg.norm(a[:, 0] - b[:, 1], axis=1),
+                      np.linalg.norm(a[:, 1] - b[:, 0], axis=1))
+    return np.minimum(same, swap)
+
+
 def label_runs(flag: np.ndarray, group: np.ndarray) -> tuple:
     """
     Label runs of equal ``flag`` inside each ``group`` (items ordered by group).

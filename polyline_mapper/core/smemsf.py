@@ -32,7 +32,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .emsf import emsf_step
-from .geometry import as_points, as_segments, lengths, PointIndex
+from .geometry import as_points, as_segments, end_distance, lengths, PointIndex
 from .merge import merge_segments
 from .noise import estimate_noise
 from .polylines import assemble_polylines
@@ -216,15 +216,6 @@ def check_fit_input(points, weights=None) -> tuple:
     return pts, weights
 
 
-def _ends_moved(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Largest end-point displacement between segment arrays, either orientation, (K,)."""
-    same = np.maximum(np.linalg.norm(a[:, 0] - b[:, 0], axis=1),
-                      np.linalg.norm(a[:, 1] - b[:, 1], axis=1))
-    swap = np.maximum(np.linalg.norm(a[:, 0] - b[:, 1], axis=1),
-                      np.linalg.norm(a[:, 1] - b[:, 0], axis=1))
-    return np.minimum(same, swap)
-
-
 def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
                      config: SMEMSFConfig, merge_fresh_only: bool = False) -> tuple:
     """
@@ -245,7 +236,7 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     before = segments
     segments, _, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                  config.min_density, r)
-    moved = _ends_moved(before[est.kept], segments) > 0.5 * r
+    moved = end_distance(before[est.kept], segments) > 0.5 * r
     covered = np.zeros(len(index), dtype=bool)
     covered[est.pairs.pt] = True
     seeds = seed_segments(index.points[~covered], index.weights[~covered],
