@@ -1,0 +1,320 @@
+"""
+A time-indexed tree of coordinate frames, for poses of a laser in a fixed frame (ROS-free).
+
+``TransformBuffer2D`` keeps, per edge parent -> child, either one static transform or a short
+history of stamped ones, like tf2's buffer, and answers "where was frame ``source`` in frame
+``target`` at time t" as a planar pose. It is fed from /tf and /tf_static by the node (when
+tf2_ros is not installed), from odometry plus a laser mount in odom mode, and from bags by the
+offline replay, so live and offline poses come from the same code.
+
+Conventions (REP 103 / REP 105): a transform parent -> child with translation t and rotation q
+maps child coordinates to parent coordinates, p_parent = R(q) p_child + t. Chains are composed in
+3D (translation and rotation) and projected to the plane only at the end:
+
+- yaw is the heading of the source frame's x axis in the target's xy plane;
+- ``flip`` is True when the source frame's z axis points down (a laser mounted upside down, roll
+  or pitch of 180 degrees). Its beams then sweep clockwise seen from above: a beam at angle a in
+  the laser frame points at yaw - a in the target frame. ``PlanarPose.beam_angles`` mirrors the
+  angles, so ``scan_to_points(ranges, pose.beam_angles(angles), pose.xyz)`` is right either way;
+- a source frame tilted out of the plane by more than ``max_tilt`` is refused (its scan plane
+  is not the map's plane); smaller tilts are ignored (ranges are not shortened by cos(tilt)).
+
+Dynamic edges are interpolated between the two stored stamps around t: linearly in translation
+and along the shortest arc in rotation (slerp; for planar motion, the shortest arc in yaw).
+A stamp outside an edge's stored range is served by the nearest stored transform when it is
+within ``tolerance`` seconds of it (held, never extrapolated), and refused otherwise. Memory is
+bounded: entries more than ``cache_seconds`` older than an edge's newest are dropped.
+"""
+
+from bisect import bisect_left, insort
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+
+class TransformLookupError(LookupError):
+    """
+    A pose that cannot be given; ``cause`` says why in one word.
+
+    Causes: ``no_tf`` (no transform received at all), ``unknown_frame``, ``not_connected``
+    (both frames known, in different trees), ``too_old`` / ``too_new`` (the stamp lies before /
+    after the stored transforms of an edge by more than the tolerance), ``tilted`` (the source
+    frame is not level), ``flipped`` (``lookup`` on an upside-down frame; use ``lookup_planar``).
+    """
+
+    def __init__(self, cause: str, reason: str):
+        super().__init__(reason)
+        self.cause = cause
+
+
+class PlanarPose(NamedTuple):
+    """Pose of a frame projected to the plane: metres, radians, and the upside-down flag."""
+
+    x: float
+    y: float
+    yaw: float
+    flip: bool = False
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """Return (x, y, yaw) as a (3,) float array, the pose form scan_to_points takes."""
+        return np.array([self.x, self.y, self.yaw])
+
+    def beam_angles(self, angles) -> np.ndarray:
+        """Return beam angles (rad, laser frame) for the planar pose: negated when flipped."""
+        a = np.asarray(angles, dtype=np.float64)
+        return -a if self.flip else a
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Return the yaw (rad, in (-pi, pi]) of a rotation: heading of its x axis in the xy plane."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def quaternion_from_yaw(yaw: float) -> np.ndarray:
+    """Return the unit quaternion (x, y, z, w) of a rotation by ``yaw`` rad about z."""
+    return np.array([0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)])
+
+
+def quaternion_matrix(q) -> np.ndarray:
+    """Return the (3, 3) rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
+    """Interpolate unit quaternions along the shortest arc, s in [0, 1]."""
+    dot = float(q0 @ q1)
+    if dot < 0.0:
+        q1, dot = -q1, -dot
+    if dot > 0.9995:
+        q = q0 + s * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = math.acos(dot)
+    return (math.sin((1 - s) * theta) * q0 + math.sin(s * theta) * q1) / math.sin(theta)
+
+
+def _check_transform(translation, quaternion) -> tuple:
+    t = np.asarray(translation, dtype=np.float64).ravel()
+    q = np.asarray(quaternion, dtype=np.float64).ravel()
+    if t.shape != (3,) or not np.isfinite(t).all():
+        raise ValueError(f'translation must be 3 finite numbers, got {t.tolist()}')
+    if q.shape != (4,) or not np.isfinite(q).all():
+        raise ValueError(f'quaternion must be 4 finite numbers (x, y, z, w), got {q.tolist()}')
+    n2 = float(q @ q)
+    if abs(n2 - 1.0) > 0.01:            # tf2's test for a denormalised quaternion
+        raise ValueError(f'quaternion {q.tolist()} is not normalised (norm {math.sqrt(n2):.4f})')
+    return t, q / math.sqrt(n2)
+
+
+class _Edge:
+    """Transforms parent -> child: one static entry, or stamped entries in time order."""
+
+    __slots__ = ('parent', 'static', 'stamps', 'data')
+
+    def __init__(self, parent: str, static: bool):
+        self.parent = parent
+        self.static = static
+        self.stamps = []
+        self.data = []            # (translation (3,), quaternion (4,)) per stamp
+
+    def insert(self, stamp: float, t: np.ndarray, q: np.ndarray, cache: float) -> None:
+        if self.static:
+            self.stamps, self.data = [stamp], [(t, q)]
+            return
+        i = bisect_left(self.stamps, stamp)
+        if i < len(self.stamps) and self.stamps[i] == stamp:
+            self.data[i] = (t, q)            # same stamp again: the newer message wins
+        else:
+            insort(self.stamps, stamp)
+            self.data.insert(i, (t, q))
+        cut = bisect_left(self.stamps, self.stamps[-1] - cache)
+        if cut:
+            del self.stamps[:cut]
+            del self.data[:cut]
+
+    def at(self, stamp: float, tolerance: float, child: str) -> tuple:
+        """Return translation and rotation matrix at ``stamp`` (or TransformLookupError)."""
+        if self.static:
+            t, q = self.data[0]
+            return t, quaternion_matrix(q)
+        s = self.stamps
+        i = bisect_left(s, stamp)
+        if i < len(s) and s[i] == stamp:
+            t, q = self.data[i]
+        elif 0 < i < len(s):
+            (t0, q0), (t1, q1) = self.data[i - 1], self.data[i]
+            u = (stamp - s[i - 1]) / (s[i] - s[i - 1])
+            t, q = t0 + u * (t1 - t0), slerp(q0, q1, u)
+        elif i == 0 and s[0] - stamp <= tolerance:
+            t, q = self.data[0]
+        elif i == len(s) and stamp - s[-1] <= tolerance:
+            t, q = self.data[-1]
+        else:
+            old = i == 0
+            gap = s[0] - stamp if old else stamp - s[-1]
+            raise TransformLookupError(
+                'too_old' if old else 'too_new',
+                f'transform {self.parent} -> {child}: stamp {stamp:.3f} is {gap:.3f} s '
+                f'{"before the oldest" if old else "after the newest"} stored '
+                f'({s[0] if old else s[-1]:.3f}), more than the tolerance {tolerance:g} s')
+        return t, quaternion_matrix(q)
+
+
+class TransformBuffer2D:
+    """
+    A tree of frames with stamped (or static) transforms on its edges; planar pose lookups.
+
+    >>> buf = TransformBuffer2D()
+    >>> buf.set_transform('base_link', 'laser', 0.0, (0.2, 0, 0.3), (0, 0, 0, 1), static=True)
+    >>> buf.set_transform('odom', 'base_link', 1.0, (1, 2, 0), quaternion_from_yaw(0.5))
+    >>> buf.lookup('odom', 'laser', 1.0)          # (x, y, yaw) of the laser in odom
+    """
+
+    def __init__(self, cache_seconds: float = 30.0):
+        if not (math.isfinite(cache_seconds) and cache_seconds > 0):
+            raise ValueError(f'cache_seconds must be a finite number > 0, got {cache_seconds!r}')
+        self.cache_seconds = float(cache_seconds)
+        self._edges = {}          # child -> _Edge
+
+    # -- filling -------------------------------------------------------------------------------
+    def set_transform(self, parent: str, child: str, stamp: float, translation, quaternion,
+                      static: bool = False) -> None:
+        """
+        Store the transform parent -> child (child coordinates to parent) at ``stamp`` (s).
+
+        A frame has one parent. A transform naming a new parent for a known child replaces the
+        child's history (the tree is re-hung), as does switching an edge between static and
+        dynamic. Raises ValueError on empty or equal frame names, a loop in the tree, a
+        non-finite stamp or translation, or a quaternion whose norm is not 1 (+-1 %).
+        """
+        parent, child = _frame(parent), _frame(child)
+        if not parent or not child:
+            raise ValueError(f'frame ids must not be empty (parent {parent!r}, child {child!r})')
+        if parent == child:
+            raise ValueError(f'a transform from frame {parent!r} to itself')
+        if not math.isfinite(stamp):
+            raise ValueError(f'stamp must be finite, got {stamp!r}')
+        t, q = _check_transform(translation, quaternion)
+        edge = self._edges.get(child)
+        if edge is None or edge.parent != parent or edge.static != bool(static):
+            if child in self._ancestors(parent):
+                raise ValueError(f'transform {parent} -> {child} would close a loop in the tree')
+            edge = self._edges[child] = _Edge(parent, bool(static))
+        edge.insert(float(stamp), t, q, self.cache_seconds)
+
+    def clear(self) -> None:
+        """Forget every transform."""
+        self._edges.clear()
+
+    def frames(self) -> set:
+        """Return the names of every known frame."""
+        return set(self._edges) | {e.parent for e in self._edges.values()}
+
+    def entries(self) -> int:
+        """Return the number of stored transforms (over all edges)."""
+        return sum(len(e.stamps) for e in self._edges.values())
+
+    # -- queries -------------------------------------------------------------------------------
+    def lookup(self, target: str, source: str, stamp: float, tolerance: float = 0.1,
+               max_tilt: float = math.radians(20.0)) -> np.ndarray:
+        """
+        Return (x, y, yaw) of frame ``source`` in frame ``target`` at ``stamp``, shape (3,).
+
+        Raises TransformLookupError (a LookupError) saying why when the pose cannot be given,
+        including when ``source`` is upside down in ``target``: use ``lookup_planar`` for
+        lasers that may be mounted upside down.
+        """
+        pose = self.lookup_planar(target, source, stamp, tolerance, max_tilt)
+        if pose.flip:
+            raise TransformLookupError(
+                'flipped', f'frame {source!r} is upside down in {target!r}: use lookup_planar(), '
+                'whose flip flag mirrors the beam angles')
+        return pose.xyz
+
+    def lookup_planar(self, target: str, source: str, stamp: float, tolerance: float = 0.1,
+                      max_tilt: float = math.radians(20.0)) -> PlanarPose:
+        """
+        Return the planar pose of frame ``source`` in frame ``target`` at ``stamp`` (s).
+
+        ``tolerance`` (s): how far outside an edge's stored stamps the nearest transform is still
+        used. ``max_tilt`` (rad): largest angle between the source's z axis and the target's
+        (or its opposite, for an upside-down frame). Raises TransformLookupError naming the
+        cause: no transforms, an unknown frame, frames in different trees, a stamp out of range,
+        or a tilted frame.
+        """
+        rot, trans = self.lookup_matrix(target, source, stamp, tolerance)
+        return planar_pose(rot, trans, max_tilt, f'frame {source!r} in {target!r}')
+
+    def lookup_matrix(self, target: str, source: str, stamp: float,
+                      tolerance: float = 0.1) -> tuple:
+        """Return the transform source -> target at ``stamp``: rotation (3, 3), shift (3,)."""
+        target, source = _frame(target), _frame(source)
+        if not math.isfinite(stamp):
+            raise ValueError(f'stamp must be finite, got {stamp!r}')
+        if not self._edges:
+            raise TransformLookupError('no_tf', 'no transforms received yet')
+        frames = self.frames()
+        for name in (target, source):
+            if name not in frames:
+                raise TransformLookupError(
+                    'unknown_frame', f'frame {name!r} is unknown (known: '
+                    f'{", ".join(sorted(frames)[:12])}{" ..." if len(frames) > 12 else ""})')
+        if target == source:
+            return np.eye(3), np.zeros(3)
+        up_s, up_t = self._ancestors(source), self._ancestors(target)
+        common = set(up_t)
+        lca = next((f for f in up_s if f in common), None)
+        if lca is None:
+            raise TransformLookupError(
+                'not_connected', f'frames {target!r} and {source!r} are not connected '
+                f'(their roots are {up_t[-1]!r} and {up_s[-1]!r})')
+        r_s, t_s = self._chain(up_s[:up_s.index(lca)], stamp, tolerance)     # source -> lca
+        r_t, t_t = self._chain(up_t[:up_t.index(lca)], stamp, tolerance)     # target -> lca
+        return r_t.T @ r_s, r_t.T @ (t_s - t_t)
+
+    # -- internals -----------------------------------------------------------------------------
+    def _ancestors(self, frame: str) -> list:
+        """Return [frame, parent, grandparent, ..., root]."""
+        out = [frame]
+        edge = self._edges.get(frame)
+        while edge is not None:
+            out.append(edge.parent)
+            edge = self._edges.get(edge.parent)
+        return out
+
+    def _chain(self, frames: list, stamp: float, tolerance: float) -> tuple:
+        """Compose the edges above each of ``frames`` (child first): frame[0] -> top."""
+        rot, trans = np.eye(3), np.zeros(3)
+        for child in frames:
+            t, r = self._edges[child].at(stamp, tolerance, child)
+            rot, trans = r @ rot, r @ trans + t
+        return rot, trans
+
+
+def planar_pose(rot: np.ndarray, trans: np.ndarray, max_tilt: float = math.radians(20.0),
+                what: str = 'frame') -> PlanarPose:
+    """
+    Project a 3D transform (rotation (3, 3), translation (3,)) to a planar pose.
+
+    The yaw is the heading of the frame's x axis; ``flip`` says its z axis points down. Raises
+    TransformLookupError('tilted') when the z axis is more than ``max_tilt`` rad from vertical.
+    """
+    zz = float(np.clip(rot[2, 2], -1.0, 1.0))
+    tilt = math.acos(abs(zz))
+    if tilt > max_tilt:
+        raise TransformLookupError(
+            'tilted', f'{what} is tilted {math.degrees(tilt):.1f} deg out of the plane (more '
+            f'than {math.degrees(max_tilt):.1f} deg): its scans do not lie in the map plane')
+    yaw = math.atan2(rot[1, 0], rot[0, 0])
+    return PlanarPose(float(trans[0]), float(trans[1]), yaw, zz < 0.0)
+
+
+def _frame(name: str) -> str:
+    """Frame ids as tf2 keeps them: no leading slash."""
+    return str(name).lstrip('/')
