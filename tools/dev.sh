@@ -6,7 +6,8 @@
 #   bash tools/dev.sh setup   only set up
 #
 # Set-up creates a Python 3.11 venv with the ROS 2 Jazzy wheels (no apt ROS), builds and installs
-# polyline_mapper_msgs into it with cmake, and installs this package in editable mode. Each step
+# polyline_mapper_msgs (and, where it is missing, a TFMessage-only tf2_msgs) into it with cmake,
+# installs colcon for the workspace test, and installs this package in editable mode. Each step
 # leaves a stamp keyed by the hash of its inputs, so a second run skips what has not changed.
 # POLYLINE_MAPPER_VENV overrides the venv location (default: <repo>/.venv).
 set -euo pipefail
@@ -29,6 +30,26 @@ pick_python() {
     fi
   done
   return 1
+}
+
+# Build and install an ament_cmake interface package into the venv (the venv is the prefix).
+cmake_interface_package() {
+  local name="$1" src="$2" vpy="$venv/bin/python"
+  "$vpy" "$repo/tools/fix_ament_exports.py" "$venv"
+  local bdir="$venv/build/$name"
+  rm -rf "$bdir"
+  mkdir -p "$bdir"
+  local cm=cmake
+  command -v cmake >/dev/null 2>&1 || cm="$venv/bin/cmake"
+  PATH="$venv/bin:$PATH" "$cm" -S "$src" -B "$bdir" \
+    -DCMAKE_PREFIX_PATH="$venv" -DCMAKE_INSTALL_PREFIX="$venv" \
+    -DPython3_EXECUTABLE="$vpy" -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release \
+    > "$bdir/configure.log" 2>&1 || { tail -30 "$bdir/configure.log" >&2; die "cmake configure of $name failed"; }
+  PATH="$venv/bin:$PATH" "$cm" --build "$bdir" -j 2 > "$bdir/build.log" 2>&1 \
+    || { tail -30 "$bdir/build.log" >&2; die "cmake build of $name failed"; }
+  "$cm" --install "$bdir" > "$bdir/install.log" 2>&1 \
+    || { tail -30 "$bdir/install.log" >&2; die "cmake install of $name failed"; }
+  "$vpy" -c "import $name.msg" || die "$name does not import"
 }
 
 setup() {
@@ -59,25 +80,39 @@ setup() {
           "$repo"/polyline_mapper_msgs/package.xml "$repo"/polyline_mapper_msgs/msg/*.msg)"
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     log "building polyline_mapper_msgs"
-    "$vpy" "$repo/tools/fix_ament_exports.py" "$venv"
-    local bdir="$venv/build/polyline_mapper_msgs"
-    rm -rf "$bdir"
-    mkdir -p "$bdir"
-    local cm=cmake
-    command -v cmake >/dev/null 2>&1 || cm="$venv/bin/cmake"
-    PATH="$venv/bin:$PATH" "$cm" -S "$repo/polyline_mapper_msgs" -B "$bdir" \
-      -DCMAKE_PREFIX_PATH="$venv" -DCMAKE_INSTALL_PREFIX="$venv" \
-      -DPython3_EXECUTABLE="$vpy" -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release \
-      > "$bdir/configure.log" 2>&1 || { tail -30 "$bdir/configure.log" >&2; die "cmake configure failed"; }
-    PATH="$venv/bin:$PATH" "$cm" --build "$bdir" -j 2 > "$bdir/build.log" 2>&1 \
-      || { tail -30 "$bdir/build.log" >&2; die "cmake build failed"; }
-    "$cm" --install "$bdir" > "$bdir/install.log" 2>&1 \
-      || { tail -30 "$bdir/install.log" >&2; die "cmake install failed"; }
-    "$vpy" -c 'import polyline_mapper_msgs.msg' || die "polyline_mapper_msgs does not import"
+    cmake_interface_package polyline_mapper_msgs "$repo/polyline_mapper_msgs"
     echo "$want" > "$stamp"
   fi
 
-  # 3. This package (editable, so tests and CLI use the working tree).
+  # 3. tf2_msgs (TFMessage, for /tf and /tf_static) is not on PyPI: only where it does not
+  #    import, build the one-message stand-in in tools/tf2_msgs the same way. A real ROS
+  #    install's tf2_msgs is never shadowed.
+  stamp="$venv/.stamp-tf2-msgs"
+  want="$(hash_of "$repo/tools/requirements.txt" "$repo"/tools/tf2_msgs/CMakeLists.txt \
+          "$repo"/tools/tf2_msgs/package.xml "$repo"/tools/tf2_msgs/msg/*.msg)"
+  if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+    if [ -f "$stamp" ] || ! "$vpy" -c 'import tf2_msgs.msg' 2>/dev/null; then
+      log "building tf2_msgs (TFMessage only; the real package is not on PyPI)"
+      cmake_interface_package tf2_msgs "$repo/tools/tf2_msgs"
+      echo "$want" > "$stamp"
+    fi
+  fi
+
+  # 4. colcon, for the test that builds a workspace with this repository. Not needed to use or
+  #    test anything else, so a failure only warns (that test then skips, saying why).
+  stamp="$venv/.stamp-colcon"
+  want="$(hash_of "$repo/tools/requirements-colcon.txt")"
+  if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+    log "installing colcon"
+    if "$vpy" -m pip install -r "$repo/tools/requirements-colcon.txt" > "$venv/pip-colcon.log" 2>&1
+    then
+      echo "$want" > "$stamp"
+    else
+      log "warning: could not install colcon (log: $venv/pip-colcon.log); its test will skip"
+    fi
+  fi
+
+  # 5. This package (editable, so tests and CLI use the working tree).
   stamp="$venv/.stamp-package"
   want="$(hash_of "$repo/setup.py" "$repo/setup.cfg" "$repo/package.xml")"
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
