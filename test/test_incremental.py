@@ -4,7 +4,7 @@ from conftest import end_errors
 import numpy as np
 from polyline_mapper.core import fit, map_metrics
 from polyline_mapper.core.geometry import sample_segments
-from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
+from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper, SegmentGrid
 from polyline_mapper.core.metrics import twin_fraction
 from polyline_mapper.sim import corridor_loop, LaserSpec, simulate_drive
 import pytest
@@ -40,6 +40,32 @@ def test_incremental_finds_every_wall_like_batch(office_incremental, office_driv
     assert inc['mean_distance'] <= 1.25 * bat['mean_distance']
     assert inc['segments'] <= 1.5 * bat['segments']
     assert inc['coverage_0_10m'] >= bat['coverage_0_10m'] - 0.03
+
+
+def test_segment_grid_finds_exactly_the_segments_in_nearby_cells():
+    """Random adds, re-adds and removals; every query equals a brute-force cell test."""
+    rng = np.random.default_rng(7)
+    grid, live, cell = SegmentGrid(2.0), {}, 2.0
+    for _ in range(150):
+        if live:
+            gone = rng.choice(list(live), size=min(len(live), int(rng.integers(0, 20))),
+                              replace=False)
+            grid.remove(gone)
+            for i in gone:
+                live.pop(int(i))
+        n = int(rng.integers(1, 30))
+        ids = rng.choice(np.setdiff1d(np.arange(2000), list(live)), n, replace=False)
+        a = rng.uniform(-50, 50, (n, 2))
+        segs = np.stack([a, a + rng.normal(0, 3, (n, 2))], axis=1)
+        grid.add(ids, segs)
+        live.update({int(i): s for i, s in zip(ids, segs)})
+        query = rng.uniform(-50, 50, (30, 2))
+        ids_live = np.array(list(live))
+        pts, owner = sample_segments(np.array([live[i] for i in ids_live]), 0.5 * cell)
+        ci, qi = np.floor(pts / cell).astype(int), np.floor(query / cell).astype(int)
+        hit = np.abs(ci[:, None, :] - qi[None]).max(axis=2).min(axis=1) <= 1
+        expected = set(ids_live[np.unique(owner[hit])].tolist())
+        assert set(grid.near(query, 1.0).tolist()) == expected
 
 
 def test_revisiting_a_corridor_does_not_double_it():

@@ -82,54 +82,84 @@ class IncrementalConfig:
 
 
 class SegmentGrid:
-    """A grid hash from cells to segment ids; updates cost the cells of the changed segments."""
+    """
+    A grid hash from cells to segment ids, vectorised.
+
+    Entries ``(cell key, id, generation)`` live in a sorted array (queried by binary search) plus
+    a small unsorted tail of recent additions. Removing or re-adding an id bumps its generation,
+    which invalidates its old entries without touching them; the tail is sorted into the main
+    array, dropping invalid entries, once it holds a quarter as many entries as the main array
+    (or 1024), so each entry is sorted O(1) times on average and memory stays proportional to
+    the live map. An update costs about the cells of the changed segments and of the query,
+    not the map size.
+    """
+
+    _TAIL_MIN = 1024
 
     def __init__(self, cell: float):
         self.cell = float(cell)
-        self._cells = {}
-        self._of = {}
+        self._gen = np.zeros(0, dtype=np.int64)
+        empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.intp),
+                 np.zeros(0, dtype=np.int64))
+        self._main = self._tail = empty
 
     def _keys(self, points: np.ndarray) -> np.ndarray:
         ij = np.floor(points / self.cell).astype(np.int64) + (1 << 30)
         return (ij[:, 0] << 32) | ij[:, 1]
 
+    def _bump(self, ids: np.ndarray) -> None:
+        if ids.size and ids.max() >= self._gen.size:
+            grow = max(int(ids.max()) + 1, 2 * self._gen.size) - self._gen.size
+            self._gen = np.concatenate([self._gen, np.zeros(grow, dtype=np.int64)])
+        self._gen[ids] += 1
+
     def add(self, ids, segments) -> None:
         """Register segments under their ids (in every cell they pass through)."""
+        ids = np.asarray(ids, dtype=np.intp)
+        self._bump(ids)
         if len(segments) == 0:
             return
         pts, owner = sample_segments(np.asarray(segments), 0.5 * self.cell)
-        ids = np.asarray(ids, dtype=np.int64)
-        pairs = np.unique(np.column_stack([ids[owner], self._keys(pts)]), axis=0).tolist()
-        for i, key in pairs:
-            self._of.setdefault(i, []).append(key)
-            self._cells.setdefault(key, set()).add(i)
+        key = self._keys(pts)
+        # Samples are half a cell apart, and a straight segment never re-enters a cell, so
+        # repeated cells are consecutive.
+        new = np.ones(len(key), dtype=bool)
+        new[1:] = (key[1:] != key[:-1]) | (owner[1:] != owner[:-1])
+        sid = ids[owner[new]]
+        added = (key[new], sid, self._gen[sid])
+        self._tail = tuple(np.concatenate(a) for a in zip(self._tail, added))
+        if len(self._tail[0]) > max(self._TAIL_MIN, len(self._main[0]) // 4):
+            self._compact()
 
     def remove(self, ids) -> None:
         """Forget segments."""
-        for i in ids:
-            for c in self._of.pop(int(i), ()):
-                bucket = self._cells.get(c)
-                if bucket is not None:
-                    bucket.discard(int(i))
-                    if not bucket:
-                        del self._cells[c]
+        self._bump(np.asarray(ids, dtype=np.intp))
+
+    def _compact(self) -> None:
+        key, sid, gen = (np.concatenate(a) for a in zip(self._main, self._tail))
+        ok = gen == self._gen[sid]
+        order = np.argsort(key[ok], kind='stable')
+        self._main = (key[ok][order], sid[ok][order], gen[ok][order])
+        self._tail = tuple(a[:0] for a in self._tail)
 
     def near(self, points: np.ndarray, dist: float) -> np.ndarray:
         """Ids of segments registered in cells within ``dist`` of any point (a superset)."""
-        if len(points) == 0 or not self._cells:
+        if len(points) == 0:
             return np.zeros(0, dtype=np.intp)
-        keys = np.unique(self._keys(points))
         reach = int(np.ceil(dist / self.cell))
         offs = np.arange(-reach, reach + 1, dtype=np.int64)
-        ox, oy = np.meshgrid(offs, offs)
-        shift = ((ox << 32) + oy).ravel()
-        found = set()
-        get = self._cells.get
-        for key in np.unique(keys[:, None] + shift[None]).tolist():
-            bucket = get(key)
-            if bucket:
-                found |= bucket
-        return np.fromiter(found, dtype=np.intp, count=len(found))
+        shift = ((offs[:, None] << 32) + offs[None]).ravel()
+        cells = np.unique((np.unique(self._keys(points))[:, None] + shift).ravel())
+        key, sid, gen = self._main
+        lo = np.searchsorted(key, cells, 'left')
+        cnt = np.searchsorted(key, cells, 'right') - lo
+        at = np.repeat(lo - (np.cumsum(cnt) - cnt), cnt) + np.arange(int(cnt.sum()))
+        found = sid[at][gen[at] == self._gen[sid[at]]]
+        tkey, tsid, tgen = self._tail
+        if len(tkey):
+            hit = np.isin(tkey, cells) & (tgen == self._gen[tsid])
+            found = np.concatenate([found, tsid[hit]])
+        return np.unique(found)
 
 
 @dataclass

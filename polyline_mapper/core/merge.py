@@ -106,14 +106,15 @@ def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None
     """
     Pairs (i < j) of segments that come within about ``reach`` of each other, shape (M, 2).
 
-    With ``among`` (a bool mask), only pairs with at least one segment in it. Small sets are
-    tested exactly against every pair (cheaper than a tree); larger ones go through a k-d tree
-    over points sampled along the segments.
+    With ``among`` (a bool mask), only pairs with at least one segment in it. When there are
+    few pairs to test (at most ``dense_below ** 2``) each is tested exactly (cheaper than a
+    tree); otherwise a k-d tree over points sampled along the segments finds them.
     """
     k = len(segments)
     if k < 2:
         return np.zeros((0, 2), dtype=np.intp)
-    if k <= dense_below:
+    tested = k if among is None else int(np.count_nonzero(among))
+    if tested * k <= dense_below ** 2:
         if among is None:
             i, j = np.triu_indices(k, 1)
         else:
@@ -142,8 +143,10 @@ def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None
 
 def _segment_distance(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
     """Distance between segments, pair by pair (0 where they cross)."""
-    d = np.minimum.reduce([project(s1[:, 0], s2)[0], project(s1[:, 1], s2)[0],
-                           project(s2[:, 0], s1)[0], project(s2[:, 1], s1)[0]])
+    m = len(s1)
+    ends = np.concatenate([s1[:, 0], s1[:, 1], s2[:, 0], s2[:, 1]])
+    onto = np.concatenate([s2, s2, s1, s1])
+    d = project(ends, onto)[0].reshape(4, m).min(axis=0)
     a, b = s1[:, 0], s1[:, 1]
     c, e = s2[:, 0], s2[:, 1]
 
