@@ -10,14 +10,21 @@ No-return readings: FLASER does not state the sensor's maximum range, and logs e
 echo as that maximum (50, 51.2, 81.83, 81.91 m ...). When the largest reading of a log occurs more
 than once, it is taken as that code and every reading >= 0.99 x it is dropped. ROBOTLASER1 records
 use their own maximum range.
+
+For bags and the replay, a log also gives its laser mount (``robot_frontlaser_offset``, metres
+ahead of the robot centre, for FLASER; the laser pose relative to the robot pose for
+ROBOTLASER1), each record's odometry pose (FLASER ``odom_*``, ROBOTLASER1 robot pose), and scans
+in LaserScan form (``CarmenLog.scans``) with stamps from the log times when they increase.
 """
 
 from dataclasses import dataclass, field
 import gzip
+from typing import Optional
 import zlib
 
 import numpy as np
 
+from .records import f32, Scan
 from ..scan import scan_to_points
 
 
@@ -30,6 +37,11 @@ class LaserRecord:
     pose: np.ndarray
     stamp: float
     range_max: float = np.inf
+    odom: Optional[np.ndarray] = None
+    """(x, y, yaw) of the robot by odometry (FLASER odom_*, ROBOTLASER1 robot pose)."""
+    angle_min: float = -np.pi / 2
+    """First beam angle (rad); ``angles`` is angle_min + i * angle_increment."""
+    angle_increment: float = np.pi / 180
 
 
 @dataclass
@@ -40,6 +52,37 @@ class CarmenLog:
     skipped: int = 0
     skipped_examples: list = field(default_factory=list)
     no_return: float = np.inf
+    laser_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """(x, y, yaw) of the laser on the robot, metres and radians."""
+
+    def usable_range(self, rec: LaserRecord) -> float:
+        """Return the range (m) at or beyond which readings of ``rec`` are no-returns."""
+        return min(rec.range_max, self.no_return * 0.99)
+
+    def stamps(self, period: float = 1.0) -> tuple:
+        """
+        Return one stamp per scan, seconds, and whether they had to be made up.
+
+        The log times are used when they strictly increase (shifted to start at 1 s when the
+        first is not positive); otherwise (zero, repeated or shuffled times, as in several
+        Radish logs) the stamps are 1 s + i * ``period``.
+        """
+        t = np.array([r.stamp for r in self.records], dtype=np.float64)
+        if len(t) and np.isfinite(t).all() and np.all(np.diff(t) > 0):
+            return (t if t[0] > 0 else t - t[0] + 1.0), False
+        return 1.0 + period * np.arange(len(t)), True
+
+    def scans(self, stamps=None, frame_id: str = 'laser', with_pose: bool = True) -> list:
+        """
+        Return the records as LaserScan-like ``Scan``s (float32 fields), with their laser pose.
+
+        ``stamps`` (R,) seconds default to ``stamps()``. ``range_max`` is the no-return limit.
+        """
+        stamps = self.stamps()[0] if stamps is None else stamps
+        return [Scan(float(t), frame_id, f32(r.angle_min), f32(r.angle_increment), 0.0,
+                     f32(self.usable_range(r)), np.asarray(r.ranges, dtype=np.float32),
+                     np.asarray(r.pose, dtype=np.float64) if with_pose else None)
+                for r, t in zip(self.records, stamps)]
 
     def points(self, range_max: float = None, progress=None) -> np.ndarray:
         """
@@ -50,15 +93,15 @@ class CarmenLog:
         out = []
         recs = self.records if progress is None else progress(self.records)
         for rec in recs:
-            top = min(rec.range_max, self.no_return * 0.99)
+            top = self.usable_range(rec)
             if range_max is not None:
                 top = min(top, range_max)
             out.append(scan_to_points(rec.ranges, rec.angles, rec.pose, 0.0, top))
         return np.concatenate(out) if out else np.zeros((0, 2))
 
 
-def _flaser_angles(n: int) -> np.ndarray:
-    return -np.pi / 2 + np.arange(n) * (np.pi / n if n % 2 == 0 else np.pi / max(n - 1, 1))
+def _flaser_step(n: int) -> float:
+    return np.pi / n if n % 2 == 0 else np.pi / max(n - 1, 1)
 
 
 def _parse_flaser(tok: list) -> LaserRecord:
@@ -66,10 +109,13 @@ def _parse_flaser(tok: list) -> LaserRecord:
     if n < 1 or len(tok) < n + 9:
         raise ValueError(f'FLASER announces {n} readings but the line has {len(tok)} fields')
     vals = np.array(tok[2:n + 9], dtype=np.float64)
-    ranges, pose, stamp = vals[:n], vals[n:n + 3], vals[n + 6]
+    ranges, pose, odom, stamp = vals[:n], vals[n:n + 3], vals[n + 3:n + 6], vals[n + 6]
     if not np.isfinite(pose).all():
         raise ValueError('non-finite pose')
-    return LaserRecord(ranges, _flaser_angles(n), pose, float(stamp))
+    step = _flaser_step(n)
+    return LaserRecord(ranges, -np.pi / 2 + np.arange(n) * step, pose, float(stamp),
+                       odom=odom if np.isfinite(odom).all() else pose.copy(),
+                       angle_min=-np.pi / 2, angle_increment=step)
 
 
 def _parse_robotlaser(tok: list) -> LaserRecord:
@@ -81,10 +127,23 @@ def _parse_robotlaser(tok: list) -> LaserRecord:
         raise ValueError('ROBOTLASER1 record is shorter than its counts say')
     ranges = np.array(tok[9:9 + n], dtype=np.float64)
     pose = np.array(tok[base:base + 3], dtype=np.float64)
+    robot = np.array(tok[base + 3:base + 6], dtype=np.float64)
     stamp = float(tok[base + 11])
     if not np.isfinite(pose).all():
         raise ValueError('non-finite pose')
-    return LaserRecord(ranges, start + res * np.arange(n), pose, stamp, rmax)
+    return LaserRecord(ranges, start + res * np.arange(n), pose, stamp, rmax,
+                       odom=robot if np.isfinite(robot).all() else pose.copy(),
+                       angle_min=start, angle_increment=res)
+
+
+def _offset(rec: Optional[LaserRecord], front: float) -> np.ndarray:
+    """Laser mount on the robot: from a ROBOTLASER1's two poses, else the front-laser offset."""
+    if rec is None:
+        return np.array([front, 0.0, 0.0])
+    d = rec.pose[:2] - rec.odom[:2]
+    c, s = np.cos(rec.odom[2]), np.sin(rec.odom[2])
+    yaw = np.arctan2(np.sin(rec.pose[2] - rec.odom[2]), np.cos(rec.pose[2] - rec.odom[2]))
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], yaw])
 
 
 def read_carmen(path: str) -> CarmenLog:
@@ -106,9 +165,15 @@ def read_carmen(path: str) -> CarmenLog:
     except (OSError, EOFError, zlib.error, UnicodeDecodeError) as exc:
         raise ValueError(f'{path}: unreadable or truncated log ({exc.__class__.__name__}: '
                          f'{exc})') from None
-    records, skipped, examples = [], 0, []
+    records, skipped, examples, front, robotlaser = [], 0, [], 0.0, None
     for lineno, line in enumerate(lines, 1):
         tok = line.split()
+        if len(tok) >= 3 and tok[:2] == ['PARAM', 'robot_frontlaser_offset']:
+            try:
+                front = float(tok[2]) if np.isfinite(float(tok[2])) else 0.0
+            except ValueError:
+                pass
+            continue
         if not tok or tok[0] not in ('FLASER', 'ROBOTLASER1'):
             continue
         try:
@@ -119,6 +184,8 @@ def read_carmen(path: str) -> CarmenLog:
                 examples.append(f'line {lineno}: {exc}')
             continue
         records.append(rec)
+        if robotlaser is None and tok[0] == 'ROBOTLASER1':
+            robotlaser = rec
     if not records:
         raise ValueError(f'{path}: no usable FLASER or ROBOTLASER1 record'
                          + (f' ({skipped} malformed)' if skipped else ''))
@@ -131,4 +198,4 @@ def read_carmen(path: str) -> CarmenLog:
             top = allr.max()
             if np.count_nonzero(allr == top) > 1:
                 no_return = float(top)
-    return CarmenLog(records, skipped, examples, no_return)
+    return CarmenLog(records, skipped, examples, no_return, _offset(robotlaser, front))

@@ -1,0 +1,332 @@
+"""
+Bags in and out with ``rosbags`` (pure Python, no ROS install): rosbag2 and ROS 1.
+
+Reading: a rosbag2 folder (with metadata.yaml), a rosbag2 storage file itself (``.db3``,
+``.mcap``) or a ROS 1 ``.bag``. ``BagReader`` streams, in recording order, plain records
+(``formats.records``): ``Scan`` from one ``sensor_msgs/LaserScan`` topic (named, or the only one
+in the bag), ``Odometry`` from one ``nav_msgs/Odometry`` topic when asked for, and a
+``Transform`` for every transform on ``/tf`` and ``/tf_static`` (``tf2_msgs/TFMessage``). Stamps
+are the messages' header stamps. A message that does not decode is yielded as ``Skipped``; a bag
+that cannot be opened or read on (truncated, not a bag) raises ``BagError`` with one line.
+
+Writing: ``BagWriter`` writes rosbag2 (sqlite3 or mcap) from the same records.
+"""
+
+import os
+import pathlib
+import sqlite3
+import struct
+from typing import Iterator, Optional
+
+import numpy as np
+
+from .records import clean_frame, Odometry, Scan, Skipped, Transform
+
+SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
+ODOM_TYPE = 'nav_msgs/msg/Odometry'
+TF_TYPES = ('tf2_msgs/msg/TFMessage', 'tf/msg/tfMessage')
+TF_TOPICS = {'/tf': False, '/tf_static': True}
+BAG_SUFFIXES = ('.db3', '.mcap', '.bag')
+
+
+class BagError(ValueError):
+    """A bag that cannot be used, with a one-line reason."""
+
+
+def is_bag(path) -> bool:
+    """Return whether ``path`` looks like a bag: a rosbag2 folder or a .db3/.mcap/.bag file."""
+    p = pathlib.Path(path)
+    if p.is_dir():
+        return (p / 'metadata.yaml').is_file()
+    return p.suffix.lower() in BAG_SUFFIXES
+
+
+def _read_errors() -> tuple:
+    """Exceptions a damaged or foreign file can raise inside rosbags."""
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Reader1Error
+    from rosbags.rosbag2 import ReaderError as Reader2Error
+    try:
+        from apsw import Error as ApswError          # rosbags' sqlite3 storage
+    except ImportError:                               # pragma: no cover
+        ApswError = sqlite3.Error
+    return (AnyReaderError, Reader1Error, Reader2Error, ApswError, sqlite3.Error, OSError,
+            EOFError, struct.error, ValueError, IndexError, KeyError, TypeError,
+            UnicodeDecodeError, AssertionError, ArithmeticError, MemoryError)
+
+
+def _stamp(header) -> float:
+    return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
+
+
+def _vec(v) -> np.ndarray:
+    return np.array([v.x, v.y, v.z], dtype=np.float64)
+
+
+def _quat(q) -> np.ndarray:
+    return np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+
+
+class BagReader:
+    """
+    Stream the scans, odometry and transforms of a bag as plain records.
+
+    >>> with BagReader('run.mcap') as bag:
+    ...     print(bag.scan_topic, bag.scan_count)
+    ...     for record in bag.records():
+    ...         ...
+
+    Parameters
+    ----------
+    path : str
+        rosbag2 folder, .db3 / .mcap file, or ROS 1 .bag.
+    scan_topic : str, optional
+        LaserScan topic; by default the only one in the bag.
+    odom_topic : str, optional
+        Odometry topic (with ``odometry=True``); by default the only one in the bag.
+    odometry : bool
+        Also read odometry (required then).
+    transforms : bool
+        Read /tf and /tf_static when the bag has them.
+
+    """
+
+    def __init__(self, path: str, scan_topic: str = None, odom_topic: str = None,
+                 odometry: bool = False, transforms: bool = True):
+        self.path = str(path)
+        self._want = (scan_topic, odom_topic, odometry, transforms)
+        self._reader = None
+        self.topics = {}
+        self.scan_topic = None
+        self.scan_count = 0
+        self.odom_topic = None
+        self.tf_topics = []
+
+    # -- opening -------------------------------------------------------------------------------
+    def __enter__(self) -> 'BagReader':
+        """Open the bag and choose the topics; BagError when that fails."""
+        self.open_bag()
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        """Close the bag."""
+        self.close()
+        return False
+
+    def open_bag(self) -> None:
+        """Open the bag and choose the topics; BagError when that fails."""
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import get_typestore, Stores
+        p = pathlib.Path(self.path)
+        if not p.exists():
+            raise BagError(f'{self.path}: no such file or folder')
+        if not is_bag(p):
+            raise BagError(f'{self.path}: not a bag (expected a rosbag2 folder with '
+                           'metadata.yaml, a .db3 / .mcap file or a ROS 1 .bag)')
+        if p.is_file() and os.path.getsize(p) == 0:
+            raise BagError(f'{self.path}: empty file')
+        store = get_typestore(Stores.ROS1_NOETIC if p.suffix.lower() == '.bag'
+                              else Stores.ROS2_JAZZY)
+        try:
+            reader = AnyReader([p], default_typestore=store)
+            reader.open()
+        except _read_errors() as exc:
+            raise BagError(f'{self.path}: cannot open the bag ({_why(exc)})') from None
+        self._reader = reader
+        try:
+            self.topics = {name: info.msgtype for name, info in reader.topics.items()}
+            self._choose(*self._want)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Close the bag (safe to call twice)."""
+        reader, self._reader = self._reader, None
+        if reader is not None:
+            try:
+                reader.close()
+            except _read_errors():
+                pass
+
+    def _count(self, topic: str) -> int:
+        return int(self._reader.topics[topic].msgcount)
+
+    def _choose(self, scan_topic, odom_topic, odometry, transforms) -> None:
+        self.scan_topic = self._pick(scan_topic, SCAN_TYPE, 'LaserScan', '--scan-topic')
+        self.scan_count = self._count(self.scan_topic)
+        if self.scan_count == 0:
+            raise BagError(f'{self.path}: topic {self.scan_topic} holds no messages')
+        if odometry:
+            self.odom_topic = self._pick(odom_topic, ODOM_TYPE, 'Odometry', '--odom-topic')
+        if transforms:
+            self.tf_topics = [t for t in TF_TOPICS if self.topics.get(t) in TF_TYPES]
+
+    def _pick(self, topic: Optional[str], msgtype: str, short: str, option: str) -> str:
+        have = sorted(t for t, ty in self.topics.items() if ty == msgtype)
+        if topic is not None:
+            if topic not in self.topics:
+                raise BagError(f'{self.path}: no topic {topic}; {short} topics: '
+                               f'{", ".join(have) or "none"}')
+            if self.topics[topic] != msgtype:
+                raise BagError(f'{self.path}: topic {topic} is {self.topics[topic]}, not '
+                               f'{msgtype}; {short} topics: {", ".join(have) or "none"}')
+            return topic
+        if len(have) == 1:
+            return have[0]
+        if not have:
+            listed = ', '.join(f'{t} ({ty})' for t, ty in sorted(self.topics.items()))
+            raise BagError(f'{self.path}: no {msgtype} topic in the bag (topics: '
+                           f'{listed or "none"})')
+        raise BagError(f'{self.path}: {len(have)} {short} topics ({", ".join(have)}); choose '
+                       f'one with {option}')
+
+    # -- reading -------------------------------------------------------------------------------
+    def records(self) -> Iterator:
+        """
+        Yield Scan, Odometry, Transform and Skipped records in recording order.
+
+        Raises BagError when the bag cannot be read on (e.g. truncated), naming how far it got.
+        """
+        if self._reader is None:
+            raise BagError(f'{self.path}: bag is not open')
+        reader = self._reader
+        wanted = [self.scan_topic] + ([self.odom_topic] if self.odom_topic else []) \
+            + self.tf_topics
+        conns = [c for c in reader.connections if c.topic in wanted]
+        errors = _read_errors()
+        seen = 0
+        stream = reader.messages(connections=conns)
+        while True:
+            try:
+                conn, _, raw = next(stream)
+            except StopIteration:
+                return
+            except errors as exc:
+                raise BagError(f'{self.path}: unreadable after {seen} message(s), truncated or '
+                               f'corrupt? ({_why(exc)})') from None
+            seen += 1
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+                out = self._convert(conn.topic, msg)
+            except errors as exc:
+                yield Skipped(conn.topic, f'undecodable {conn.msgtype} ({_why(exc)})')
+                continue
+            if isinstance(out, list):
+                yield from out
+            else:
+                yield out
+
+    def _convert(self, topic: str, msg):
+        if topic == self.scan_topic:
+            return Scan(_stamp(msg.header), clean_frame(msg.header.frame_id),
+                        float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
+                        float(msg.range_max), np.array(msg.ranges, dtype=np.float32))
+        if topic == self.odom_topic:
+            pose = msg.pose.pose
+            return Odometry(_stamp(msg.header), clean_frame(msg.header.frame_id),
+                            clean_frame(msg.child_frame_id), _vec(pose.position),
+                            _quat(pose.orientation))
+        static = TF_TOPICS[topic]
+        return [Transform(_stamp(t.header), clean_frame(t.header.frame_id),
+                          clean_frame(t.child_frame_id), _vec(t.transform.translation),
+                          _quat(t.transform.rotation), static) for t in msg.transforms]
+
+
+def _why(exc: BaseException) -> str:
+    """Return a short, single-line description of an exception."""
+    text = ' '.join(str(exc).split()) or exc.__class__.__name__
+    if len(text) > 160:
+        text = text[:157] + '...'
+    return f'{exc.__class__.__name__}: {text}'
+
+
+class BagWriter:
+    """
+    Write records to a new rosbag2 (sqlite3 or mcap) with the ROS 2 Jazzy message types.
+
+    Use as a context manager; ``write(topic, record, ...)`` takes Scan, Odometry or a list of
+    Transform. /tf_static is offered transient-local, as tf2's static broadcaster does.
+    """
+
+    def __init__(self, path: str, storage: str = 'sqlite3'):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import get_typestore, Stores
+        plugins = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
+        if storage not in plugins:
+            raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
+        self.store = get_typestore(Stores.ROS2_JAZZY)
+        self._writer = Writer(path, version=8, storage_plugin=plugins[storage])
+        self._conns = {}
+
+    def __enter__(self) -> 'BagWriter':
+        """Create the bag folder and storage file."""
+        self._writer.open()
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        """Write metadata.yaml and close."""
+        self._writer.close()
+        return False
+
+    def _conn(self, topic: str, msgtype: str):
+        if topic not in self._conns:
+            from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                            QosReliability, QosTime)
+            durability = (QosDurability.TRANSIENT_LOCAL if topic == '/tf_static'
+                          else QosDurability.VOLATILE)
+            zero = QosTime(0, 0)
+            qos = Qos(QosHistory.KEEP_LAST, 1 if topic == '/tf_static' else 10,
+                      QosReliability.RELIABLE, durability, zero, zero, QosLiveliness.AUTOMATIC,
+                      zero, False)
+            self._conns[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=self.store, offered_qos_profiles=[qos])
+        return self._conns[topic]
+
+    def _header(self, stamp: float, frame: str):
+        t = self.store.types
+        sec = int(np.floor(stamp))
+        nsec = int(round((stamp - sec) * 1e9))
+        if nsec >= 1_000_000_000:
+            sec, nsec = sec + 1, nsec - 1_000_000_000
+        return t['std_msgs/msg/Header'](t['builtin_interfaces/msg/Time'](sec, nsec), frame)
+
+    def _pose_parts(self, translation, rotation):
+        t = self.store.types
+        return (t['geometry_msgs/msg/Vector3'](*map(float, translation)),
+                t['geometry_msgs/msg/Quaternion'](*map(float, rotation)))
+
+    def write(self, topic: str, record, log_time: float) -> None:
+        """Write one record on ``topic`` with receive time ``log_time`` (seconds)."""
+        t = self.store.types
+        if isinstance(record, Scan):
+            msgtype = SCAN_TYPE
+            msg = t[SCAN_TYPE](self._header(record.stamp, record.frame_id),
+                               record.angle_min, record.angle_min + record.angle_increment
+                               * (len(record.ranges) - 1), record.angle_increment, 0.0, 0.0,
+                               record.range_min, record.range_max,
+                               np.asarray(record.ranges, dtype=np.float32),
+                               np.zeros(0, dtype=np.float32))
+        elif isinstance(record, Odometry):
+            msgtype = ODOM_TYPE
+            pos = t['geometry_msgs/msg/Point'](*map(float, record.translation))
+            ori = t['geometry_msgs/msg/Quaternion'](*map(float, record.rotation))
+            pose = t['geometry_msgs/msg/PoseWithCovariance'](
+                t['geometry_msgs/msg/Pose'](pos, ori), np.zeros(36))
+            zero = t['geometry_msgs/msg/Vector3'](0.0, 0.0, 0.0)
+            twist = t['geometry_msgs/msg/TwistWithCovariance'](
+                t['geometry_msgs/msg/Twist'](zero, zero), np.zeros(36))
+            msg = t[ODOM_TYPE](self._header(record.stamp, record.frame_id),
+                               record.child_frame_id, pose, twist)
+        else:
+            msgtype = TF_TYPES[0]
+            items = []
+            for tr in record:
+                trans, rot = self._pose_parts(tr.translation, tr.rotation)
+                items.append(t['geometry_msgs/msg/TransformStamped'](
+                    self._header(tr.stamp, tr.parent), tr.child,
+                    t['geometry_msgs/msg/Transform'](trans, rot)))
+            msg = t[msgtype](items)
+        conn = self._conn(topic, msgtype)
+        self._writer.write(conn, int(round(log_time * 1e9)),
+                           self.store.serialize_cdr(msg, msgtype))

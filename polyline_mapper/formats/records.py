@@ -1,0 +1,81 @@
+"""
+Plain records read from bags and logs: scans, transforms, odometry (no ROS types).
+
+A scan carries what a ``sensor_msgs/LaserScan`` carries, in the same precision (ranges and
+angles as float32), so a CARMEN log replayed directly and the same log converted to a bag feed
+the mapper bit-identical scans. Stamps are seconds (float), frames are tf2 names (no leading
+slash), translations metres, rotations unit quaternions (x, y, z, w).
+"""
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..scan import beam_angles
+
+
+@dataclass
+class Scan:
+    """One laser scan; ``pose`` is set when the source itself knows where the laser was."""
+
+    stamp: float
+    """Header stamp, seconds."""
+    frame_id: str
+    angle_min: float
+    """Angle of the first beam, radians (float32 precision)."""
+    angle_increment: float
+    """Angle between beams, radians (float32 precision)."""
+    range_min: float
+    range_max: float
+    ranges: np.ndarray
+    """(B,) float32 metres; NaN / inf / out-of-range readings are dropped later (REP 117)."""
+    pose: Optional[np.ndarray] = None
+    """(x, y, yaw) of the laser in the fixed frame, metres and radians, or None (look it up)."""
+
+    def angles(self) -> np.ndarray:
+        """Return each beam's angle, radians in the laser frame, (B,); ValueError if not finite."""
+        return beam_angles(self.angle_min, self.angle_increment, len(self.ranges))
+
+
+@dataclass
+class Transform:
+    """One stamped transform: the pose of ``child`` in ``parent``."""
+
+    stamp: float
+    parent: str
+    child: str
+    translation: np.ndarray
+    """(3,) metres."""
+    rotation: np.ndarray
+    """(4,) quaternion x, y, z, w."""
+    static: bool = False
+
+
+@dataclass
+class Odometry:
+    """One odometry reading: the pose of ``child_frame_id`` in ``frame_id``."""
+
+    stamp: float
+    frame_id: str
+    child_frame_id: str
+    translation: np.ndarray
+    rotation: np.ndarray
+
+
+@dataclass
+class Skipped:
+    """A message that could not be decoded or used, with the reason (counted, not fatal)."""
+
+    topic: str
+    reason: str
+
+
+def f32(value) -> float:
+    """Round a number to float32 precision, as a LaserScan field stores it."""
+    return float(np.float32(value))
+
+
+def clean_frame(name: str) -> str:
+    """Return a frame name as tf2 uses it (ROS 1 bags often have a leading slash)."""
+    return str(name).lstrip('/')
