@@ -4,6 +4,10 @@
 Subcommands:
   fit INPUT -o MAP.json [--plot MAP.png] [--config FILE]   fit a map to a point file or CARMEN log
   demo -o MAP.json [--plot MAP.png]                         fit a simulated office floor
+  replay INPUT -o MAP.json [--plot MAP.png] ...             map a bag or CARMEN log scan by scan
+  plot MAP.json [--points INPUT] -o MAP.png                 draw a map (over its points)
+  export MAP.json -o OUT.{geojson,svg,csv}                  convert a map for other tools
+  convert LOG -o BAG [--storage sqlite3|mcap]               CARMEN log -> rosbag2
 
 Errors in input, files or configuration end the program with exit code 2 and one line saying
 why; no output file is left behind by a failed run.
@@ -34,6 +38,54 @@ def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
     The file is either a flat mapping of SMEMSFConfig keys, or a ROS 2 parameter file
     (``node_name: ros__parameters: {...}``) whose ``smemsf.*`` or plain keys are used.
     """
+    values = _config_values(path, overrides, _flatten_ros_params)
+    try:
+        return SMEMSFConfig.from_dict(values)
+    except (TypeError, ValueError) as exc:
+        raise CliError(f'bad config: {exc}') from None
+
+
+def load_incremental_config(path: str = None, overrides: list = ()):
+    """
+    Build an IncrementalConfig from an optional YAML/JSON file and ``key=value`` overrides.
+
+    Keys are SMEMSFConfig and IncrementalConfig field names, flat. A ROS 2 parameter file gives
+    its ``smemsf`` block and its ``incremental`` block (or plain incremental keys).
+    """
+    from .core.incremental import IncrementalConfig
+    inc_keys = set(IncrementalConfig.__dataclass_fields__) - {'smemsf'}
+
+    def from_ros(data):
+        values = _flatten_ros_params(data)
+        for node in data.values():
+            if isinstance(node, dict) and 'ros__parameters' in node:
+                params = node['ros__parameters'] or {}
+                sub = params.get('incremental')
+                for src in (params, sub if isinstance(sub, dict) else {}):
+                    values.update({k: v for k, v in src.items() if k in inc_keys})
+                for key, v in params.items():        # dotted names: incremental.x, smemsf.y
+                    group, _, name = str(key).partition('.')
+                    if group in ('incremental', 'smemsf') and name:
+                        values[name] = v
+                break
+        return values
+    values = _config_values(path, overrides, from_ros)
+    inc = {k: values.pop(k) for k in list(values) if k in inc_keys}
+    try:
+        return IncrementalConfig(smemsf=SMEMSFConfig.from_dict(values), **inc)
+    except (TypeError, ValueError) as exc:
+        raise CliError(f'bad config: {exc} (incremental keys: {", ".join(sorted(inc_keys))})'
+                       ) from None
+
+
+def incremental_config_dict(config) -> dict:
+    """Flat dict of an IncrementalConfig (SMEMSF keys and incremental keys), for the map JSON."""
+    out = config.smemsf.to_dict()
+    out.update({k: getattr(config, k) for k in config.__dataclass_fields__ if k != 'smemsf'})
+    return out
+
+
+def _config_values(path: str, overrides: list, flatten) -> dict:
     values = {}
     if path:
         import yaml
@@ -46,16 +98,13 @@ def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
             raise CliError(f'{path}: unreadable config ({exc.__class__.__name__})') from None
         if not isinstance(data, dict):
             raise CliError(f'{path}: a config file must hold a mapping')
-        values = _flatten_ros_params(data)
+        values = flatten(data)
     for item in overrides:
         key, sep, raw = item.partition('=')
         if not sep:
             raise CliError(f'--set expects key=value, got {item!r}')
         values[key.strip()] = _yaml_value(raw)
-    try:
-        return SMEMSFConfig.from_dict(values)
-    except (TypeError, ValueError) as exc:
-        raise CliError(f'bad config: {exc}') from None
+    return values
 
 
 def _yaml_value(text: str):
@@ -139,6 +188,13 @@ def write_outputs(result, points, config, out_json: str, out_png: str = None,
     stats.update(extra or {})
     data = map_to_dict(result.segments, result.polylines, result.closed, result.support, stats,
                        config.to_dict(), frame_id)
+    save_map(data, points, out_json, out_png, title, truth)
+    return stats
+
+
+def save_map(data: dict, points, out_json: str = None, out_png: str = None, title: str = '',
+             truth=None) -> None:
+    """Write a map dict as JSON and/or a PNG over its points, each all or nothing."""
     tmp_png = None
     try:
         if out_png:
@@ -147,9 +203,12 @@ def write_outputs(result, points, config, out_json: str, out_png: str = None,
             os.makedirs(folder, exist_ok=True)
             fd, tmp_png = tempfile.mkstemp(prefix='.tmp-', suffix='.png', dir=folder)
             os.close(fd)
-            plot_map(tmp_png, points, result.segments, result.polylines, title=title,
-                     truth=truth)
-        write_json_atomic(out_json, data)
+            segs = np.asarray(data['segments'], dtype=float).reshape(-1, 2, 2)
+            polys = [np.asarray(p, dtype=float).reshape(-1, 2) for p in data['polylines']]
+            plot_map(tmp_png, np.zeros((0, 2)) if points is None else points, segs, polys,
+                     title=title, truth=truth)
+        if out_json:
+            write_json_atomic(out_json, data)
         if tmp_png:
             set_default_mode(tmp_png)
             os.replace(tmp_png, out_png)
@@ -157,7 +216,6 @@ def write_outputs(result, points, config, out_json: str, out_png: str = None,
     finally:
         if tmp_png and os.path.exists(tmp_png):
             os.unlink(tmp_png)
-    return stats
 
 
 def summary_line(path: str, stats: dict) -> str:
@@ -201,6 +259,138 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _json_safe(value):
+    """Replace NaN / inf (e.g. the mean distance of an empty map) by None, recursively."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _mount(text: str) -> tuple:
+    """Parse ``X,Y,YAW_DEG[,flip]`` into ((x, y, yaw rad) or None, upside_down)."""
+    if text is None:
+        return None, False
+    parts = [v.strip() for v in text.split(',')]
+    flip = len(parts) == 4 and parts[3].lower() in ('flip', 'upside_down', 'upside-down')
+    try:
+        if len(parts) != (4 if flip else 3):
+            raise ValueError
+        x, y, yaw = (float(v) for v in parts[:3])
+        if not np.isfinite([x, y, yaw]).all():
+            raise ValueError
+    except ValueError:
+        raise CliError('--laser-mount expects X,Y,YAW_DEG or X,Y,YAW_DEG,flip (metres, '
+                       f'degrees), got {text!r}') from None
+    return (x, y, float(np.deg2rad(yaw))), flip
+
+
+def _replay_options(args, every: int = 1):
+    from .replay import ReplayOptions
+    mount, flip = _mount(args.laser_mount)
+    return ReplayOptions(pose_source=args.pose_source, fixed_frame=args.fixed_frame,
+                         every=every, mount=mount, mount_upside_down=flip)
+
+
+def cmd_replay(args) -> int:
+    from .replay import run_replay
+    config = load_incremental_config(args.config, args.set)
+    options = _replay_options(args, args.every)
+    t0 = time.perf_counter()
+    res = run_replay(args.input, config, options, args.scan_topic, args.odom_topic,
+                     progress=not args.quiet)
+    for line in res.warnings:
+        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
+    if res.used == 0:
+        raise CliError(f'{args.input}: {res.nothing_mapped()}')
+    for line in res.skip_lines():
+        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
+    segments, polylines, closed = res.mapper.polylines()
+    stats = res.stats()
+    stats['total_seconds'] = round(time.perf_counter() - t0, 3)
+    stats = _json_safe(stats)
+    data = map_to_dict(segments, polylines, closed, res.mapper.support, stats,
+                       incremental_config_dict(config), res.fixed_frame or 'map')
+    save_map(data, res.points, args.output, args.plot,
+             title=f'{os.path.basename(os.path.normpath(args.input))} (replay): '
+                   f'{len(segments)} segments')
+    if not args.quiet:
+        print(res.summary(args.output, stats))
+    return 0
+
+
+def read_points_any(path: str, args) -> np.ndarray:
+    """Points of a point file, a CARMEN log, or a bag (registered like replay, not mapped)."""
+    low = path.lower()
+    if low.endswith(('.npy', '.csv', '.txt', '.xy', '.log', '.log.gz', '.clf', '.clf.gz')):
+        return read_input(path, None, not args.quiet)[0]
+    from .replay import run_replay
+    options = _replay_options(args)
+    res = run_replay(path, None, options, args.scan_topic, args.odom_topic,
+                     progress=not args.quiet, mapping=False)
+    if res.used == 0:
+        raise CliError(f'{path}: {res.nothing_mapped()}')
+    return res.points
+
+
+def cmd_plot(args) -> int:
+    from .formats.mapjson import read_map
+    data = read_map(args.map)
+    points = read_points_any(args.points, args) if args.points else None
+    segs = data['segments_array']
+    title = args.title or (f'{os.path.basename(args.map)}: {len(segs)} segments, '
+                           f'{len(data["polylines"])} polylines')
+    save_map(data, points, None, args.output, title=title)
+    if not args.quiet:
+        print(f'wrote {args.output}: {len(segs)} segments'
+              + (f' over {len(points)} points' if points is not None else ''))
+    return 0
+
+
+def cmd_export(args) -> int:
+    from .formats.export import export_map
+    from .formats.mapjson import read_map
+    data = read_map(args.map)
+    fmt = export_map(data, args.output, args.format)
+    if not args.quiet:
+        print(f'wrote {args.output}: {fmt}, {len(data["polylines"])} polylines, '
+              f'{len(data["segments_array"])} segments')
+    return 0
+
+
+def cmd_convert(args) -> int:
+    from .formats.convert import carmen_to_bag
+    bar = _progress_factory(not args.quiet, 'convert', 'msg')
+    info = carmen_to_bag(args.input, args.output, args.storage, args.period, progress=bar)
+    if info['skipped']:
+        print(f"polyline-mapper: warning: {args.input}: skipped {info['skipped']} malformed "
+              f"laser record(s), e.g. {info['skipped_examples'][0]}", file=sys.stderr)
+    if info['stamps_made_up']:
+        print(f'polyline-mapper: warning: {args.input}: log times do not increase; stamps are '
+              f'{args.period:g} s apart from 1 s', file=sys.stderr)
+    if not args.quiet:
+        off = info['laser_offset']
+        print(f"wrote {args.output}: rosbag2 ({args.storage}), {info['scans']} scans on /scan "
+              '(frame laser), /tf map -> odom -> base_link, /tf_static base_link -> laser '
+              f'({off[0]:g}, {off[1]:g}, {np.rad2deg(off[2]):g} deg), /odom')
+    return 0
+
+
+def _pose_args(sp) -> None:
+    sp.add_argument('--scan-topic', help='sensor_msgs/LaserScan topic (default: the only one)')
+    sp.add_argument('--pose-source', choices=('tf', 'odom'), default='tf',
+                    help='tf: laser pose in the fixed frame from /tf and /tf_static (default); '
+                    'odom: nav_msgs/Odometry plus the laser mount, map in the odometry frame')
+    sp.add_argument('--fixed-frame', help="map frame with --pose-source tf (default: 'map' "
+                    "when the scan's TF tree has it, else the tree's root)")
+    sp.add_argument('--odom-topic', help='nav_msgs/Odometry topic for --pose-source odom '
+                    '(default: the only one)')
+    sp.add_argument('--laser-mount', metavar='X,Y,YAW_DEG[,flip]',
+                    help='laser pose on the odometry child frame (m, m, deg; flip: mounted '
+                    'upside down) for --pose-source odom when /tf_static does not give it')
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='polyline-mapper',
                                 description='2D polyline maps from laser scans (SMEMSF).')
@@ -228,6 +418,41 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument('--noise', type=float, default=0.01, help='laser range noise (m)')
     d.add_argument('--seed', type=int, default=1, help='simulation seed')
     d.set_defaults(func=cmd_demo)
+
+    r = sub.add_parser('replay', help='map a bag or CARMEN log scan by scan (incremental)')
+    r.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, or CARMEN .log(.gz)')
+    common(r)
+    _pose_args(r)
+    r.add_argument('--every', type=int, default=1, metavar='N', help='use every N-th scan')
+    r.set_defaults(func=cmd_replay)
+
+    pl = sub.add_parser('plot', help='draw a map JSON as a PNG, over points if given')
+    pl.add_argument('map', help='map JSON (from fit or replay)')
+    pl.add_argument('-o', '--output', required=True, help='PNG to write')
+    pl.add_argument('--points', metavar='INPUT', help='point file, CARMEN log or bag whose '
+                    'points to draw underneath (bags are registered as replay does)')
+    pl.add_argument('--title', help='figure title')
+    pl.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
+    _pose_args(pl)
+    pl.set_defaults(func=cmd_plot)
+
+    e = sub.add_parser('export', help='write a map JSON as GeoJSON, SVG or CSV')
+    e.add_argument('map', help='map JSON (from fit or replay)')
+    e.add_argument('-o', '--output', required=True, help='OUT.geojson, OUT.svg or OUT.csv')
+    e.add_argument('--format', choices=('geojson', 'svg', 'csv'),
+                   help='format (default: from the output suffix)')
+    e.add_argument('-q', '--quiet', action='store_true', help='no summary')
+    e.set_defaults(func=cmd_export)
+
+    c = sub.add_parser('convert', help='convert a CARMEN log to a rosbag2 (scan, tf, odom)')
+    c.add_argument('input', help='CARMEN .log / .log.gz')
+    c.add_argument('-o', '--output', required=True, help='rosbag2 folder to create')
+    c.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3',
+                   help='rosbag2 storage (default: sqlite3)')
+    c.add_argument('--period', type=float, default=1.0,
+                   help='seconds between scans when the log times do not increase')
+    c.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
+    c.set_defaults(func=cmd_convert)
     return p
 
 

@@ -1,0 +1,140 @@
+"""
+Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
+
+- GeoJSON: a FeatureCollection with one LineString per polyline (a closed polyline repeats its
+  first vertex at the end). Coordinates are the map's own metres in ``frame_id`` (not WGS 84
+  longitude / latitude): load them as a local, projected layer. Properties: polyline index,
+  closed flag, vertex count, length (m); the collection carries ``frame_id`` and ``units``.
+- SVG: the polylines drawn with y up (map y grows towards the top of the picture), 1 m = ``scale``
+  pixels, with a 1-2-5 scale bar. Closed polylines are ``polygon`` elements without fill.
+- CSV: one row per segment, ``x1,y1,x2,y2,support`` (support empty when the map has none).
+"""
+
+import io
+import json
+import os
+import tempfile
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from .mapjson import set_default_mode
+
+FORMATS = ('geojson', 'svg', 'csv')
+
+
+def _polylines(data: dict) -> list:
+    return [np.asarray(p, dtype=float).reshape(-1, 2) for p in data.get('polylines', [])]
+
+
+def _closed(data: dict, n: int) -> list:
+    closed = list(data.get('closed') or [])
+    return [bool(c) for c in closed] + [False] * (n - len(closed))
+
+
+def to_geojson(data: dict) -> dict:
+    """Return the GeoJSON FeatureCollection (a dict) of a map read by ``read_map``."""
+    polys = _polylines(data)
+    features = []
+    for i, (p, closed) in enumerate(zip(polys, _closed(data, len(polys)))):
+        verts = np.vstack([p, p[:1]]) if closed and len(p) > 2 else p
+        length = float(np.linalg.norm(np.diff(verts, axis=0), axis=1).sum())
+        features.append({'type': 'Feature', 'id': i,
+                         'geometry': {'type': 'LineString', 'coordinates': verts.tolist()},
+                         'properties': {'polyline': i, 'closed': closed, 'vertices': len(p),
+                                        'length_m': round(length, 4)}})
+    return {'type': 'FeatureCollection', 'frame_id': data.get('frame_id', 'map'),
+            'units': 'm', 'features': features}
+
+
+def _scale_bar_length(width_m: float) -> float:
+    target = max(width_m / 5.0, 1e-3)
+    exp = 10.0 ** np.floor(np.log10(target))
+    return max(m * exp for m in (1, 2, 5) if m * exp <= target)
+
+
+def to_svg(data: dict, scale: float = 50.0, margin: float = 0.5) -> str:
+    """
+    Return an SVG drawing of a map's polylines with y up and a scale bar.
+
+    ``scale``: pixels per metre; ``margin``: metres of blank border.
+    """
+    polys = _polylines(data)
+    closed = _closed(data, len(polys))
+    verts = np.concatenate(polys) if polys else np.zeros((0, 2))
+    segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 4)
+    allv = verts if len(verts) else segs.reshape(-1, 2)
+    lo = allv.min(axis=0) if len(allv) else np.zeros(2)
+    hi = allv.max(axis=0) if len(allv) else np.ones(2)
+    span = np.maximum(hi - lo, 1.0)
+    bar_room = 1.0                                   # metres below the map for the scale bar
+    width = span[0] + 2 * margin
+    height = span[1] + 2 * margin + bar_room
+
+    def xy(p):                                       # map metres -> SVG user units (pixels)
+        return (p[:, 0] - lo[0] + margin) * scale, (hi[1] - p[:, 1] + margin) * scale
+
+    out = io.StringIO()
+    out.write(f'<?xml version="1.0" encoding="UTF-8"?>\n'
+              f'<svg xmlns="http://www.w3.org/2000/svg" width="{width * scale:.1f}" '
+              f'height="{height * scale:.1f}" viewBox="0 0 {width * scale:.1f} '
+              f'{height * scale:.1f}">\n'
+              f'<title>{escape(str(data.get("frame_id", "map")))}: {len(polys)} polylines, '
+              f'{len(segs)} segments (1 m = {scale:g} px, y up)</title>\n'
+              '<rect width="100%" height="100%" fill="white"/>\n'
+              '<g fill="none" stroke="#1f77b4" stroke-width="2" stroke-linejoin="round" '
+              'stroke-linecap="round">\n')
+    for p, c in zip(polys, closed):
+        x, y = xy(p)
+        pts = ' '.join(f'{a:.1f},{b:.1f}' for a, b in zip(x, y))
+        out.write(f'<{"polygon" if c else "polyline"} points="{pts}"/>\n')
+    out.write('</g>\n')
+    length = _scale_bar_length(span[0])
+    x0 = margin * scale
+    y0 = (span[1] + 2 * margin + 0.5 * bar_room) * scale
+    label = f'{length:g} m' if length >= 1 else f'{length * 100:g} cm'
+    out.write(f'<g id="scale-bar"><line x1="{x0:.1f}" y1="{y0:.1f}" '
+              f'x2="{x0 + length * scale:.1f}" y2="{y0:.1f}" stroke="black" stroke-width="4"/>'
+              f'<text x="{x0 + 0.5 * length * scale:.1f}" y="{y0 - 6:.1f}" '
+              f'text-anchor="middle" font-family="sans-serif" font-size="14">{label}</text>'
+              '</g>\n</svg>\n')
+    return out.getvalue()
+
+
+def to_csv(data: dict) -> str:
+    """Return the segments of a map as CSV text: header ``x1,y1,x2,y2,support``, one row each."""
+    segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 4)
+    support = data.get('support')
+    rows = ['x1,y1,x2,y2,support']
+    for i, s in enumerate(segs):
+        sup = '' if support is None or i >= len(support) else f'{float(support[i]):g}'
+        rows.append(','.join(f'{v:.4f}' for v in s) + f',{sup}')
+    return '\n'.join(rows) + '\n'
+
+
+def export_map(data: dict, path: str, fmt: str = None) -> str:
+    """
+    Write a map to ``path`` as GeoJSON, SVG or CSV (from ``fmt`` or the file suffix).
+
+    Written through a temporary file, so a failure leaves nothing behind. Returns the format.
+    Raises ValueError on an unknown format.
+    """
+    fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
+    if fmt not in FORMATS:
+        raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg or '
+                         '.csv, or --format)')
+    text = {'geojson': lambda d: json.dumps(to_geojson(d), separators=(',', ':')) + '\n',
+            'svg': to_svg, 'csv': to_csv}[fmt](data)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix='.' + fmt, dir=folder)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(text)
+        set_default_mode(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return fmt

@@ -1,0 +1,217 @@
+"""Bag reading: rosbag2 sqlite3 / mcap (folder or file) and ROS 1, topics, damaged bags."""
+
+import os
+import sqlite3
+
+from bag_helpers import drive_messages, room_drive, write_bag, write_ros1_bag
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.formats.bag import BagError, BagReader
+from polyline_mapper.formats.records import Odometry, Scan, Skipped, Transform
+import pytest
+
+
+@pytest.fixture(scope='module')
+def drive():
+    return room_drive(step=0.5, rng=11)
+
+
+def read_all(path, **kw):
+    with BagReader(str(path), **kw) as bag:
+        return bag, list(bag.records())
+
+
+def check_records(records, drive, slash=False):
+    scans = [r for r in records if isinstance(r, Scan)]
+    tfs = [r for r in records if isinstance(r, Transform)]
+    odoms = [r for r in records if isinstance(r, Odometry)]
+    n = len(drive.stamps)
+    assert len(scans) == n and len(odoms) == n and len(tfs) == n + 1
+    assert all(s.frame_id == 'laser' for s in scans)          # leading slash removed
+    np.testing.assert_allclose([s.stamp for s in scans], drive.stamps, atol=1e-9)
+    got = np.array([s.ranges for s in scans])
+    want = drive.ranges.astype(np.float32)
+    assert got.dtype == np.float32
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    ok = ~np.isnan(want)
+    assert np.array_equal(got[ok], want[ok])
+    np.testing.assert_allclose(scans[0].angles(), drive.spec.angles(), atol=1e-6)
+    static = [t for t in tfs if t.static]
+    assert len(static) == 1 and (static[0].parent, static[0].child) == ('base_link', 'laser')
+    dyn = [t for t in tfs if not t.static]
+    np.testing.assert_allclose([t.translation[:2] for t in dyn], drive.base[:, :2], atol=1e-12)
+    assert odoms[3].frame_id == 'odom' and odoms[3].child_frame_id == 'base_link'
+    # recording order: stamps of the scans never go back
+    assert np.all(np.diff([s.stamp for s in scans]) > 0)
+
+
+@pytest.mark.parametrize('storage', ['sqlite3', 'mcap'])
+def test_rosbag2_folder_and_storage_file_read_the_same(tmp_path, drive, storage):
+    path = write_bag(tmp_path / 'run', drive_messages(drive), storage)
+    bag, recs = read_all(path, odometry=True)
+    assert bag.scan_topic == '/scan' and bag.odom_topic == '/odom'
+    assert bag.tf_topics == ['/tf', '/tf_static'] and bag.scan_count == len(drive.stamps)
+    check_records(recs, drive)
+    suffix = {'sqlite3': '.db3', 'mcap': '.mcap'}[storage]
+    _, recs2 = read_all(os.path.join(path, 'run' + suffix), odometry=True)
+    check_records(recs2, drive)
+
+
+def test_ros1_bag(tmp_path, drive):
+    path = write_ros1_bag(tmp_path / 'run.bag', drive_messages(drive))
+    bag, recs = read_all(path, odometry=True)
+    assert bag.scan_topic == '/scan'
+    check_records(recs, drive)
+    # the replay of the ROS 1 bag equals the replay of the same data as rosbag2
+    ros2 = write_bag(tmp_path / 'run2', drive_messages(drive), 'mcap')
+    out1, out2 = tmp_path / 'a.json', tmp_path / 'b.json'
+    assert main(['replay', path, '-o', str(out1), '-q']) == 0
+    assert main(['replay', ros2, '-o', str(out2), '-q']) == 0
+    import json
+    a, b = json.loads(out1.read_text()), json.loads(out2.read_text())
+    assert a['segments'] == b['segments'] and len(a['segments']) >= 6
+
+
+def test_scan_topic_autodetect_choice_and_errors(tmp_path, drive):
+    msgs = list(drive_messages(drive))
+    two = msgs + [('/scan_rear', r, t) for topic, r, t in msgs if topic == '/scan']
+    path = write_bag(tmp_path / 'two', two)
+    with pytest.raises(BagError, match=r'2 LaserScan topics \(/scan, /scan_rear\); choose one '
+                       'with --scan-topic'):
+        read_all(path)
+    bag, recs = read_all(path, scan_topic='/scan_rear')
+    assert bag.scan_topic == '/scan_rear'
+    assert sum(isinstance(r, Scan) for r in recs) == len(drive.stamps)
+    with pytest.raises(BagError, match='topic /odom is nav_msgs/msg/Odometry, not '
+                       'sensor_msgs/msg/LaserScan; LaserScan topics: /scan, /scan_rear'):
+        read_all(path, scan_topic='/odom')
+    with pytest.raises(BagError, match='no topic /nope; LaserScan topics: /scan, /scan_rear'):
+        read_all(path, scan_topic='/nope')
+    odomless = write_bag(tmp_path / 'noodom', drive_messages(drive, odom=False))
+    with pytest.raises(BagError, match='no nav_msgs/msg/Odometry topic in the bag'):
+        read_all(odomless, odometry=True)
+
+
+def run_cli(capsys, argv):
+    rc = main(argv)
+    err = capsys.readouterr().err
+    return rc, err
+
+
+def assert_one_line_error(rc, err, *fragments):
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('polyline-mapper: error: '), err
+    assert 'Traceback' not in err
+    for f in fragments:
+        assert f in lines[0], lines[0]
+
+
+def test_damaged_and_empty_bags_end_with_one_line(tmp_path, drive, capsys):
+    out = tmp_path / 'm.json'
+    good = write_bag(tmp_path / 'good', drive_messages(drive), 'sqlite3')
+    db3 = os.path.join(good, 'good.db3')
+    # truncated sqlite3 storage file, alone and inside its rosbag2 folder
+    data = open(db3, 'rb').read()
+    with open(tmp_path / 'cut.db3', 'wb') as fh:
+        fh.write(data[:len(data) // 3])
+    rc, err = run_cli(capsys, ['replay', str(tmp_path / 'cut.db3'), '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'cut.db3')
+    with open(db3, 'wb') as fh:
+        fh.write(data[:len(data) // 2])
+    rc, err = run_cli(capsys, ['replay', good, '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'good')
+    with open(db3, 'wb') as fh:
+        fh.write(data)
+    # truncated mcap file and ROS 1 bag
+    mc = write_bag(tmp_path / 'mc', drive_messages(drive), 'mcap')
+    data = open(os.path.join(mc, 'mc.mcap'), 'rb').read()
+    with open(tmp_path / 'short.mcap', 'wb') as fh:
+        fh.write(data[:len(data) // 2])
+    rc, err = run_cli(capsys, ['replay', str(tmp_path / 'short.mcap'), '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'short.mcap')
+    r1 = write_ros1_bag(tmp_path / 'r1.bag', drive_messages(drive))
+    data = open(r1, 'rb').read()
+    with open(tmp_path / 'short.bag', 'wb') as fh:
+        fh.write(data[:len(data) // 2])
+    rc, err = run_cli(capsys, ['replay', str(tmp_path / 'short.bag'), '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'short.bag')
+    # an empty bag (topics but no messages), a zero-byte file, a text file named .mcap
+    empty = write_bag(tmp_path / 'empty', [])
+    rc, err = run_cli(capsys, ['replay', empty, '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'no sensor_msgs/msg/LaserScan topic')
+    (tmp_path / 'zero.db3').write_bytes(b'')
+    rc, err = run_cli(capsys, ['replay', str(tmp_path / 'zero.db3'), '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'empty file')
+    (tmp_path / 'text.mcap').write_text('hello\n')
+    rc, err = run_cli(capsys, ['replay', str(tmp_path / 'text.mcap'), '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'cannot open the bag')
+    # wrong topic type
+    rc, err = run_cli(capsys, ['replay', good, '-o', str(out), '--scan-topic', '/tf', '-q'])
+    assert_one_line_error(rc, err, 'topic /tf is tf2_msgs/msg/TFMessage, not')
+    assert not out.exists()
+
+
+def test_undecodable_messages_are_counted_not_fatal(tmp_path, drive, capsys):
+    path = write_bag(tmp_path / 'bad', drive_messages(drive), 'sqlite3')
+    db = sqlite3.connect(os.path.join(path, 'bad.db3'))
+    scan_id = db.execute("SELECT id FROM topics WHERE name = '/scan'").fetchone()[0]
+    ids = [r[0] for r in db.execute('SELECT id FROM messages WHERE topic_id = ? ORDER BY '
+                                    'timestamp', (scan_id,))]
+    db.execute('UPDATE messages SET data = ? WHERE id IN (?, ?)', (b'\x00\x01\x00\x00\x07',
+                                                                   ids[2], ids[5]))
+    db.commit()
+    db.close()
+    _, recs = read_all(path)
+    skipped = [r for r in recs if isinstance(r, Skipped)]
+    assert len(skipped) == 2 and skipped[0].topic == '/scan'
+    assert 'undecodable sensor_msgs/msg/LaserScan' in skipped[0].reason
+    out = tmp_path / 'm.json'
+    rc, err = run_cli(capsys, ['replay', path, '-o', str(out), '-q'])
+    assert rc == 0 and 'Traceback' not in err
+    assert 'skipped 2 scan(s)/message(s): undecodable message on /scan' in err
+    import json
+    stats = json.loads(out.read_text())['stats']
+    assert stats['skipped'] == {'undecodable message on /scan': 2}
+    assert stats['scans_used'] == len(drive.stamps) - 2
+
+
+@pytest.mark.parametrize('storage', ['sqlite3', 'mcap', 'ros1'])
+def test_random_damage_never_escapes_as_a_traceback(tmp_path, storage):
+    from polyline_mapper.replay import run_replay
+    short = room_drive(step=1.0, rng=2)
+    if storage == 'ros1':
+        path = write_ros1_bag(tmp_path / 'r.bag', drive_messages(short))
+    else:
+        folder = write_bag(tmp_path / 'r', drive_messages(short), storage)
+        path = os.path.join(folder, 'r.' + {'sqlite3': 'db3', 'mcap': 'mcap'}[storage])
+    data = open(path, 'rb').read()
+    rng = np.random.default_rng(5)
+    outcomes = set()
+    for k in range(40):
+        bad = bytearray(data)
+        start = int(rng.integers(0, len(data) - 8))
+        n = int(rng.integers(1, 64))
+        bad[start:start + n] = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        target = tmp_path / f'bad{k}{os.path.splitext(path)[1]}'
+        target.write_bytes(bytes(bad))
+        try:
+            res = run_replay(str(target), mapping=False)
+            outcomes.add('read')
+            n = len(short.stamps)
+            assert res.scans <= n and res.used <= res.scans
+            assert (res.scans == n) != any('damaged?' in w for w in res.warnings)
+        except BagError:
+            outcomes.add('error')
+    assert outcomes == {'read', 'error'}
+
+
+def test_plot_registers_the_points_of_a_bag(tmp_path, drive, capsys):
+    bag = write_bag(tmp_path / 'p', drive_messages(drive))
+    out, png = tmp_path / 'm.json', tmp_path / 'm.png'
+    assert main(['replay', bag, '-o', str(out), '-q']) == 0
+    assert main(['plot', str(out), '--points', bag, '-o', str(png)]) == 0
+    n = int(np.sum(np.isfinite(drive.ranges) & (drive.ranges >= drive.spec.range_min)
+                   & (drive.ranges < drive.spec.range_max)))
+    assert f'over {n} points' in capsys.readouterr().out
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

@@ -1,0 +1,119 @@
+"""Exports of a map JSON (GeoJSON, SVG, CSV) and the plot command."""
+
+import csv
+import io
+import json
+import re
+import xml.etree.ElementTree as ET
+
+from conftest import noisy_line
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.formats.mapjson import read_map
+import pytest
+
+SVG = '{http://www.w3.org/2000/svg}'
+
+
+@pytest.fixture(scope='module')
+def fitted(tmp_path_factory):
+    """Fit a closed 4 x 3 m room plus a separate 2 m wall; return folder, map path, map."""
+    rng = np.random.default_rng(4)
+    corners = [(0, 0), (4, 0), (4, 3), (0, 3), (0, 0)]
+    parts = [noisy_line(a, b, 700, 0.01, rng) for a, b in zip(corners[:-1], corners[1:])]
+    parts.append(noisy_line((6, 0.5), (6, 2.5), 500, 0.01, rng))
+    pts = np.concatenate(parts)
+    folder = tmp_path_factory.mktemp('fitted')
+    np.save(folder / 'pts.npy', pts)
+    out = folder / 'map.json'
+    assert main(['fit', str(folder / 'pts.npy'), '-o', str(out), '-q']) == 0
+    data = read_map(str(out))
+    assert len(data['polylines']) == 2 and sorted(data['closed']) == [False, True]
+    return folder, out, data
+
+
+def test_geojson_linestrings_match_the_polylines(fitted, tmp_path):
+    _, src, data = fitted
+    out = tmp_path / 'map.geojson'
+    assert main(['export', str(src), '-o', str(out), '-q']) == 0
+    gj = json.loads(out.read_text())
+    assert gj['type'] == 'FeatureCollection' and gj['frame_id'] == 'map'
+    assert len(gj['features']) == len(data['polylines'])
+    for f, poly, closed in zip(gj['features'], data['polylines'], data['closed']):
+        assert f['type'] == 'Feature' and f['geometry']['type'] == 'LineString'
+        coords = np.array(f['geometry']['coordinates'])
+        want = np.array(poly + poly[:1]) if closed else np.array(poly)
+        np.testing.assert_allclose(coords, want, atol=1e-9)
+        assert f['properties']['closed'] == closed
+        length = np.linalg.norm(np.diff(want, axis=0), axis=1).sum()
+        assert f['properties']['length_m'] == pytest.approx(length, abs=1e-3)
+    room = next(f for f in gj['features'] if f['properties']['closed'])
+    assert room['properties']['length_m'] == pytest.approx(14.0, abs=0.1)
+
+
+def test_svg_parses_with_y_up_and_a_scale_bar(fitted, tmp_path):
+    _, src, data = fitted
+    out = tmp_path / 'map.svg'
+    assert main(['export', str(src), '-o', str(out), '-q']) == 0
+    root = ET.parse(out).getroot()
+    assert root.tag == SVG + 'svg'
+    shapes = root.findall(f'.//{SVG}polyline') + root.findall(f'.//{SVG}polygon')
+    assert len(shapes) == len(data['polylines'])
+    assert len(root.findall(f'.//{SVG}polygon')) == 1          # the closed room
+    wall = root.find(f'.//{SVG}polyline')                        # the wall from y 0.5 to 2.5
+    xy = np.array([[float(v) for v in p.split(',')] for p in wall.get('points').split()])
+    poly = np.array(next(p for p, c in zip(data['polylines'], data['closed']) if not c))
+    # higher map y -> smaller SVG y (y up); 50 px per metre by default
+    order = np.argsort(poly[:, 1])
+    assert np.all(np.diff(xy[order, 1]) < 0)
+    assert abs(np.ptp(xy[:, 1]) - 50 * np.ptp(poly[:, 1])) < 0.5
+    bar = root.find(f".//{SVG}g[@id='scale-bar']")
+    line, text = bar.find(SVG + 'line'), bar.find(SVG + 'text')
+    metres = float(re.match(r'([\d.]+) m', text.text).group(1))
+    assert metres in (1, 2, 5) and float(line.get('x2')) - float(line.get('x1')) == \
+        pytest.approx(50 * metres, abs=0.2)
+
+
+def test_csv_has_one_row_per_segment(fitted, tmp_path):
+    _, src, data = fitted
+    out = tmp_path / 'segs.csv'
+    assert main(['export', str(src), '-o', str(out), '-q']) == 0
+    rows = list(csv.DictReader(io.StringIO(out.read_text())))
+    assert len(rows) == len(data['segments'])
+    got = np.array([[float(r[k]) for k in ('x1', 'y1', 'x2', 'y2')] for r in rows])
+    np.testing.assert_allclose(got, np.array(data['segments']), atol=1e-4)
+    np.testing.assert_allclose([float(r['support']) for r in rows], data['support'], atol=0.01)
+    # --format wins over the suffix
+    txt = tmp_path / 'segs.txt'
+    assert main(['export', str(src), '-o', str(txt), '--format', 'csv', '-q']) == 0
+    assert txt.read_text() == out.read_text()
+
+
+def test_export_and_plot_errors_are_one_line(fitted, tmp_path, capsys):
+    _, src, _ = fitted
+    cases = [
+        ['export', str(src), '-o', str(tmp_path / 'x.dxf')],
+        ['export', str(tmp_path / 'missing.json'), '-o', str(tmp_path / 'x.csv')],
+        ['plot', str(src), '-o', str(tmp_path / 'x.png'), '--points',
+         str(tmp_path / 'missing.npy')],
+    ]
+    broken = tmp_path / 'broken.json'
+    broken.write_text('{"frame_id": "map", "segments": [[1, 2, 3]], "polylines": []}')
+    cases.append(['export', str(broken), '-o', str(tmp_path / 'x.svg')])
+    for argv in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith('polyline-mapper: error:'), (argv, err)
+    assert not list(tmp_path.glob('x.*'))
+
+
+def test_plot_map_alone_and_over_points(fitted, tmp_path, capsys):
+    folder, src, data = fitted
+    alone, over = tmp_path / 'alone.png', tmp_path / 'over.png'
+    assert main(['plot', str(src), '-o', str(alone)]) == 0
+    assert capsys.readouterr().out.strip() == f'wrote {alone}: {len(data["segments"])} segments'
+    assert main(['plot', str(src), '-o', str(over), '--points', str(folder / 'pts.npy')]) == 0
+    assert 'over 3300 points' in capsys.readouterr().out
+    for png in (alone, over):
+        assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert over.stat().st_size > alone.stat().st_size

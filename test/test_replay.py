@@ -1,0 +1,231 @@
+"""Replay: CARMEN <-> bag round trips, laser mounts, poses from tf and odom, skipped scans, CLI."""
+
+import gzip
+import json
+
+from bag_helpers import drive_messages, room_drive, write_bag, write_carmen
+from conftest import radish_log
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.core.geometry import nearest_distance
+from polyline_mapper.formats.carmen import read_carmen
+from polyline_mapper.formats.mapjson import read_map
+from polyline_mapper.replay import mount_quaternion, ReplayOptions, run_replay
+import pytest
+
+
+def segments_of(result) -> np.ndarray:
+    return result.mapper.polylines()[0]
+
+
+def assert_same_map(a, b, tol=1e-6):
+    sa, sb = segments_of(a), segments_of(b)
+    assert sa.shape == sb.shape and len(sa) > 0
+    assert np.abs(sa - sb).max() <= tol
+
+
+def wall_error(segments, world) -> np.ndarray:
+    """Distance (m) of each segment's ends and midpoint to the nearest wall of the world."""
+    pts = np.concatenate([segments[:, 0], segments[:, 1], segments.mean(axis=1)])
+    return nearest_distance(pts, world.walls)[0]
+
+
+def long_walls_found(segments, world, min_length=2.5) -> int:
+    """How many walls longer than ``min_length`` have a segment along 80 % of them within 5 cm."""
+    found = 0
+    for a, b in world.walls:
+        length = np.hypot(*(b - a))
+        if length < min_length:
+            continue
+        u = (b - a) / length
+        covered = 0.0
+        for s in segments:
+            d = nearest_distance(s, np.array([[a, b]]))[0]
+            if d.max() < 0.05:
+                t = np.sort((s - a) @ u)
+                covered += max(0.0, min(t[1], length) - max(t[0], 0.0))
+        found += covered >= 0.8 * length
+    return found
+
+
+def test_intel_carmen_and_its_bags_replay_to_the_same_map(tmp_path):
+    # the first 300 scans of the Intel log, as a log of their own
+    lines, n = [], 0
+    with gzip.open(radish_log('intel-corrected.log.gz'), 'rt') as fh:
+        for line in fh:
+            n += line.startswith('FLASER')
+            if n > 300:
+                break
+            lines.append(line)
+    log = tmp_path / 'intel300.log.gz'
+    with gzip.open(log, 'wt') as fh:
+        fh.writelines(lines)
+    direct = run_replay(str(log))
+    assert direct.used == 300 and not direct.skipped and direct.fixed_frame == 'map'
+    # the laser poses of the log reach the mapper: points as registered by the log's own poses
+    np.testing.assert_allclose(direct.points, read_carmen(str(log)).points(), atol=1e-5)
+    for storage in ('sqlite3', 'mcap'):
+        bag = tmp_path / f'intel300-{storage}'
+        assert main(['convert', str(log), '-o', str(bag), '--storage', storage, '-q']) == 0
+        via_bag = run_replay(str(bag))
+        assert via_bag.used == 300 and not via_bag.skipped
+        assert_same_map(direct, via_bag)
+        np.testing.assert_array_equal(direct.points, via_bag.points)
+    stats = direct.stats()
+    assert stats['mean_distance'] < 0.06 and stats['coverage_0_10m'] > 0.9
+
+
+def test_simulated_carmen_with_mount_and_odometry_drift_round_trip(tmp_path, capsys):
+    # FLASER geometry (181 beams over 180 deg), laser 4 cm behind the robot centre as in the
+    # Freiburg logs, odometry drifting away from the corrected poses
+    drive = room_drive(mount=(-0.04, 0.0, 0.0), beams=181, fov=180.0, step=0.25, rng=5)
+    log = write_carmen(tmp_path / 'sim.log.gz', drive, odom_drift=0.01, front_offset=-0.04,
+                       garbage_line=10)
+    carmen = read_carmen(log)
+    np.testing.assert_allclose(carmen.laser_offset, [-0.04, 0, 0])
+    assert carmen.skipped == 1
+    bag = tmp_path / 'sim-bag'
+    assert main(['convert', log, '-o', str(bag), '--storage', 'mcap']) == 0
+    out = capsys.readouterr()
+    assert 'base_link -> laser (-0.04, 0, 0 deg)' in out.out
+    assert 'skipped 1 malformed laser record(s), e.g. line' in out.err
+    direct, via_bag = run_replay(log), run_replay(str(bag))
+    assert direct.used == via_bag.used == len(drive.stamps)
+    assert_same_map(direct, via_bag)
+    segs = segments_of(direct)
+    assert wall_error(segs, drive.world).max() < 0.1
+    assert long_walls_found(segs, drive.world) >= 3    # the left wall is only seen grazing
+    # /odom in that bag is the drifting odometry: its map is in the odom frame, and worse
+    odom = run_replay(str(bag), options=ReplayOptions(pose_source='odom'))
+    assert odom.fixed_frame == 'odom' and odom.used == len(drive.stamps)
+    assert odom.stats()['mean_distance'] > direct.stats()['mean_distance']
+
+
+@pytest.fixture(scope='module')
+def rotated():
+    """Drive with the laser 0.2 m ahead, 0.1 m right of the base, turned 90 deg left."""
+    return room_drive(mount=(0.2, -0.1, np.pi / 2), step=0.3, rng=8)
+
+
+def test_lidar_mounted_rotated_90_degrees_gives_a_straight_map(tmp_path, rotated):
+    bag = write_bag(tmp_path / 'rot', drive_messages(rotated))
+    res = run_replay(bag)
+    assert res.fixed_frame == 'odom' and res.used == len(rotated.stamps)
+    segs = segments_of(res)
+    assert wall_error(segs, rotated.world).max() < 0.1
+    assert long_walls_found(segs, rotated.world) == 4
+    # the same scans with a mount claiming no rotation give no such map
+    wrong = write_bag(tmp_path / 'wrong', drive_messages(rotated, mount=(0.2, -0.1, 0.0)))
+    bad = run_replay(wrong)
+    d = nearest_distance(bad.points, rotated.world.walls)[0]
+    assert np.mean(d) > 0.5
+    # odometry plus the static mount: the very same map
+    odom = run_replay(bag, options=ReplayOptions(pose_source='odom'))
+    assert_same_map(res, odom, tol=1e-9)
+
+
+def test_upside_down_lidar_from_tf_static_and_from_the_mount_option(tmp_path):
+    drive = room_drive(mount=(0.1, 0.0, np.pi / 2), step=0.3, rng=9)
+    drive.ranges = drive.ranges[:, ::-1].copy()     # beams sweep clockwise seen from above
+    q = mount_quaternion(np.pi / 2, upside_down=True)
+    bag = write_bag(tmp_path / 'flip', drive_messages(drive, mount_quaternion=q))
+    res = run_replay(bag)
+    assert wall_error(segments_of(res), drive.world).max() < 0.1
+    assert long_walls_found(segments_of(res), drive.world) == 4
+    nostatic = write_bag(tmp_path / 'nostatic', drive_messages(drive, static=False))
+    out = tmp_path / 'm.json'
+    assert main(['replay', nostatic, '-o', str(out), '--pose-source', 'odom',
+                 '--laser-mount', '0.1,0,90,flip', '-q']) == 0
+    segs = read_map(str(out))['segments_array']
+    assert wall_error(segs, drive.world).max() < 0.1
+    assert main(['replay', nostatic, '-o', str(out), '--pose-source', 'odom',
+                 '--laser-mount', '0.1,0,90', '-q']) == 0          # not flipped: a mirror
+    assert np.mean(wall_error(read_map(str(out))['segments_array'], drive.world)) > 0.3
+
+
+def test_missing_and_stale_transforms_are_counted_or_fatal(tmp_path, rotated, capsys):
+    out = tmp_path / 'm.json'
+    # no /tf_static: the laser frame is never connected -> nothing to map -> exit 2
+    nostatic = write_bag(tmp_path / 'nostatic', drive_messages(rotated, static=False))
+    assert main(['replay', nostatic, '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'no scan could be mapped' in err[0]
+    assert f'{len(rotated.stamps)} no pose: unknown_frame' in err[0]
+    assert not out.exists()
+    # a fixed frame that is not in the tree
+    bag = write_bag(tmp_path / 'ok', drive_messages(rotated))
+    assert main(['replay', bag, '-o', str(out), '--fixed-frame', 'map', '-q']) == 2
+    assert "frame 'map' is unknown" in capsys.readouterr().err
+    # odom mode wants the map in the odometry frame
+    assert main(['replay', bag, '-o', str(out), '--pose-source', 'odom', '--fixed-frame',
+                 'map', '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "odometry in frame 'odom', expected 'map'" in err[0]
+    # /tf stops half way: the later scans have stale poses, counted and reported
+    cut = rotated.stamps[len(rotated.stamps) // 2]
+    stale = write_bag(tmp_path / 'stale', drive_messages(rotated, tf_until=cut))
+    assert main(['replay', stale, '-o', str(out)]) == 0
+    cap = capsys.readouterr()
+    late = int(np.sum(rotated.stamps > cut + 0.1))
+    assert f'skipped {late} scan(s)/message(s): no pose: too_new' in cap.err
+    assert f'({late} no pose: too_new skipped)' in cap.out
+    stats = read_map(str(out))['stats']
+    assert stats['skipped'] == {'no pose: too_new': late}
+    assert stats['scans_used'] == len(rotated.stamps) - late
+
+
+def test_replay_cli_writes_the_map_schema_png_and_config(tmp_path, rotated, capsys):
+    bag = write_bag(tmp_path / 'b', drive_messages(rotated), 'mcap')
+    out, png = tmp_path / 'm.json', tmp_path / 'm.png'
+    assert main(['replay', bag, '-o', str(out), '--plot', str(png), '--every', '2',
+                 '--set', 'buffer_scans=2', '--set', 'sigma=0.02']) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith(f'wrote {out}: ') and 'update median' in line
+    data = read_map(str(out))
+    assert data['frame_id'] == 'odom' and data['schema_version'] == 1
+    assert len(data['support']) == len(data['segments']) > 0
+    assert sum(len(p) - 1 + c for p, c in zip(data['polylines'], data['closed'])) == \
+        len(data['segments'])
+    cfg = data['config']
+    assert cfg['buffer_scans'] == 2 and cfg['sigma'] == 0.02 and 'merge_threshold' in cfg
+    stats = data['stats']
+    n = len(rotated.stamps)
+    assert stats['scans'] == n and stats['scans_used'] == (n + 1) // 2
+    assert stats['pose_source'] == 'tf' and stats['every'] == 2
+    for key in ('mean_distance', 'p95_distance', 'coverage_0_10m', 'update_ms_median',
+                'update_ms_p99', 'points', 'segments', 'polylines'):
+        assert stats[key] is not None
+    assert stats['mean_distance'] < 0.03 and stats['coverage_0_10m'] > 0.95
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    # bad settings end in one line, exit 2, no output
+    for argv in (['--set', 'buffer_scans=0'], ['--set', 'nonsense=1'], ['--every', '0'],
+                 ['--laser-mount', '1,2'], ['--scan-topic', '/scan']):
+        target = tmp_path / 'never.json'
+        rc = main(['replay', argv[0] == '--scan-topic' and str(tmp_path / 'x.log') or bag,
+                   '-o', str(target), '-q'] + argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and err[0].startswith('polyline-mapper: error:'), argv
+        assert not target.exists()
+
+
+def test_corrupt_carmen_lines_are_skipped_and_reported(tmp_path, capsys):
+    drive = room_drive(beams=181, fov=180.0, step=0.5, rng=4)
+    log = write_carmen(tmp_path / 'c.log.gz', drive, garbage_line=3)
+    out = tmp_path / 'c.json'
+    assert main(['replay', log, '-o', str(out), '-q']) == 0
+    err = capsys.readouterr().err
+    assert 'skipped 1 malformed laser record(s), e.g. line 6: FLASER announces 181' in err
+    stats = read_map(str(out))['stats']
+    assert '1 malformed record(s) skipped' in stats['input_type']
+    assert stats['scans_used'] == len(drive.stamps)
+    # a log whose every laser line is broken, and a truncated gzip: one line, exit 2
+    bad = tmp_path / 'bad.log'
+    bad.write_text('FLASER 3 1 2\nFLASER x\n')
+    assert main(['replay', str(bad), '-o', str(out), '-q']) == 2
+    assert 'no usable FLASER or ROBOTLASER1 record (2 malformed)' in capsys.readouterr().err
+    data = open(log, 'rb').read()
+    trunc = tmp_path / 'trunc.log.gz'
+    trunc.write_bytes(data[:len(data) // 2])
+    assert main(['replay', str(trunc), '-o', str(out), '-q']) == 2
+    assert 'unreadable or truncated log' in capsys.readouterr().err
+    assert json.loads(out.read_text())['stats']['scans_used'] == len(drive.stamps)
