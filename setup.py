@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'polyline-mapper = polyline_mapper.cli:main',
+            'polyline_mapper_node = polyline_mapper.ros.node:main',
         ],
     },
 )

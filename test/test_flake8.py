@@ -9,6 +9,7 @@ import pytest
 @pytest.mark.linter
 def test_flake8():
     rc, errors = main_with_errors(argv=[str(REPO / 'polyline_mapper'), str(REPO / 'test'),
+                                        str(REPO / 'launch'),
                                         str(REPO / 'benchmarks'), str(REPO / 'tools'),
                                         str(REPO / 'setup.py')])
     assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + '\n'.join(errors)

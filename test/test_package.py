@@ -4,6 +4,9 @@ import xml.etree.ElementTree as ET
 
 from conftest import REPO
 from polyline_mapper.core import SMEMSFConfig
+from polyline_mapper.core.incremental import IncrementalConfig
+from polyline_mapper.ros.params import all_params, defaults, settings_from
+import pytest
 import yaml
 
 
@@ -40,3 +43,75 @@ def test_config_yaml_lists_every_parameter_with_its_default():
     for key, value in defaults.items():
         want = 0.0 if value is None else value
         assert params[key] == want, (key, params[key], want)
+
+
+def flatten(tree: dict, prefix: str = '') -> dict:
+    """Return a nested parameter mapping as {'a.b': value}, as ROS 2 reads a parameter file."""
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(flatten(value, f'{prefix}{key}.'))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def test_config_yaml_holds_every_node_parameter_with_its_default_and_type():
+    data = yaml.safe_load((REPO / 'config' / 'polyline_mapper.yaml').read_text())
+    params = flatten(data['polyline_mapper_node']['ros__parameters'])
+    want = defaults()
+    assert set(params) == set(want), set(params) ^ set(want)
+    for key, value in want.items():
+        # Same value and same type: a 1 where a double is declared would fail to load.
+        assert params[key] == value and type(params[key]) is type(value), (key, params[key])
+    settings_from(params)                     # and the shipped values validate
+
+
+def test_parameter_table_covers_the_mapper_configuration():
+    names = {p.name for p in all_params()}
+    for f in IncrementalConfig.__dataclass_fields__:
+        assert f == 'smemsf' or f'incremental.{f}' in names, f
+    for f in SMEMSFConfig.__dataclass_fields__:
+        assert f'smemsf.{f}' in names, f
+    for p in all_params():
+        generic = p.description.startswith(('IncrementalConfig.', 'SMEMSFConfig.'))
+        assert p.description and not generic, p.name
+        if p.lo is not None:                  # the default lies in the declared range
+            assert p.lo <= p.default <= p.hi, p.name
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('smemsf.kappa', 0.0, 'smemsf.kappa must be a finite number > 0'),
+    ('incremental.buffer_scans', 0, 'incremental.buffer_scans'),
+    ('pose_source', 'gps', 'pose_source must be one of tf, odom'),
+    ('marker_color', [1.0, 0.0, 0.0], 'marker_color'),
+    ('marker_color', [1.0, 0.0, 0.0, 2.0], 'marker_color'),
+    ('update_every_n_scans', 51, 'at most scan_buffer_size'),
+    ('transform_tolerance', float('nan'), 'transform_tolerance must be finite'),
+    ('scan_buffer_size', 1.5, 'scan_buffer_size must be of type int'),
+    ('fixed_frame', ' ', 'fixed_frame must not be empty'),
+    ('fixed_frame', '/map', "must not start with '/'"),
+])
+def test_bad_parameter_values_are_refused_naming_the_parameter(name, value, match):
+    values = defaults()
+    values[name] = value
+    with pytest.raises(ValueError, match=match):
+        settings_from(values)
+
+
+def test_launch_file_starts_the_installed_executable_with_the_installed_config():
+    import ast
+    path = REPO / 'launch' / 'polyline_mapper.launch.py'
+    text = path.read_text()
+    compile(text, str(path), 'exec')
+    tree = ast.parse(text)
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | {
+        n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+    assert 'generate_launch_description' in {f.name for f in tree.body
+                                             if isinstance(f, ast.FunctionDef)}
+    for needle in ("package='polyline_mapper'", "executable='polyline_mapper_node'",
+                   "'polyline_mapper.yaml'", 'get_package_share_directory', "'config'"):
+        assert needle in text, needle
+    assert {'Node', 'DeclareLaunchArgument', 'LaunchConfiguration'} <= names
+    setup = (REPO / 'setup.py').read_text()
+    assert "'polyline_mapper_node = polyline_mapper.ros.node:main'" in setup

@@ -8,6 +8,7 @@ import pytest
 @pytest.mark.linter
 @pytest.mark.pep257
 def test_pep257():
-    rc = main(argv=[str(REPO / 'polyline_mapper'), str(REPO / 'test'), str(REPO / 'benchmarks'),
+    rc = main(argv=[str(REPO / 'polyline_mapper'), str(REPO / 'test'), str(REPO / 'launch'),
+                    str(REPO / 'benchmarks'),
                     str(REPO / 'tools')])
     assert rc == 0, 'Found code style errors / warnings'

@@ -1,0 +1,292 @@
+"""
+polyline_mapper_node: LaserScan in, PolylineMap and MarkerArray out, poses from TF or odometry.
+
+Topics (relative names, remappable):
+
+- ``scan`` (sensor_msgs/LaserScan, sensor-data QoS) in;
+- ``/tf``, ``/tf_static`` (pose_source tf) or ``odom`` (nav_msgs/Odometry, pose_source odom) in;
+- ``polyline_map`` (polyline_mapper_msgs/PolylineMap) and ``polyline_map/markers``
+  (visualization_msgs/MarkerArray) out, reliable + transient local, depth 1: a subscriber that
+  starts late gets the current map at once.
+
+Services: ``~/reset`` and ``~/save_map`` (std_srvs/Trigger). Parameters: see ``params``.
+
+The subscription callback only checks and queues a scan; a worker thread poses the queued scans,
+runs the incremental updates and publishes (see ``pipeline``), so no callback waits for an
+update, and services answer while an update runs (they wait at most for the one in progress).
+"""
+
+import math
+import signal
+import sys
+import threading
+import time
+
+from polyline_mapper_msgs.msg import PolylineMap
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
+                       ReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import LaserScan
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from .convert import map_to_markers, map_to_msg, scan_from_msg
+from .params import all_params, settings_from
+from .pipeline import ScanError, ScanPipeline, WarningThrottle
+from .tf_listener import make_tf_source, OdomSource
+from ..core.incremental import IncrementalMapper
+from ..formats.mapjson import map_to_dict, write_json_atomic
+
+NODE_NAME = 'polyline_mapper_node'
+MAP_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class ConfigError(Exception):
+    """A parameter value the node cannot start with (reported as one line, exit code 1)."""
+
+
+def descriptor(spec) -> ParameterDescriptor:
+    """Build the ParameterDescriptor of a ParamSpec: description, range, choices, read-only."""
+    d = ParameterDescriptor(name=spec.name, description=spec.description,
+                            read_only=not spec.runtime)
+    if spec.lo is not None and isinstance(spec.default, float):
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
+                                                     to_value=float(spec.hi), step=0.0)]
+    elif spec.lo is not None and isinstance(spec.default, int):
+        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi), step=1)]
+    if spec.choices:
+        d.additional_constraints = 'one of: ' + ', '.join(spec.choices)
+    return d
+
+
+class PolylineMapperNode(Node):
+    """Map laser scans into polylines online; publish the map, save it on request."""
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        self._specs = all_params()
+        try:
+            for spec in self._specs:
+                self.declare_parameter(spec.name, spec.default, descriptor(spec))
+            self.settings, self.config = settings_from(self._values())
+        except (ParameterException, ValueError, TypeError) as exc:
+            raise ConfigError(' '.join(str(exc).split())) from None
+        log = self.get_logger()
+        self.warnings = WarningThrottle(log.warning, self.settings.warning_period)
+        self.pipeline = ScanPipeline(IncrementalMapper(self.config), self._lookup, self.settings,
+                                     self.warnings, info=log.info)
+        self.map_pub = self.create_publisher(PolylineMap, 'polyline_map', MAP_QOS)
+        self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_service(Trigger, '~/save_map', self._on_save_map)
+        if self.settings.pose_source == 'tf':
+            try:
+                self.poses = make_tf_source(self, self.settings.transform_cache,
+                                            self.warnings.warn)
+            except RuntimeError as exc:
+                raise ConfigError(str(exc)) from None
+        else:
+            self.poses = OdomSource(self, self.settings, self.warnings.warn)
+        self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data)
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self._publish_lock = threading.Lock()
+        self._dirty = True                  # publish the (empty) map at once for late joiners
+        self._last_publish = -math.inf
+        self._last_stats = time.monotonic()
+        self._stats_mark = (0, 0, 0)
+        self._stop = threading.Event()
+        self._worker = threading.Thread(target=self._work, name='polyline_mapper_updates',
+                                        daemon=True)
+        self._worker.start()
+        s = self.settings
+        source = type(self.poses).__name__
+        log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
+                 f'poses from {s.pose_source} ({source}), update every '
+                 f'{s.update_every_n_scans} scan(s)')
+
+    # -- parameters ----------------------------------------------------------------------------
+    def _values(self, changes=()) -> dict:
+        values = {spec.name: self.get_parameter(spec.name).value for spec in self._specs}
+        values.update({p.name: p.value for p in changes})
+        return values
+
+    def _check_parameters(self, params) -> SetParametersResult:
+        try:
+            settings_from(self._values(params))
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params) -> None:
+        old = self.settings
+        self.settings, _ = settings_from(self._values())
+        self.pipeline.settings = self.settings
+        self.warnings.period = self.settings.warning_period
+        style = ('publish_markers', 'marker_color', 'marker_width')
+        if any(getattr(old, k) != getattr(self.settings, k) for k in style):
+            self._dirty = True              # republish the markers in their new style
+
+    # -- callbacks -----------------------------------------------------------------------------
+    def _on_scan(self, msg: LaserScan) -> None:
+        try:
+            scan = scan_from_msg(msg)
+        except ScanError as exc:
+            self.pipeline.skip(exc.cause, str(exc))
+            return
+        self.pipeline.add(scan)
+
+    def _lookup(self, frame_id: str, stamp: float, tolerance: float):
+        return self.poses.lookup(self.settings.fixed_frame, frame_id, stamp, tolerance)
+
+    def _on_reset(self, request, response):
+        dropped = self.pipeline.reset()
+        self._publish()
+        response.success = True
+        response.message = f'map cleared ({dropped} segments dropped)'
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_save_map(self, request, response):
+        path = self.settings.output_path
+        snap = self.pipeline.snapshot()
+        config = self.config.smemsf.to_dict()
+        config.update({k: getattr(self.config, k) for k in self.config.__dataclass_fields__
+                       if k != 'smemsf'})
+        stats = {'segments': len(snap.segments), 'polylines': len(snap.polylines),
+                 'sigma': snap.sigma, 'updates': snap.updates,
+                 'scans_used': self.pipeline.used}
+        data = map_to_dict(snap.segments, snap.polylines, snap.closed, snap.support, stats,
+                           config, self.settings.fixed_frame)
+        try:
+            write_json_atomic(path, data)
+        except OSError as exc:
+            response.success = False
+            response.message = f'cannot write {path}: {exc.strerror or exc}'
+            self.get_logger().error(response.message)
+            return response
+        response.success = True
+        response.message = (f'wrote {path}: {len(snap.segments)} segments in '
+                            f'{len(snap.polylines)} polylines')
+        self.get_logger().info(response.message)
+        return response
+
+    # -- worker --------------------------------------------------------------------------------
+    def _work(self) -> None:
+        log = self.get_logger()
+        while not self._stop.is_set():
+            self.pipeline.wait(0.05)
+            try:
+                before = len(self.pipeline.update_seconds)
+                if self.pipeline.step():
+                    self._dirty = True
+                    times = list(self.pipeline.update_seconds)[before:]
+                    log.debug(f'{len(times)} update(s): {1e3 * sum(times):.1f} ms')
+                now = time.monotonic()
+                if self._dirty and now - self._last_publish >= self.settings.map_publish_period:
+                    self._publish()
+                period = self.settings.stats_period
+                if period > 0 and now - self._last_stats >= period:
+                    self._log_stats(now)
+            except Exception as exc:        # keep mapping; say what went wrong
+                self.warnings.warn('internal_error', f'update failed: {exc!r}')
+
+    def _publish(self) -> None:
+        with self._publish_lock:
+            self._dirty = False
+            snap = self.pipeline.snapshot()
+            frame = self.settings.fixed_frame
+            stamp = (snap.header.stamp if snap.header is not None
+                     else self.get_clock().now().to_msg())
+            self.map_pub.publish(map_to_msg(snap, frame, stamp))
+            if self.settings.publish_markers:
+                self.marker_pub.publish(map_to_markers(snap, frame, stamp,
+                                                       self.settings.marker_color,
+                                                       self.settings.marker_width))
+            self._last_publish = time.monotonic()
+
+    def _log_stats(self, now: float) -> None:
+        p = self.pipeline
+        received, used, updates = p.received - self._stats_mark[0], p.used - \
+            self._stats_mark[1], p.updates - self._stats_mark[2]
+        self._stats_mark = (p.received, p.used, p.updates)
+        self._last_stats = now
+        times = list(p.update_seconds)[-updates:] if updates else []
+        timing = (f', update median {1e3 * sorted(times)[len(times) // 2]:.1f} ms, max '
+                  f'{1e3 * max(times):.1f} ms' if times else '')
+        self.get_logger().info(
+            f'map {len(p.mapper.segments)} segments (sigma {_cm(p.mapper.sigma)}); last '
+            f'{self.settings.stats_period:g} s: {received} scans in, {used} used, {updates} '
+            f'updates{timing}')
+
+    def close(self) -> None:
+        """Stop the worker thread and log a summary of the run."""
+        self._stop.set()
+        self._worker.join(timeout=5.0)
+        st = self.pipeline.stats()
+        warned = ', '.join(f'{k} {v}' for k, v in sorted(st['warnings'].items())) or 'none'
+        line = (f"summary: {st['received']} scans received, {st['used']} used in "
+                f"{st['updates']} updates, {st['dropped']} dropped; warnings: {warned}")
+        for key in ('update_ms', 'latency_ms'):
+            if key in st:
+                v = st[key]
+                line += (f"; {key} p50 {v['p50']:.1f} p95 {v['p95']:.1f} p99 {v['p99']:.1f} "
+                         f"max {v['max']:.1f}")
+        line += f'; map {len(self.pipeline.mapper.segments)} segments'
+        self.get_logger().info(line)
+
+
+def _cm(sigma) -> str:
+    return 'not yet estimated' if sigma is None else f'{100 * sigma:.1f} cm'
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(args=None) -> int:
+    """
+    Run the node until SIGINT / SIGTERM; exit code 1 with one line on bad parameters.
+
+    rclpy's own signal handlers are off: a signal raises KeyboardInterrupt in the spin loop
+    (within its 0.1 s wait), so the worker is stopped and the summary logged while the context
+    is still valid, before the node is destroyed and rclpy shut down.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        node = PolylineMapperNode()
+    except ConfigError as exc:
+        get_logger(NODE_NAME).fatal(f'cannot start: {exc}')
+        rclpy.try_shutdown()
+        return 1
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return 0
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        executor.remove_node(node)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

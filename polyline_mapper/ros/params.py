@@ -1,0 +1,283 @@
+"""
+The node's parameters in one table: names, defaults, units, ranges, and which may change live.
+
+ROS-free (no rclpy), so the YAML test and the offline tools can read it. The node turns every
+entry into a declared parameter with a ParameterDescriptor; ``settings_from`` validates a full set
+of values (at start and for every runtime change) and returns the node settings and the mapper
+configuration, or raises ValueError naming the parameter.
+
+Three groups:
+
+- the node's own parameters (frames, pose source, queueing, publishing, logging);
+- ``incremental.<field>``: every IncrementalConfig field except ``smemsf``;
+- ``smemsf.<field>``: every SMEMSFConfig field (0 stands for None: "estimate it").
+
+The mapper's configuration is read-only at runtime: it shapes a map already built (sigma, the
+merge and split thresholds), so changing it live would leave a map made under two
+configurations. Such changes are refused by the read-only descriptor; restart the node (or
+call ~/reset after a restart) to map with new values. Frames, the pose source and the queue
+size are read-only for the same reason. Everything about timing, publishing and logging may
+change live.
+"""
+
+import ast
+from dataclasses import dataclass, fields
+import inspect
+import math
+import os
+import textwrap
+
+from ..core.incremental import IncrementalConfig
+from ..core.smemsf import SMEMSFConfig
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One declared parameter."""
+
+    name: str
+    default: object
+    """bool, int, float, str or a list of floats (the ROS parameter type follows)."""
+    description: str
+    lo: float = None
+    """Smallest allowed value (inclusive), for numbers; also the descriptor's range."""
+    hi: float = None
+    """Largest allowed value (inclusive), for numbers."""
+    runtime: bool = False
+    """May change while the node runs (else the descriptor is read-only)."""
+    choices: tuple = ()
+    """Allowed values, for strings with a fixed set."""
+
+
+NODE_PARAMS = (
+    ParamSpec('fixed_frame', 'map',
+              'Frame of the map and of everything published. In tf mode, poses of the scan '
+              'frame are looked up in it; in odom mode it must be the odometry frame '
+              '(nav_msgs/Odometry header.frame_id).'),
+    ParamSpec('pose_source', 'tf',
+              "Where scan poses come from: 'tf' (fixed_frame <- scan frame from /tf and "
+              "/tf_static) or 'odom' (nav_msgs/Odometry on 'odom' plus the laser_* mount).",
+              choices=('tf', 'odom')),
+    ParamSpec('transform_tolerance', 0.1,
+              'Seconds a scan stamp may lie outside the stored transforms (or odometry) and '
+              'still use the nearest one (held, never extrapolated).', 0.0, 10.0, True),
+    ParamSpec('transform_timeout', 0.5,
+              'Seconds a scan waits for a pose that may still come (no transforms yet, unknown '
+              'frame, stamp newer than the newest transform) before it is skipped.',
+              0.0, 10.0, True),
+    ParamSpec('transform_cache', 30.0,
+              'Seconds of transform (or odometry) history kept per frame.', 1.0, 3600.0),
+    ParamSpec('laser_x', 0.0, 'odom mode: laser x in the odometry child (base) frame, metres.',
+              -100.0, 100.0),
+    ParamSpec('laser_y', 0.0, 'odom mode: laser y in the odometry child (base) frame, metres.',
+              -100.0, 100.0),
+    ParamSpec('laser_yaw', 0.0, 'odom mode: laser yaw in the odometry child (base) frame, rad.',
+              -2 * math.pi, 2 * math.pi),
+    ParamSpec('laser_upside_down', False,
+              'odom mode: the laser is mounted upside down (rolled 180 deg): beams sweep '
+              'clockwise seen from above.'),
+    ParamSpec('scan_buffer_size', 50,
+              'Scans that may wait for their pose and the next update; when updates fall '
+              'behind, the oldest are dropped (and counted).', 1, 10000),
+    ParamSpec('update_every_n_scans', 1,
+              'Run an incremental update once this many scans have their pose; their points '
+              'go into one update. At most scan_buffer_size.', 1, 1000, True),
+    ParamSpec('map_output_path', '~/.ros/polyline_map.json',
+              'Where ~/save_map writes the map JSON (~ is expanded).', runtime=True),
+    ParamSpec('map_publish_period', 0.2,
+              'Least seconds between two publications of polyline_map and its markers; 0 '
+              'publishes after every update. A pending change is always published.',
+              0.0, 3600.0, True),
+    ParamSpec('publish_markers', True, 'Publish polyline_map/markers (MarkerArray).',
+              runtime=True),
+    ParamSpec('marker_color', [0.1, 0.5, 1.0, 1.0], 'Marker colour: red, green, blue, alpha in '
+              '[0, 1].', runtime=True),
+    ParamSpec('marker_width', 0.05, 'Marker line width, metres.', 0.001, 10.0, True),
+    ParamSpec('warning_period', 10.0,
+              'Seconds between two warnings of the same cause (skipped scans); each warning '
+              'counts the ones suppressed since the last.', 0.0, 3600.0, True),
+    ParamSpec('stats_period', 30.0,
+              'Seconds between two info lines with map size and update times; 0 turns them '
+              'off.', 0.0, 3600.0, True),
+)
+
+# Closed hulls of what IncrementalConfig / SMEMSFConfig accept (they validate exactly, naming
+# the field); these ranges are what rqt and `ros2 param describe` show.
+_BIG = 1e6
+CORE_RANGES = {
+    'incremental.buffer_scans': (1, 1000),
+    'incremental.iterations': (1, 100),
+    'incremental.margin': (0.0, 100.0),
+    'incremental.virtual_cap': (0.0, _BIG),
+    'incremental.cell': (0.01, 1000.0),
+    'incremental.noise_updates': (1, 10000),
+    'incremental.sigma_window': (1, 100000),
+    'smemsf.sigma': (0.0, 10.0),
+    'smemsf.sigma_min': (0.0, 10.0),
+    'smemsf.sigma_start': (0.0, 100.0),
+    'smemsf.shrink_fast': (0.0, 1.0),
+    'smemsf.shrink_slow': (0.0, 1.0),
+    'smemsf.kappa': (0.0, 100.0),
+    'smemsf.r_over_sigma': (0.0, 100.0),
+    'smemsf.split_fraction': (0.0, 1.0),
+    'smemsf.gap_p': (0.0, 1.0),
+    'smemsf.merge_theta_ref': (0.0, 180.0),
+    'smemsf.merge_threshold': (0.0, _BIG),
+    'smemsf.merge_reach': (0.0, 1000.0),
+    'smemsf.min_support': (2.0, _BIG),
+    'smemsf.min_density': (0.0, _BIG),
+    'smemsf.tail_fraction': (0.0, 1.0),
+    'smemsf.seed_cell': (0.0, 1000.0),
+    'smemsf.seed_thickness': (0.0, 1000.0),
+    'smemsf.max_iterations': (1, 100000),
+    'smemsf.tol': (0.0, 1.0),
+    'smemsf.noise_radius': (0.0, 100.0),
+    'smemsf.join_over_r': (0.0, 1000.0),
+    'smemsf.init_count': (1, 100000),
+    'smemsf.seed': (0, 2 ** 31 - 1),
+}
+CORE_CHOICES = {'smemsf.init': ('diagonals', 'single', 'random')}
+
+
+def field_docs(cls) -> dict:
+    """Return the attribute docstrings of a dataclass (the string after each field), by name."""
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError, SyntaxError):
+        return {}
+    body = tree.body[0].body
+    out = {}
+    for stmt, nxt in zip(body, body[1:]):
+        if (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)
+                and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)
+                and isinstance(nxt.value.value, str)):
+            out[stmt.target.id] = ' '.join(nxt.value.value.split())
+    return out
+
+
+def _core_specs(prefix: str, cls, skip=()) -> list:
+    docs = field_docs(cls)
+    defaults = cls()
+    out = []
+    for f in fields(cls):
+        if f.name in skip:
+            continue
+        name = f'{prefix}.{f.name}'
+        value = getattr(defaults, f.name)
+        if value is None:              # "automatic": ROS parameters have no None
+            value = 0.0
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise TypeError(f'{cls.__name__}.{f.name}: no ROS parameter type for {value!r}')
+        lo, hi = CORE_RANGES.get(name, (None, None))
+        doc = docs.get(f.name, f'{cls.__name__}.{f.name}')
+        out.append(ParamSpec(name, value, doc, lo, hi, False, CORE_CHOICES.get(name, ())))
+    return out
+
+
+def all_params() -> tuple:
+    """Return every parameter the node declares: its own, incremental.*, smemsf.*."""
+    return (NODE_PARAMS + tuple(_core_specs('incremental', IncrementalConfig, skip=('smemsf',)))
+            + tuple(_core_specs('smemsf', SMEMSFConfig)))
+
+
+def defaults() -> dict:
+    """Return {name: default} of every declared parameter."""
+    return {p.name: p.default for p in all_params()}
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """The node's own parameters, validated (see NODE_PARAMS for meanings and units)."""
+
+    fixed_frame: str
+    pose_source: str
+    transform_tolerance: float
+    transform_timeout: float
+    transform_cache: float
+    laser_x: float
+    laser_y: float
+    laser_yaw: float
+    laser_upside_down: bool
+    scan_buffer_size: int
+    update_every_n_scans: int
+    map_output_path: str
+    map_publish_period: float
+    publish_markers: bool
+    marker_color: tuple
+    marker_width: float
+    warning_period: float
+    stats_period: float
+
+    @property
+    def output_path(self) -> str:
+        """Return map_output_path with ~ expanded."""
+        return os.path.expanduser(self.map_output_path)
+
+
+def check_value(spec: ParamSpec, value) -> None:
+    """Raise ValueError naming the parameter when ``value`` breaks its type, range or choices."""
+    d = spec.default
+    if isinstance(d, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(d, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(d, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif isinstance(d, str):
+        ok = isinstance(value, str)
+    else:
+        ok = hasattr(value, '__len__') and not isinstance(value, (str, bytes)) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if not ok:
+        raise ValueError(f'{spec.name} must be of type {type(d).__name__}, got {value!r}')
+    if isinstance(d, (int, float)) and not isinstance(d, bool):
+        if not math.isfinite(value):
+            raise ValueError(f'{spec.name} must be finite, got {value!r}')
+        if (spec.lo is not None and value < spec.lo) or (spec.hi is not None and value > spec.hi):
+            raise ValueError(f'{spec.name} must be in [{spec.lo:g}, {spec.hi:g}], got {value!r}')
+    if spec.choices and value not in spec.choices:
+        raise ValueError(f'{spec.name} must be one of {", ".join(spec.choices)}, got {value!r}')
+
+
+def settings_from(values: dict) -> tuple:
+    """
+    Validate a full set of parameter values; return (NodeSettings, IncrementalConfig).
+
+    Raises ValueError with a one-line reason naming the parameter.
+    """
+    specs = {p.name: p for p in all_params()}
+    unknown = sorted(set(values) - set(specs))
+    if unknown:
+        raise ValueError(f'unknown parameter(s): {", ".join(unknown)}')
+    missing = sorted(set(specs) - set(values))
+    if missing:
+        raise ValueError(f'missing parameter(s): {", ".join(missing)}')
+    for name, value in values.items():
+        check_value(specs[name], value)
+    node = {p.name: values[p.name] for p in NODE_PARAMS}
+    for name in ('fixed_frame', 'map_output_path'):
+        if not node[name].strip():
+            raise ValueError(f'{name} must not be empty')
+    if node['fixed_frame'].lstrip('/') != node['fixed_frame']:
+        raise ValueError(f"fixed_frame must not start with '/', got {node['fixed_frame']!r}")
+    color = tuple(float(c) for c in node['marker_color'])
+    if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
+        raise ValueError(f'marker_color must be 4 numbers in [0, 1] (r, g, b, a), got {color}')
+    node['marker_color'] = color
+    if node['update_every_n_scans'] > node['scan_buffer_size']:
+        raise ValueError(f"update_every_n_scans ({node['update_every_n_scans']}) must be at most "
+                         f"scan_buffer_size ({node['scan_buffer_size']})")
+    for name in ('transform_tolerance', 'transform_timeout', 'transform_cache', 'laser_x',
+                 'laser_y', 'laser_yaw', 'map_publish_period', 'marker_width', 'warning_period',
+                 'stats_period'):
+        node[name] = float(node[name])
+    smemsf = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('smemsf.')}
+    inc = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('incremental.')}
+    try:
+        config = IncrementalConfig(smemsf=SMEMSFConfig.from_dict(smemsf), **inc)
+    except ValueError as exc:
+        group = 'incremental' if any(str(exc).startswith(k) for k in inc) else 'smemsf'
+        raise ValueError(f'{group}.{exc}') from None
+    except TypeError as exc:
+        raise ValueError(f'bad mapper configuration: {exc}') from None
+    return NodeSettings(**node), config

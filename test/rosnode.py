@@ -1,0 +1,206 @@
+"""Helpers for tests with the real node over DDS: the node process, a peer node, a drive player."""
+
+import math
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+NODE_EXE = pathlib.Path(sys.executable).parent / 'polyline_mapper_node'
+NODE = '/polyline_mapper_node'
+
+
+def ros_arg(value) -> str:
+    """Format a parameter value for --ros-args -p name:=value."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(ros_arg(v) for v in value) + ']'
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+class NodeProcess:
+    """polyline_mapper_node in a subprocess, its stderr in a file; always stopped by stop()."""
+
+    def __init__(self, folder: pathlib.Path, params: dict = None, name: str = 'node',
+                 params_file: pathlib.Path = None):
+        self.err_path = folder / f'{name}.stderr'
+        cmd = [str(NODE_EXE), '--ros-args']
+        if params_file is not None:
+            cmd += ['--params-file', str(params_file)]
+        for key, value in (params or {}).items():
+            cmd += ['-p', f'{key}:={ros_arg(value)}']
+        self._err = open(self.err_path, 'w')
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=self._err,
+                                     env=dict(os.environ, RCUTILS_COLORIZED_OUTPUT='0'))
+
+    def stderr(self) -> str:
+        """Return what the node wrote to stderr so far."""
+        return self.err_path.read_text()
+
+    def lines(self, needle: str) -> list:
+        """Return the stderr lines containing ``needle``."""
+        return [ln for ln in self.stderr().splitlines() if needle in ln]
+
+    def wait_for_line(self, needle: str, timeout: float) -> bool:
+        """Poll stderr until a line contains ``needle`` (or the process ends / time runs out)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.lines(needle):
+                return True
+            if self.proc.poll() is not None:
+                return bool(self.lines(needle))
+            time.sleep(0.05)
+        return False
+
+    def stop(self, timeout: float = 10.0):
+        """SIGINT, then SIGKILL if needed; return the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5.0)
+        self._err.close()
+        return self.proc.returncode
+
+
+class Peer:
+    """An in-process node (own context) that plays drives, listens to the map, calls services."""
+
+    def __init__(self, name: str = 'test_peer'):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from nav_msgs.msg import Odometry
+        from polyline_mapper.ros.node import MAP_QOS
+        from polyline_mapper.ros.tf_listener import TF_QOS, TF_STATIC_QOS
+        from polyline_mapper_msgs.msg import PolylineMap
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import LaserScan
+        from tf2_msgs.msg import TFMessage
+        from visualization_msgs.msg import MarkerArray
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        n = self.node
+        self.scan_pub = n.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
+        self.tf_pub = n.create_publisher(TFMessage, '/tf', TF_QOS)
+        self.static_pub = n.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
+        self.odom_pub = n.create_publisher(Odometry, 'odom', 10)
+        self.maps, self.markers = [], []
+        n.create_subscription(PolylineMap, 'polyline_map', self.maps.append, MAP_QOS)
+        n.create_subscription(MarkerArray, 'polyline_map/markers', self.markers.append, MAP_QOS)
+        self.TFMessage = TFMessage
+
+    def spin_until(self, condition, timeout: float) -> bool:
+        """Spin until ``condition()`` holds or ``timeout`` seconds pass; return whether it held."""
+        deadline = time.monotonic() + timeout
+        while True:
+            if condition():
+                return True
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            self.executor.spin_once(timeout_sec=min(left, 0.05))
+
+    def spin_for(self, seconds: float) -> None:
+        """Spin (handle incoming messages) for ``seconds``, e.g. to pace publishing."""
+        self.spin_until(lambda: False, seconds)
+
+    def wait_for_node(self, timeout: float = 30.0, odom: bool = False) -> bool:
+        """Wait until the node's subscriptions and map publisher are discovered."""
+        pub = self.odom_pub if odom else self.tf_pub
+        found = self.spin_until(lambda: self.scan_pub.get_subscription_count() > 0
+                                and pub.get_subscription_count() > 0
+                                and self.node.count_publishers('/polyline_map') > 0, timeout)
+        # Discovery is two-sided: give the node's readers a moment to match our writers too,
+        # so the first best-effort scans are not dropped on its side.
+        self.spin_for(0.5)
+        return found
+
+    def play(self, messages, rate: float, mode: str = 'tf', t0: float = None,
+             indices=None) -> float:
+        """Publish scans (with their transforms or odometry) at ``rate`` Hz; return last stamp."""
+        t0 = time.time() if t0 is None else t0
+        if mode == 'tf':
+            self.static_pub.publish(self.TFMessage(transforms=[messages.static_mount()]))
+        period = 1.0 / rate
+        tick = time.monotonic()
+        stamp = t0
+        for k, i in enumerate(range(len(messages)) if indices is None else indices):
+            stamp = t0 + k * period
+            if mode == 'tf':
+                self.tf_pub.publish(self.TFMessage(transforms=messages.transforms(i, stamp)))
+            else:
+                self.odom_pub.publish(messages.odometry(i, stamp))
+            self.scan_pub.publish(messages.scan(i, stamp))
+            tick += period
+            self.spin_for(max(0.0, tick - time.monotonic()))
+        return stamp
+
+    def call(self, name: str, srv_type, request=None, timeout: float = 10.0):
+        """Call a service; return the response (None if it did not answer in time)."""
+        client = self.node.create_client(srv_type, name)
+        try:
+            if not client.wait_for_service(timeout_sec=timeout):
+                return None
+            future = client.call_async(request or srv_type.Request())
+            self.spin_until(future.done, timeout)
+            return future.result() if future.done() else None
+        finally:
+            self.node.destroy_client(client)
+
+    def set_parameters(self, **values):
+        """Set node parameters over the set_parameters service; return the SetParametersResults."""
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+        req = SetParameters.Request(parameters=[Parameter(k.replace('__', '.'), value=v)
+                                                .to_parameter_msg() for k, v in values.items()])
+        resp = self.call(f'{NODE}/set_parameters', SetParameters, req)
+        return None if resp is None else resp.results
+
+    def close(self) -> None:
+        """Destroy the node and shut its context down."""
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def stamp_of(msg) -> float:
+    """Return a message header's stamp as float seconds."""
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
+def map_segments(msg) -> np.ndarray:
+    """Return a PolylineMap's segments as a (K, 2, 2) array."""
+    return np.array([[[s.start.x, s.start.y], [s.end.x, s.end.y]] for s in msg.segments],
+                    dtype=float).reshape(-1, 2, 2)
+
+
+def wall_errors(segments: np.ndarray, drive) -> tuple:
+    """
+    Return (worst distance of any segment point to the world, worst wall end-point error).
+
+    The end-point error of a wall is that of the best segment against the part of the wall
+    the laser saw (from the simulator's hit ids), ends matched either way round.
+    """
+    from conftest import end_errors
+    from polyline_mapper.core.geometry import sample_segments
+    samples, _ = sample_segments(segments, 0.02)
+    stray = float(drive.world.distance(samples).max()) if len(samples) else math.inf
+    pts, hits = drive.points(with_hits=True)
+    worst = 0.0
+    for i, (a, b) in enumerate(drive.world.walls):
+        u = (b - a) / np.linalg.norm(b - a)
+        t = (pts[hits == i] - a) @ u
+        err = end_errors(segments, a + t.min() * u, a + t.max() * u).min()
+        worst = max(worst, float(err))
+    return stray, worst

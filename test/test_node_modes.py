@@ -1,0 +1,72 @@
+"""The real node over DDS in odom mode, and with no transforms at all (after test_node.py)."""
+
+import math
+import re
+
+from conftest import REPO
+from polyline_mapper.ros.sim_player import DriveMessages
+import pytest
+from rosnode import map_segments, NodeProcess, Peer, stamp_of, wall_errors
+from std_srvs.srv import Trigger
+
+pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+pytestmark = pytest.mark.slow
+RATE = 40.0
+TIMEOUT = 60.0
+
+
+def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
+    node = NodeProcess(tmp_path, {
+        'pose_source': 'odom', 'fixed_frame': 'odom', 'laser_x': 0.15, 'laser_y': 0.05,
+        'laser_yaw': math.pi / 2, 'laser_upside_down': True, 'map_publish_period': 0.0,
+        'stats_period': 0.0})
+    peer = Peer('test_peer_odom')
+    try:
+        assert peer.wait_for_node(TIMEOUT, odom=True), node.stderr()
+        msgs = DriveMessages(office_drive, mount=(0.15, 0.05, math.pi / 2), upside_down=True,
+                             map_to_odom=(0.0, 0.0, 0.0))
+        last = peer.play(msgs, RATE, mode='odom')
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        msg = peer.maps[-1]
+        assert msg.header.frame_id == 'odom'
+        stray, worst = wall_errors(map_segments(msg), office_drive)
+        assert stray <= 0.15 and worst <= 0.15, (stray, worst)
+        assert not node.lines('WARN'), node.stderr()[-2000:]
+    finally:
+        peer.close()
+        assert node.stop() == 0
+    # Every scan that arrived was used (best-effort delivery may lose one at the very start).
+    summary = node.lines('summary:')
+    got = re.search(r'(\d+) scans received, (\d+) used', summary[0])
+    assert len(msgs) - 2 <= int(got[1]) == int(got[2]) <= len(msgs), summary
+
+
+def test_without_any_transform_scans_are_skipped_once_warned(office_drive, tmp_path):
+    # Started with the shipped parameter file: every value in it has the declared type.
+    node = NodeProcess(tmp_path, {'transform_timeout': 0.2, 'warning_period': 300.0},
+                       params_file=REPO / 'config' / 'polyline_mapper.yaml')
+    peer = Peer('test_peer_no_tf')
+    try:
+        assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
+                               and peer.maps, TIMEOUT), node.stderr()
+        msgs = DriveMessages(office_drive)
+        # Scans until the first warning, then three more: all must be skipped, one warned.
+        sent = 0
+        while not node.lines('[no_tf]') and sent < 100:
+            peer.scan_pub.publish(msgs.scan(sent, 100.0 + 0.1 * sent))
+            sent += 1
+            peer.spin_for(0.1)
+        for _ in range(3):
+            peer.scan_pub.publish(msgs.scan(sent, 100.0 + 0.1 * sent))
+            sent += 1
+            peer.spin_for(0.1)
+        assert node.lines('[no_tf]'), node.stderr()
+        assert peer.call('/polyline_mapper_node/save_map', Trigger) is not None
+        assert len(peer.maps[-1].segments) == 0 and node.proc.poll() is None
+    finally:
+        peer.close()
+        assert node.stop() == 0
+    assert len(node.lines('[no_tf]')) == 1
+    got = re.search(r'(\d+) scans received, 0 used .* no_tf (\d+)', node.lines('summary:')[0])
+    assert got and int(got[1]) == int(got[2]) >= 4, node.lines('summary:')
