@@ -1,0 +1,137 @@
+"""
+Offline replay of every shared Radish log: the map ``polyline-mapper replay`` makes.
+
+Usage (from the repository root, after ``bash tools/dev.sh setup``)::
+
+    .venv/bin/python benchmarks/replay.py [--datasets DIR] [--only NAME ...] [--via-bag]
+
+Each log goes through ``polyline_mapper.replay.run_replay`` scan by scan, exactly as the
+``replay`` command runs it (default IncrementalConfig, every scan, poses from the log through
+TF). Reported per log: mean and 95th-percentile distance of that log's points to the final map,
+coverage (share of points within 0.10 m), segments, polylines, and the time of each map update
+(point conversion included; median and p99). Targets (issue 5): mean <= 0.06 m and coverage
+>= 90 % per log. With --via-bag every log is also converted to a rosbag2 (sqlite3) and replayed
+from the bag, and the two maps are compared (largest end-point difference).
+
+Writes the table into benchmarks/README.md (between the ``replay`` markers), the raw numbers to
+benchmarks/results/replay.json and one PNG per log to benchmarks/results/replay-<log>.png.
+"""
+
+import argparse
+import json
+import os
+import pathlib
+import sys
+import tempfile
+import time
+
+from common import HERE, REPO, stamp, write_readme
+import numpy as np
+from polyline_mapper.formats.convert import carmen_to_bag
+from polyline_mapper.plot import plot_map
+from polyline_mapper.replay import run_replay
+
+LOGS = ['intel-corrected', 'csail-corrected', 'infinite-corridor-corrected',
+        'freiburg-079-corrected', 'freiburg-campus-corrected']
+TARGET_MEAN = 0.06
+TARGET_COVERAGE = 0.90
+
+
+def replay_one(name: str, path: pathlib.Path, out_dir: pathlib.Path, via_bag: bool) -> dict:
+    """Replay one log; return its row and write its PNG."""
+    t0 = time.perf_counter()
+    res = run_replay(str(path), progress=True)
+    wall = time.perf_counter() - t0
+    stats = res.stats()
+    segments, polylines, _ = res.mapper.polylines()
+    row = {'dataset': name, 'scans': res.scans, 'scans_used': res.used,
+           'skipped': dict(res.skipped), 'points': stats['points'],
+           'segments': stats['segments'], 'polylines': stats['polylines'],
+           'mean_cm': 100 * stats['mean_distance'], 'p95_cm': 100 * stats['p95_distance'],
+           'coverage': 100 * stats['coverage_0_10m'],
+           'median_ms': stats['update_ms_median'], 'p99_ms': stats['update_ms_p99'],
+           'sigma_cm': 100 * stats['sigma'], 'seconds': wall}
+    row['meets'] = bool(stats['mean_distance'] <= TARGET_MEAN
+                        and stats['coverage_0_10m'] >= TARGET_COVERAGE)
+    plot_map(str(out_dir / f'replay-{name}.png'), res.points, segments, polylines,
+             title=f"{name} replay: {row['segments']} segments, mean {row['mean_cm']:.2f} cm, "
+                   f"coverage {row['coverage']:.1f}%")
+    if via_bag:
+        with tempfile.TemporaryDirectory() as tmp:
+            bag = os.path.join(tmp, name)
+            carmen_to_bag(str(path), bag, 'sqlite3')
+            other = run_replay(bag, progress=True)
+        theirs = other.mapper.polylines()[0]
+        row['bag_max_diff_m'] = (float(np.abs(theirs - segments).max())
+                                 if theirs.shape == segments.shape else float('inf'))
+    print(f"{name}: {row['scans_used']}/{row['scans']} scans, {row['segments']} segments, "
+          f"mean {row['mean_cm']:.2f} cm, p95 {row['p95_cm']:.2f} cm, coverage "
+          f"{row['coverage']:.1f}%, update median {row['median_ms']:.1f} ms p99 "
+          f"{row['p99_ms']:.1f} ms, {wall:.0f} s"
+          + (f", bag vs log {row['bag_max_diff_m']:.1e} m" if via_bag else ''), flush=True)
+    return row
+
+
+def table(rows: list, meta: dict, via_bag: bool) -> str:
+    """The README block: when, where, how, and one row per log."""
+    block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
+             f"`{meta['command']}` (default IncrementalConfig: 3-scan buffer, one SMEMSF "
+             'iteration per scan; every scan, in log order; one process, no other load '
+             'intended). Mean, p95 and coverage are over all points of the log; update times '
+             'are per scan, point conversion included. Target: mean <= 6 cm and coverage >= '
+             '90 % per log.\n\n'
+             '| log | scans | points | segments | polylines | mean (cm) | p95 (cm) | '
+             'coverage 0.10 m | update median / p99 (ms) | time (s) | target |'
+             + (' bag = log |' if via_bag else '') + '\n'
+             '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|'
+             + ('---:|' if via_bag else '') + '\n')
+    for r in rows:
+        block += (f"| {r['dataset']} | {r['scans_used']} | {r['points']} | {r['segments']} | "
+                  f"{r['polylines']} | {r['mean_cm']:.2f} | {r['p95_cm']:.2f} | "
+                  f"{r['coverage']:.1f}% | {r['median_ms']:.1f} / {r['p99_ms']:.1f} | "
+                  f"{r['seconds']:.0f} | {'met' if r['meets'] else '**not met**'} |"
+                  + (f" {r['bag_max_diff_m']:.0e} m |" if via_bag else '') + '\n')
+    block += ('\nPlots: `results/replay-<log>.png`. '
+              + ('"bag = log": largest end-point difference between the map replayed from the '
+                 'log and from its rosbag2 conversion (`polyline-mapper convert`).\n'
+                 if via_bag else '\n'))
+    return block
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; return the exit code."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap.add_argument('--datasets', default=os.environ.get(
+        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    ap.add_argument('--only', nargs='*', default=[], help='log names to run')
+    ap.add_argument('--via-bag', action='store_true',
+                    help='also convert each log to a rosbag2 and compare the replayed maps')
+    ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
+    args = ap.parse_args(argv)
+    out_dir = HERE / 'results'
+    out_dir.mkdir(exist_ok=True)
+    rows = []
+    for name in LOGS:
+        if args.only and name not in args.only:
+            continue
+        path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
+        if not path.is_file():
+            print(f'skip {name}: {path} not found', file=sys.stderr)
+            continue
+        rows.append(replay_one(name, path, out_dir, args.via_bag))
+    if not rows:
+        print('no dataset found', file=sys.stderr)
+        return 1
+    command = ('python benchmarks/replay.py '
+               + ' '.join(argv if argv is not None else sys.argv[1:])).strip()
+    meta = stamp(command)
+    (out_dir / 'replay.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1))
+    block = table(rows, meta, args.via_bag)
+    if not args.no_readme:
+        write_readme('replay', block)
+    print(block)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
