@@ -73,7 +73,7 @@ def replay_one(name: str, path: pathlib.Path, out_dir: pathlib.Path, via_bag: bo
 
 
 def table(rows: list, meta: dict, via_bag: bool) -> str:
-    """The README block: when, where, how, and one row per log."""
+    """Build the README block: when, where, how, and one row per log."""
     block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
              f"`{meta['command']}` (default IncrementalConfig: 3-scan buffer, one SMEMSF "
              'iteration per scan; every scan, in log order; one process, no other load '
