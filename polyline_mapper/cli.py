@@ -387,8 +387,9 @@ def _pose_args(sp) -> None:
     sp.add_argument('--odom-topic', help='nav_msgs/Odometry topic for --pose-source odom '
                     '(default: the only one)')
     sp.add_argument('--laser-mount', metavar='X,Y,YAW_DEG[,flip]',
-                    help='laser pose on the odometry child frame (m, m, deg; flip: mounted '
-                    'upside down) for --pose-source odom when /tf_static does not give it')
+                    help='--pose-source odom: the laser pose on the odometry child frame (m, m, '
+                    "deg; flip: mounted upside down), like the node's laser_* parameters; "
+                    "default: the scan frame's mount from /tf_static")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -6,8 +6,9 @@ The same steps as the live node, without ROS:
 - poses come from ``poses.TransformBuffer2D``. ``pose_source='tf'``: the pose of the scan's
   frame in the fixed frame at the scan's header stamp, from /tf and /tf_static. ``'odom'``: the
   odometry pose (``nav_msgs/Odometry``, the child frame in the odometry frame, interpolated at
-  the scan stamp) composed with the laser mount from /tf_static, or from ``mount`` when
-  /tf_static does not hold it; the map is then in the odometry frame. A laser mounted upside down
+  the scan stamp) composed with the laser mount: ``mount`` when given (like the node's
+  ``laser_*`` parameters), else the scan frame's transform from /tf_static; the map is then in
+  the odometry frame. A laser mounted upside down
   has its beam angles mirrored (``PlanarPose.beam_angles``).
 - a scan waits, like a tf2 message filter, until pose data stamped at or after it has arrived
   (or ``wait`` seconds of newer pose data, or the end of the input); a scan whose pose cannot be
@@ -39,6 +40,8 @@ from .poses import PlanarPose, quaternion_from_yaw, TransformBuffer2D, Transform
 from .scan import scan_to_points
 
 POSE_SOURCES = ('tf', 'odom')
+MOUNT_FRAME = '_replay_laser'
+"""Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
 # Lookup failures that newer pose data can still cure: the scan waits for it.
 _CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
 
@@ -57,8 +60,10 @@ class ReplayOptions:
     wait: float = 0.5
     """Seconds of newer pose data after which a scan without pose is given up."""
     mount: Optional[tuple] = None
-    """(x, y, yaw) metres / radians of the laser in the odometry child frame (odom mode),
-    used when /tf_static does not give it."""
+    """(x, y, yaw) metres / radians of the laser in the odometry child frame (odom mode). When
+    given it is used whatever the scan's frame and /tf_static say (as the node's laser_x,
+    laser_y, laser_yaw, laser_upside_down parameters); when not, the scan frame's mount comes
+    from /tf_static."""
     mount_upside_down: bool = False
     """The ``mount`` laser is rolled 180 degrees (its beams sweep clockwise seen from above)."""
     cache_seconds: float = 30.0
@@ -100,8 +105,7 @@ class PoseResolver:
         self.latest = -math.inf
         """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
         self._parents = {}
-        self._odom_child = None
-        self._mounted = set()
+        self._mounted = False
 
     def add(self, record) -> None:
         """Take a Transform or an Odometry record (others are ignored); ValueError if bad."""
@@ -123,9 +127,15 @@ class PoseResolver:
                                   'in the odometry frame)')
             self.buffer.set_transform(record.frame_id, record.child_frame_id, record.stamp,
                                       record.translation, record.rotation)
-            self._odom_child = record.child_frame_id
             self._parents[record.child_frame_id] = record.frame_id
             self.latest = max(self.latest, record.stamp)
+            m = self.options.mount
+            if m is not None and not self._mounted:
+                self.buffer.set_transform(record.child_frame_id, MOUNT_FRAME, 0.0,
+                                          (m[0], m[1], 0.0),
+                                          mount_quaternion(m[2], self.options.mount_upside_down),
+                                          static=True)
+                self._mounted = True
 
     def pose(self, scan: Scan) -> PlanarPose:
         """Return the laser pose of ``scan``; TransformLookupError (with ``cause``) if none."""
@@ -136,27 +146,16 @@ class PoseResolver:
         if not frame:
             raise TransformLookupError('unknown_frame', 'the scan has an empty frame_id')
         if self.options.pose_source == 'odom':
-            self._mount(frame)
             if self.fixed_frame is None:
                 raise TransformLookupError('no_tf', 'no odometry received yet')
             target = self.fixed_frame
+            if self.options.mount is not None:
+                frame = MOUNT_FRAME
         else:
             target = self.fixed_frame or self._default_fixed(frame)
         pose = self.buffer.lookup_planar(target, frame, scan.stamp, self.options.tolerance)
         self.fixed_frame = target
         return pose
-
-    def _mount(self, frame: str) -> None:
-        """Odom mode: hang the laser under the odometry child frame from ``mount`` if needed."""
-        m = self.options.mount
-        if (m is None or self._odom_child is None or frame == self._odom_child
-                or frame in self._parents or frame in self._mounted):
-            return
-        self.buffer.set_transform(self._odom_child, frame, 0.0, (m[0], m[1], 0.0),
-                                  mount_quaternion(m[2], self.options.mount_upside_down),
-                                  static=True)
-        self._mounted.add(frame)
-        self._parents[frame] = self._odom_child
 
     def _default_fixed(self, frame: str) -> str:
         chain, seen = [frame], {frame}

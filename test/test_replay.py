@@ -122,6 +122,10 @@ def test_lidar_mounted_rotated_90_degrees_gives_a_straight_map(tmp_path, rotated
     # odometry plus the static mount: the very same map
     odom = run_replay(bag, options=ReplayOptions(pose_source='odom'))
     assert_same_map(res, odom, tol=1e-9)
+    # an explicit mount (the node's laser_* parameters) wins over a wrong /tf_static
+    fixed = run_replay(wrong, options=ReplayOptions(pose_source='odom',
+                                                    mount=(0.2, -0.1, np.pi / 2)))
+    assert_same_map(res, fixed, tol=1e-9)
 
 
 def test_upside_down_lidar_from_tf_static_and_from_the_mount_option(tmp_path):
