@@ -13,7 +13,9 @@ The same steps as the live node, without ROS:
 - a scan waits, like a tf2 message filter, until pose data stamped at or after it has arrived
   (or ``wait`` seconds of newer pose data, or the end of the input); a scan whose pose cannot be
   given then is skipped and counted under ``no pose: <cause>`` (``too_new``, ``too_old``,
-  ``unknown_frame``, ``not_connected``, ``no_tf``, ``tilted``).
+  ``unknown_frame``, ``not_connected``, ``no_tf``, ``tilted``). Before that, every scan passes
+  the node's ``check_scan`` (ROS-free); one that fails is counted as ``bad scan: <cause>``
+  (``no_valid_ranges``, ``range_limits``, ``angle_increment``, ``empty_scan``).
 - ``scan_to_points`` (REP 117 filtering) and ``IncrementalMapper.update`` do the rest; the time
   of both together is the update time.
 
@@ -37,6 +39,7 @@ from .core import map_metrics
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import PlanarPose, quaternion_from_yaw, TransformBuffer2D, TransformLookupError
+from .ros.pipeline import check_scan, ScanError
 from .scan import scan_to_points
 
 POSE_SOURCES = ('tf', 'odom')
@@ -269,6 +272,13 @@ class Replay:
         if isinstance(record, Scan):
             self.scans += 1
             if (self.scans - 1) % self.options.every:
+                return
+            try:                    # the node's check, before any pose lookup
+                with np.errstate(invalid='ignore', over='ignore'):
+                    check_scan(record.ranges, record.angle_min, record.angle_increment,
+                               record.range_min, record.range_max)
+            except ScanError as exc:
+                self._skip(f'bad scan: {exc.cause}', str(exc))
                 return
             self._pending.append(record)
         elif isinstance(record, Skipped):

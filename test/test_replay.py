@@ -233,3 +233,21 @@ def test_corrupt_carmen_lines_are_skipped_and_reported(tmp_path, capsys):
     assert main(['replay', str(trunc), '-o', str(out), '-q']) == 2
     assert 'unreadable or truncated log' in capsys.readouterr().err
     assert json.loads(out.read_text())['stats']['scans_used'] == len(drive.stamps)
+
+
+def test_bad_scans_are_checked_like_the_node_and_counted(tmp_path, rotated, capsys):
+    msgs = list(drive_messages(rotated))
+    scans = [i for i, (topic, _, _) in enumerate(msgs) if topic == '/scan']
+    for k in (2, 4):
+        msgs[scans[k]][1].ranges = np.full_like(msgs[scans[k]][1].ranges, np.nan)
+    broken = msgs[scans[6]][1]
+    broken.range_min, broken.range_max = 5.0, 1.0
+    bag = write_bag(tmp_path / 'bad-scans', msgs)
+    out = tmp_path / 'm.json'
+    assert main(['replay', bag, '-o', str(out), '-q']) == 0
+    err = capsys.readouterr().err
+    assert 'skipped 2 scan(s)/message(s): bad scan: no_valid_ranges' in err
+    assert 'skipped 1 scan(s)/message(s): bad scan: range_limits' in err
+    stats = read_map(str(out))['stats']
+    assert stats['skipped'] == {'bad scan: no_valid_ranges': 2, 'bad scan: range_limits': 1}
+    assert stats['scans_used'] == len(rotated.stamps) - 3
