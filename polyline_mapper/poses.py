@@ -208,9 +208,12 @@ class TransformBuffer2D:
             edge = self._edges[child] = _Edge(parent, bool(static))
         edge.insert(float(stamp), t, q, self.cache_seconds)
 
-    def clear(self) -> None:
-        """Forget every transform."""
-        self._edges.clear()
+    def clear(self, keep_static: bool = False) -> None:
+        """Forget every transform (or every dynamic one, e.g. after the clock jumped back)."""
+        if keep_static:
+            self._edges = {c: e for c, e in self._edges.items() if e.static}
+        else:
+            self._edges.clear()
 
     def frames(self) -> set:
         """Return the names of every known frame."""

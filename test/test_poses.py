@@ -167,6 +167,16 @@ def test_bad_transforms_are_refused(args, match):
         TransformBuffer2D(cache_seconds=0.0)
 
 
+def test_clear_can_keep_the_static_transforms():
+    buf = TransformBuffer2D()
+    put(buf, 'base_link', 'laser', 0.0, (0.2, 0, 0), static=True)
+    put(buf, 'odom', 'base_link', 5.0, (1, 0, 0))
+    buf.clear(keep_static=True)
+    assert buf.frames() == {'base_link', 'laser'} and buf.entries() == 1
+    buf.clear()
+    assert buf.entries() == 0
+
+
 def test_leading_slashes_are_ignored_like_tf2():
     buf = TransformBuffer2D()
     put(buf, '/odom', '/base_link', 0.0, (1, 2, 0))

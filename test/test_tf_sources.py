@@ -36,7 +36,7 @@ def transform(parent, child, stamp, x, y, yaw, quat=None):
 def test_tf_topics_feed_the_buffer_and_bad_transforms_are_warned():
     tf2_msgs = pytest.importorskip('tf2_msgs.msg')
     node, warned = StubNode(), []
-    src = TfTopicSource(node, 10.0, lambda cause, text: warned.append(cause))
+    src = TfTopicSource(node, 2.0, lambda cause, text: warned.append(cause))
     node.callbacks['/tf_static'](tf2_msgs.TFMessage(transforms=[
         transform('base_link', 'laser', 0.0, 0.2, 0.0, 0.0)]))
     node.callbacks['/tf'](tf2_msgs.TFMessage(transforms=[
@@ -49,6 +49,13 @@ def test_tf_topics_feed_the_buffer_and_bad_transforms_are_warned():
     with pytest.raises(TransformLookupError) as err:
         src.lookup('odom', '', 5.5, 0.1)
     assert err.value.cause == 'unknown_frame'
+    # The clock jumps back (a bag loops): the old time line is dropped, the mount kept.
+    node.callbacks['/tf'](tf2_msgs.TFMessage(transforms=[
+        transform('odom', 'base_link', 1.0, 7.0, 0.0, 0.0)]))
+    assert warned == ['bad_transform', 'time_jump']
+    assert np.allclose(src.lookup('odom', 'laser', 1.0, 0.1).xyz, [7.2, 0.0, 0.0])
+    with pytest.raises(TransformLookupError):
+        src.lookup('odom', 'laser', 5.5, 0.1)
 
 
 def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():

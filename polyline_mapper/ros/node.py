@@ -16,6 +16,7 @@ runs the incremental updates and publishes (see ``pipeline``), so no callback wa
 update, and services answer while an update runs (they wait at most for the one in progress).
 """
 
+import dataclasses
 import math
 import signal
 import sys
@@ -101,6 +102,7 @@ class PolylineMapperNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publish_lock = threading.Lock()
         self._dirty = True                  # publish the (empty) map at once for late joiners
+        self._markers_shown = False
         self._last_publish = -math.inf
         self._last_stats = time.monotonic()
         self._stats_mark = (0, 0, 0)
@@ -212,6 +214,12 @@ class PolylineMapperNode(Node):
                 self.marker_pub.publish(map_to_markers(snap, frame, stamp,
                                                        self.settings.marker_color,
                                                        self.settings.marker_width))
+                self._markers_shown = True
+            elif self._markers_shown:         # switched off: leave no stale strips behind
+                empty = dataclasses.replace(snap, polylines=[], closed=[])
+                self.marker_pub.publish(map_to_markers(empty, frame, stamp,
+                                                       self.settings.marker_color, 0.0))
+                self._markers_shown = False
             self._last_publish = time.monotonic()
 
     def _log_stats(self, now: float) -> None:

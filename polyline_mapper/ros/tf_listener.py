@@ -44,6 +44,7 @@ class TfTopicSource:
     def __init__(self, node, cache_seconds: float, warn):
         from tf2_msgs.msg import TFMessage
         self.buffer = TransformBuffer2D(cache_seconds)
+        self.newest = -math.inf
         self._lock = threading.Lock()
         self._warn = warn
         node.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
@@ -60,7 +61,17 @@ class TfTopicSource:
             parent, child, stamp, t, q = transform_from_msg(ts)
             try:
                 with self._lock:
+                    if not static and stamp < self.newest - self.buffer.cache_seconds:
+                        # The clock jumped back (a bag restarted, a simulation reset): what is
+                        # stored is from another time line, as tf2_ros does, forget it.
+                        self._warn('time_jump', f'transform stamped {stamp:.3f}, '
+                                   f'{self.newest - stamp:.1f} s before the newest: the clock '
+                                   'jumped back, dropping the stored dynamic transforms')
+                        self.buffer.clear(keep_static=True)
+                        self.newest = stamp
                     self.buffer.set_transform(parent, child, stamp, t, q, static)
+                    if not static:
+                        self.newest = max(self.newest, stamp)
             except ValueError as exc:
                 self._warn('bad_transform', f'ignored transform {parent} -> {child}: {exc}')
 
