@@ -181,6 +181,8 @@ def test_runtime_parameters_apply_or_are_refused_with_a_reason(tf_run):
     assert peer.spin_until(lambda: len(peer.markers) > n
                            and peer.markers[-1].markers[-1].scale.x == pytest.approx(0.2)
                            and peer.markers[-1].markers[-1].color.r == 1.0, 10.0)
+    # Parameters rclpy declares itself are not ours to refuse.
+    assert all(r.successful for r in peer.set_parameters(use_sim_time=False))
     # Markers switched off: one DELETEALL clears what RViz shows.
     assert all(r.successful for r in peer.set_parameters(publish_markers=False))
     assert peer.spin_until(lambda: len(peer.markers[-1].markers) == 1, 10.0)

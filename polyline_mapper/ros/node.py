@@ -119,7 +119,7 @@ class PolylineMapperNode(Node):
     # -- parameters ----------------------------------------------------------------------------
     def _values(self, changes=()) -> dict:
         values = {spec.name: self.get_parameter(spec.name).value for spec in self._specs}
-        values.update({p.name: p.value for p in changes})
+        values.update({p.name: p.value for p in changes if p.name in values})   # ours only
         return values
 
     def _check_parameters(self, params) -> SetParametersResult:
