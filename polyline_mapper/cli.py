@@ -367,8 +367,8 @@ def cmd_convert(args) -> int:
         print(f"polyline-mapper: warning: {args.input}: skipped {info['skipped']} malformed "
               f"laser record(s), e.g. {info['skipped_examples'][0]}", file=sys.stderr)
     if info['stamps_made_up']:
-        print(f'polyline-mapper: warning: {args.input}: log times do not increase; stamps are '
-              f'{args.period:g} s apart from 1 s', file=sys.stderr)
+        print(f'polyline-mapper: warning: {args.input}: log times do not increase; made-up '
+              f'stamps {args.period:g} s apart, from t = 1 s', file=sys.stderr)
     if not args.quiet:
         off = info['laser_offset']
         print(f"wrote {args.output}: rosbag2 ({args.storage}), {info['scans']} scans on /scan "

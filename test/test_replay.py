@@ -251,3 +251,29 @@ def test_bad_scans_are_checked_like_the_node_and_counted(tmp_path, rotated, caps
     stats = read_map(str(out))['stats']
     assert stats['skipped'] == {'bad scan: no_valid_ranges': 2, 'bad scan: range_limits': 1}
     assert stats['scans_used'] == len(rotated.stamps) - 3
+
+
+def test_convert_errors_leave_nothing_behind(tmp_path, capsys, monkeypatch):
+    drive = room_drive(beams=181, fov=180.0, step=0.5, rng=6)
+    log = write_carmen(tmp_path / 'c.log.gz', drive)
+    (tmp_path / 'taken').mkdir()
+    bad = tmp_path / 'bad.log'
+    bad.write_text('FLASER 2 oops\n')
+    for argv in ([log, '-o', str(tmp_path / 'taken')], [str(bad), '-o', str(tmp_path / 'x')],
+                 [str(tmp_path / 'missing.log'), '-o', str(tmp_path / 'x')],
+                 [log, '-o', str(tmp_path / 'x'), '--period', '0']):
+        assert main(['convert'] + argv + ['-q']) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith('polyline-mapper: error:'), (argv, err)
+    # a failure half way through writing: no bag, no temporary folder
+    from polyline_mapper.formats import bag as bagmod
+    calls = []
+
+    def failing(self, topic, record, log_time):
+        calls.append(topic)
+        if len(calls) > 20:
+            raise OSError(28, 'No space left on device', 'x.db3')
+    monkeypatch.setattr(bagmod.BagWriter, 'write', failing)
+    assert main(['convert', log, '-o', str(tmp_path / 'x'), '-q']) == 2
+    assert 'No space left on device' in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.log', 'c.log.gz', 'taken']
