@@ -13,12 +13,11 @@ Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
 import io
 import json
 import os
-import tempfile
 from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .mapjson import set_default_mode
+from .mapjson import write_text_atomic
 
 FORMATS = ('geojson', 'svg', 'csv')
 
@@ -125,16 +124,5 @@ def export_map(data: dict, path: str, fmt: str = None) -> str:
                          '.csv, or --format)')
     text = {'geojson': lambda d: json.dumps(to_geojson(d), separators=(',', ':')) + '\n',
             'svg': to_svg, 'csv': to_csv}[fmt](data)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix='.' + fmt, dir=folder)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
-            fh.write(text)
-        set_default_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_text_atomic(path, text)
     return fmt

@@ -36,12 +36,17 @@ def map_to_dict(segments, polylines, closed=None, support=None, stats=None, conf
 
 def write_json_atomic(path: str, data: dict) -> None:
     """Write JSON to ``path`` through a temporary file in the same folder."""
+    write_text_atomic(path, dumps_map(data))
+
+
+def write_text_atomic(path: str, text: str) -> None:
+    """Write text (UTF-8) to ``path`` through a temporary file in the same folder, renamed."""
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix='.json', dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix=os.path.splitext(path)[1], dir=folder)
     try:
-        with os.fdopen(fd, 'w') as fh:
-            fh.write(dumps_map(data))
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(text)
         set_default_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
