@@ -39,8 +39,7 @@ from .core import map_metrics
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import PlanarPose, quaternion_from_yaw, TransformBuffer2D, TransformLookupError
-from .ros.pipeline import check_scan, ScanError
-from .scan import scan_to_points
+from .scan import check_scan, scan_to_points, ScanError
 
 POSE_SOURCES = ('tf', 'odom')
 MOUNT_FRAME = '_replay_laser'

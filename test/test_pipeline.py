@@ -4,7 +4,8 @@ import numpy as np
 from polyline_mapper.core.incremental import IncrementalMapper
 from polyline_mapper.poses import quaternion_from_yaw, TransformBuffer2D
 from polyline_mapper.ros.params import defaults, settings_from
-from polyline_mapper.ros.pipeline import check_scan, ScanError, ScanPipeline, WarningThrottle
+from polyline_mapper.ros.pipeline import ScanPipeline, WarningThrottle
+from polyline_mapper.scan import check_scan, ScanError
 import pytest
 
 

@@ -1,7 +1,7 @@
 """
 Messages <-> arrays: LaserScan in, PolylineMap and MarkerArray out, transforms in.
 
-No logic beyond the conversion: checks live in ``pipeline.check_scan``, the numbers come from
+No logic beyond the conversion: checks live in ``scan.check_scan``, the numbers come from
 the core. Coordinates are metres in the map's frame; z is 0.
 """
 
@@ -11,7 +11,8 @@ from polyline_mapper_msgs.msg import Polyline, PolylineMap, Segment
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .pipeline import check_scan, MapSnapshot, ScanArrays
+from .pipeline import MapSnapshot
+from ..scan import check_scan, ScanArrays
 
 MARKER_NAMESPACE = 'polyline_map'
 
@@ -22,7 +23,7 @@ def stamp_seconds(stamp) -> float:
 
 
 def scan_from_msg(msg) -> ScanArrays:
-    """Check a sensor_msgs/LaserScan and return its arrays (raises pipeline.ScanError)."""
+    """Check a sensor_msgs/LaserScan and return its arrays (raises scan.ScanError)."""
     return check_scan(msg.ranges, msg.angle_min, msg.angle_increment, msg.range_min,
                       msg.range_max, len(msg.intensities), stamp_seconds(msg.header.stamp),
                       msg.header.frame_id, msg.header)

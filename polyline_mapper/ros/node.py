@@ -40,10 +40,11 @@ from visualization_msgs.msg import MarkerArray
 
 from .convert import map_to_markers, map_to_msg, scan_from_msg
 from .params import all_params, settings_from
-from .pipeline import ScanError, ScanPipeline, WarningThrottle
+from .pipeline import ScanPipeline, WarningThrottle
 from .tf_listener import make_tf_source, OdomSource
 from ..core.incremental import IncrementalMapper
 from ..formats.mapjson import map_to_dict, write_json_atomic
+from ..scan import ScanError
 
 NODE_NAME = 'polyline_mapper_node'
 MAP_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,

@@ -6,7 +6,7 @@ worker thread. Scans go through in arrival order and in groups of ``update_every
 given the same scans and poses, the live map equals the map of an offline replay, however
 the updates are timed.
 
-- ``check_scan`` validates one scan's description (REP 117 ranges, geometry, intensities) and
+- ``scan.check_scan`` validates one scan's description (REP 117 ranges, geometry, intensities) and
   returns arrays, or raises ScanError with a one-word cause.
 - ``ScanPipeline.add`` (subscription callback) only queues; the queue holds at most
   ``scan_buffer_size`` scans, the oldest is dropped (counted, warned) when updates fall behind.
@@ -30,66 +30,11 @@ import numpy as np
 
 from ..core.incremental import IncrementalMapper
 from ..poses import TransformLookupError
-from ..scan import scan_to_points, valid_ranges
+from ..scan import scan_to_points, ScanArrays
 
 
 # Lookup failures that transforms still to come can cure: such a scan waits (in order).
 CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
-
-
-class ScanError(ValueError):
-    """A scan that cannot be used; ``cause`` names the reason in one word."""
-
-    def __init__(self, cause: str, reason: str):
-        super().__init__(reason)
-        self.cause = cause
-
-
-@dataclass
-class ScanArrays:
-    """One checked scan: ranges (B,) m, beam angles (B,) rad in the laser frame, limits (m)."""
-
-    ranges: np.ndarray
-    angles: np.ndarray
-    range_min: float
-    range_max: float
-    stamp: float
-    """Seconds (the header stamp)."""
-    frame_id: str
-    header: object = None
-    """The message header, carried to the published map's stamp."""
-
-
-def check_scan(ranges, angle_min: float, angle_increment: float, range_min: float,
-               range_max: float, intensities: int = 0, stamp: float = 0.0, frame_id: str = '',
-               header=None) -> ScanArrays:
-    """
-    Check a LaserScan's content and return it as arrays.
-
-    ``intensities`` is the length of the intensities array (0 or the number of ranges).
-    Raises ScanError with cause ``empty_scan``, ``angle_increment``, ``intensities``,
-    ``range_limits`` or ``no_valid_ranges`` (every reading NaN, inf or out of range).
-    """
-    r = np.asarray(ranges, dtype=np.float64).ravel()
-    n = r.size
-    if n == 0:
-        raise ScanError('empty_scan', 'scan has no ranges')
-    if not (np.isfinite(angle_min) and np.isfinite(angle_increment)) or (
-            angle_increment == 0 and n > 1):
-        raise ScanError('angle_increment', f'scan of {n} beams has angle_min {angle_min} and '
-                        f'angle_increment {angle_increment} (must be finite and non-zero)')
-    if intensities not in (0, n):
-        raise ScanError('intensities', f'scan has {n} ranges but {intensities} intensities')
-    if not (np.isfinite(range_min) and range_min >= 0 and not np.isnan(range_max)
-            and range_max > range_min):
-        raise ScanError('range_limits', f'scan has range_min {range_min} and range_max '
-                        f'{range_max} (need 0 <= range_min < range_max)')
-    if not valid_ranges(r, range_min, range_max).any():
-        raise ScanError('no_valid_ranges', f'none of the {n} ranges is a valid reading (NaN, '
-                        f'inf or outside [{range_min:g}, {range_max:g}))')
-    angles = angle_min + angle_increment * np.arange(n)
-    return ScanArrays(r, angles, float(range_min), float(range_max), float(stamp),
-                      str(frame_id), header)
 
 
 class WarningThrottle:
