@@ -84,15 +84,16 @@ class BagReader:
         LaserScan topic; by default the only one in the bag.
     odom_topic : str, optional
         Odometry topic (with ``odometry=True``); by default the only one in the bag.
-    odometry : bool
-        Also read odometry (required then).
+    odometry : bool or 'auto'
+        Also read odometry (True: required then; 'auto': when ``odom_topic`` is given or the
+        bag has exactly one Odometry topic).
     transforms : bool
         Read /tf and /tf_static when the bag has them.
 
     """
 
     def __init__(self, path: str, scan_topic: str = None, odom_topic: str = None,
-                 odometry: bool = False, transforms: bool = True):
+                 odometry=False, transforms: bool = True):
         self.path = str(path)
         self._want = (scan_topic, odom_topic, odometry, transforms)
         self._reader = None
@@ -157,6 +158,9 @@ class BagReader:
         self.scan_count = self._count(self.scan_topic)
         if self.scan_count == 0:
             raise BagError(f'{self.path}: topic {self.scan_topic} holds no messages')
+        if odometry == 'auto':
+            have = [t for t, ty in self.topics.items() if ty == ODOM_TYPE]
+            odometry = odom_topic is not None or len(have) == 1
         if odometry:
             self.odom_topic = self._pick(odom_topic, ODOM_TYPE, 'Odometry', '--odom-topic')
         if transforms:
@@ -188,6 +192,19 @@ class BagReader:
 
         Raises BagError when the bag cannot be read on (e.g. truncated), naming how far it got.
         """
+        for _, _, out in self.messages():
+            if isinstance(out, list):
+                yield from out
+            else:
+                yield out
+
+    def messages(self) -> Iterator[tuple]:
+        """
+        Yield ``(log_time, topic, record)`` per message, in recording order.
+
+        ``log_time`` is the bag's receive time in seconds; ``record`` is a Scan, an Odometry,
+        a list of Transform (one TFMessage) or a Skipped. BagError as for ``records``.
+        """
         if self._reader is None:
             raise BagError(f'{self.path}: bag is not open')
         reader = self._reader
@@ -199,7 +216,7 @@ class BagReader:
         stream = reader.messages(connections=conns)
         while True:
             try:
-                conn, _, raw = next(stream)
+                conn, log_ns, raw = next(stream)
             except StopIteration:
                 return
             except errors as exc:
@@ -210,12 +227,8 @@ class BagReader:
                 msg = reader.deserialize(raw, conn.msgtype)
                 out = self._convert(conn.topic, msg)
             except errors as exc:
-                yield Skipped(conn.topic, f'undecodable {conn.msgtype} ({_why(exc)})')
-                continue
-            if isinstance(out, list):
-                yield from out
-            else:
-                yield out
+                out = Skipped(conn.topic, f'undecodable {conn.msgtype} ({_why(exc)})')
+            yield 1e-9 * log_ns, conn.topic, out
 
     def _convert(self, topic: str, msg):
         if topic == self.scan_topic:

@@ -1,17 +1,25 @@
 """
-Messages <-> arrays: LaserScan in, PolylineMap and MarkerArray out, transforms in.
+Messages <-> arrays, and plain records (``formats.records``) out as messages.
+
+LaserScan in, PolylineMap and MarkerArray out (and back, for record-map), transforms in;
+scans, odometry and transforms out for play; DiagnosticArray out.
 
 No logic beyond the conversion: checks live in ``scan.check_scan``, the numbers come from
 the core. Coordinates are metres in the map's frame; z is 0.
 """
 
-from geometry_msgs.msg import Point
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, TransformStamped
+from nav_msgs.msg import Odometry
 import numpy as np
 from polyline_mapper_msgs.msg import Polyline, PolylineMap, Segment
+from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from .pipeline import MapSnapshot
+from ..formats import records
 from ..scan import check_scan, ScanArrays
 
 MARKER_NAMESPACE = 'polyline_map'
@@ -20,6 +28,52 @@ MARKER_NAMESPACE = 'polyline_map'
 def stamp_seconds(stamp) -> float:
     """Return a builtin_interfaces/Time as float seconds."""
     return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def time_msg(seconds: float) -> Time:
+    """Return float seconds (>= 0) as builtin_interfaces/Time, nanoseconds rounded."""
+    ns = int(round(float(seconds) * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+# -- plain records (formats.records) -> messages, for play ----------------------------------
+def scan_msg(scan: records.Scan, stamp: float = None) -> LaserScan:
+    """Return a records.Scan as sensor_msgs/LaserScan (stamped ``stamp`` s if given)."""
+    msg = LaserScan()
+    msg.header.frame_id = scan.frame_id
+    msg.header.stamp = time_msg(scan.stamp if stamp is None else stamp)
+    msg.angle_min = float(scan.angle_min)
+    msg.angle_increment = float(scan.angle_increment)
+    msg.angle_max = float(np.float32(scan.angle_min + scan.angle_increment
+                                     * max(len(scan.ranges) - 1, 0)))
+    msg.range_min = float(scan.range_min)
+    msg.range_max = float(scan.range_max)
+    msg.ranges = np.asarray(scan.ranges, dtype=np.float32)
+    return msg
+
+
+def odometry_msg(odom: records.Odometry, stamp: float = None) -> Odometry:
+    """Return a records.Odometry as nav_msgs/Odometry (pose only; zero twist, covariances)."""
+    msg = Odometry()
+    msg.header.frame_id = odom.frame_id
+    msg.header.stamp = time_msg(odom.stamp if stamp is None else stamp)
+    msg.child_frame_id = odom.child_frame_id
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in odom.translation)
+    q.x, q.y, q.z, q.w = (float(v) for v in odom.rotation)
+    return msg
+
+
+def transform_msg(tr: records.Transform, stamp: float = None) -> TransformStamped:
+    """Return a records.Transform as geometry_msgs/TransformStamped."""
+    ts = TransformStamped()
+    ts.header.frame_id = tr.parent
+    ts.header.stamp = time_msg(tr.stamp if stamp is None else stamp)
+    ts.child_frame_id = tr.child
+    t, q = ts.transform.translation, ts.transform.rotation
+    t.x, t.y, t.z = (float(v) for v in tr.translation)
+    q.x, q.y, q.z, q.w = (float(v) for v in tr.rotation)
+    return ts
 
 
 def scan_from_msg(msg) -> ScanArrays:
@@ -83,4 +137,36 @@ def map_to_markers(snap: MapSnapshot, frame_id: str, stamp, color, width: float)
             pts = np.vstack([pts, pts[:1]])
         m.points = _points(pts)
         out.markers.append(m)
+    return out
+
+
+def map_from_msg(msg: PolylineMap) -> dict:
+    """
+    Return a PolylineMap's content as arrays.
+
+    Keys: ``segments`` (K, 2, 2), ``support`` (K,), ``polylines`` (list of (M, 2)),
+    ``closed``, ``frame_id``, ``stamp`` (seconds).
+    """
+    segs = np.array([[(s.start.x, s.start.y), (s.end.x, s.end.y)] for s in msg.segments],
+                    dtype=np.float64).reshape(-1, 2, 2)
+    return {'segments': segs,
+            'support': np.array([s.support for s in msg.segments], dtype=np.float64),
+            'polylines': [np.array([(p.x, p.y) for p in pl.points],
+                                   dtype=np.float64).reshape(-1, 2) for pl in msg.polylines],
+            'closed': [bool(pl.closed) for pl in msg.polylines],
+            'frame_id': msg.header.frame_id, 'stamp': stamp_seconds(msg.header.stamp)}
+
+
+def diagnostics_msg(name: str, level: int, message: str, values: dict, stamp) -> DiagnosticArray:
+    """
+    Build a diagnostic_msgs/DiagnosticArray with one status: ``level`` 0 OK, 1 WARN, 2 ERROR.
+
+    ``values`` become KeyValue pairs in order (floats with 3 decimals).
+    """
+    status = DiagnosticStatus(level=bytes([level]), name=name, message=message,
+                              hardware_id='')
+    status.values = [KeyValue(key=str(k), value=f'{v:.3f}' if isinstance(v, float) else str(v))
+                     for k, v in values.items()]
+    out = DiagnosticArray(status=[status])
+    out.header.stamp = stamp
     return out

@@ -9,6 +9,10 @@ Topics (relative names, remappable):
   (visualization_msgs/MarkerArray) out, reliable + transient local, depth 1: a subscriber that
   starts late gets the current map at once.
 
+``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period``: scans received,
+used and dropped, map size, sigma, update time and latency percentiles (ms) over the run; WARN
+when scans came in since the last report but none could be used, or some were dropped.
+
 Services: ``~/reset`` and ``~/save_map`` (std_srvs/Trigger). Parameters: see ``params``.
 
 The subscription callback only checks and queues a scan; a worker thread poses the queued scans,
@@ -23,6 +27,7 @@ import sys
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from polyline_mapper_msgs.msg import PolylineMap
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -38,7 +43,7 @@ from sensor_msgs.msg import LaserScan
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from .convert import map_to_markers, map_to_msg, scan_from_msg
+from .convert import diagnostics_msg, map_to_markers, map_to_msg, scan_from_msg
 from .params import all_params, settings_from
 from .pipeline import ScanPipeline, WarningThrottle
 from .tf_listener import make_tf_source, OdomSource
@@ -88,6 +93,7 @@ class PolylineMapperNode(Node):
                                      self.warnings, info=log.info)
         self.map_pub = self.create_publisher(PolylineMap, 'polyline_map', MAP_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_map', self._on_save_map)
         if self.settings.pose_source == 'tf':
@@ -107,6 +113,8 @@ class PolylineMapperNode(Node):
         self._last_publish = -math.inf
         self._last_stats = time.monotonic()
         self._stats_mark = (0, 0, 0)
+        self._last_diag = -math.inf
+        self._diag_mark = (0, 0, 0)
         self._stop = threading.Event()
         self._worker = threading.Thread(target=self._work, name='polyline_mapper_updates',
                                         daemon=True)
@@ -200,6 +208,9 @@ class PolylineMapperNode(Node):
                 period = self.settings.stats_period
                 if period > 0 and now - self._last_stats >= period:
                     self._log_stats(now)
+                period = self.settings.diagnostics_period
+                if period > 0 and now - self._last_diag >= period:
+                    self._publish_diagnostics(now)
             except Exception as exc:        # keep mapping; say what went wrong
                 self.warnings.warn('internal_error', f'update failed: {exc!r}')
 
@@ -236,6 +247,31 @@ class PolylineMapperNode(Node):
             f'map {len(p.mapper.segments)} segments (sigma {_cm(p.mapper.sigma)}); last '
             f'{self.settings.stats_period:g} s: {received} scans in, {used} used, {updates} '
             f'updates{timing}')
+
+    def _publish_diagnostics(self, now: float) -> None:
+        p = self.pipeline
+        st = p.stats()
+        received, used, dropped = (p.received - self._diag_mark[0], p.used - self._diag_mark[1],
+                                   p.dropped - self._diag_mark[2])
+        self._diag_mark = (p.received, p.used, p.dropped)
+        self._last_diag = now
+        level, message = 0, 'mapping'
+        if received and not used:
+            level, message = 1, f'{received} scans received, none used (see the warnings)'
+        elif dropped:
+            level, message = 1, f'{dropped} scans dropped: updates fall behind'
+        elif not p.received:
+            message = f'waiting for scans on {self.resolve_topic_name("scan")}'
+        values = {'segments': len(p.mapper.segments), 'sigma_m': p.mapper.sigma or 0.0,
+                  'scans_received': st['received'], 'scans_used': st['used'],
+                  'scans_dropped': st['dropped'], 'updates': st['updates']}
+        for key in ('update_ms', 'latency_ms'):
+            for q, v in st.get(key, {}).items():
+                values[f'{key}_{q}'] = v
+        for cause, n in sorted(st['warnings'].items()):
+            values[f'skipped_{cause}'] = n
+        self.diag_pub.publish(diagnostics_msg(f'{self.get_name()}: mapping', level, message,
+                                              values, self.get_clock().now().to_msg()))
 
     def close(self) -> None:
         """Stop the worker thread and log a summary of the run."""

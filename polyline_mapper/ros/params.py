@@ -99,6 +99,9 @@ NODE_PARAMS = (
     ParamSpec('stats_period', 30.0,
               'Seconds between two info lines with map size and update times; 0 turns them '
               'off.', 0.0, 3600.0, True),
+    ParamSpec('diagnostics_period', 1.0,
+              'Seconds between two diagnostic_msgs/DiagnosticArray on /diagnostics (counts, '
+              'map size, update-time percentiles); 0 turns them off.', 0.0, 3600.0, True),
 )
 
 # Closed hulls of what IncrementalConfig / SMEMSFConfig accept (they validate exactly, naming
@@ -207,6 +210,7 @@ class NodeSettings:
     marker_width: float
     warning_period: float
     stats_period: float
+    diagnostics_period: float
 
     @property
     def output_path(self) -> str:

@@ -1,0 +1,95 @@
+"""
+``polyline-mapper record-map``: take the map a running node publishes, for saving as map JSON.
+
+Subscribes to a polyline_mapper_msgs/PolylineMap topic with the node's QoS (reliable, transient
+local), so the current map arrives at once, and keeps the newest. It stops after the first map
+(``once``), after ``idle`` seconds without a new map, or on Ctrl-C, and returns the newest. No
+map within ``timeout`` seconds is an error (ValueError, one line).
+"""
+
+import math
+import time
+from typing import Optional
+
+from polyline_mapper_msgs.msg import PolylineMap
+
+from .convert import map_from_msg
+from .node import MAP_QOS
+from ..formats.mapjson import map_to_dict
+
+
+class MapRecorder:
+    """Keep the newest PolylineMap of ``topic`` on ``node`` (and when it came)."""
+
+    def __init__(self, node, topic: str = 'polyline_map'):
+        self.topic = node.resolve_topic_name(topic)
+        self.latest: Optional[PolylineMap] = None
+        self.count = 0
+        self.received_at = None
+        node.create_subscription(PolylineMap, topic, self._on_map, MAP_QOS)
+
+    def _on_map(self, msg: PolylineMap) -> None:
+        self.latest = msg
+        self.count += 1
+        self.received_at = time.monotonic()
+
+    def stamp(self) -> float:
+        """Return the newest map's header time in seconds, -inf before any map."""
+        if self.latest is None:
+            return -math.inf
+        return self.latest.header.stamp.sec + 1e-9 * self.latest.header.stamp.nanosec
+
+    def to_dict(self, extra_stats: dict = None) -> dict:
+        """Build the map JSON dict of the newest map (ValueError when there is none)."""
+        if self.latest is None:
+            raise ValueError(f'no map received on {self.topic}')
+        m = map_from_msg(self.latest)
+        stats = {'segments': int(len(m['segments'])), 'polylines': len(m['polylines']),
+                 'stamp': round(m['stamp'], 6), 'topic': self.topic,
+                 'maps_received': self.count}
+        stats.update(extra_stats or {})
+        return map_to_dict(m['segments'], m['polylines'], m['closed'], m['support'], stats,
+                           None, m['frame_id'])
+
+
+def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float = None,
+                   timeout: float = 30.0, ros_args=None) -> dict:
+    """
+    Wait for the map published on ``topic``; return the newest as a map JSON dict.
+
+    Runs its own rclpy context; see the module docstring for when it stops. ``timeout`` None
+    or 0 waits for the first map forever.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    for name, value in (('idle', idle), ('timeout', timeout)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise ValueError(f'--{name} must be a number of seconds >= 0, got {value!r}')
+    context = rclpy.Context()
+    rclpy.init(args=ros_args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = rclpy.create_node('polyline_mapper_map_recorder', context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        rec = MapRecorder(node, topic)
+        t0 = time.monotonic()
+        try:
+            while True:
+                executor.spin_once(timeout_sec=0.05)
+                now = time.monotonic()
+                if rec.count == 0:
+                    if timeout and now - t0 >= timeout:
+                        raise ValueError(f'no map on {rec.topic} within {timeout:g} s (is the '
+                                         'node running, on this ROS_DOMAIN_ID?)')
+                    continue
+                if once or (idle is not None and now - rec.received_at >= idle):
+                    break
+        except KeyboardInterrupt:
+            if rec.count == 0:
+                raise ValueError(f'interrupted before any map arrived on {rec.topic}') from None
+        data = rec.to_dict()
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    return data
