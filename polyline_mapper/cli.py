@@ -3,11 +3,13 @@
 
 Subcommands:
   fit INPUT -o MAP.json [--plot MAP.png] [--config FILE]   fit a map to a point file or CARMEN log
-  demo -o MAP.json [--plot MAP.png]                         fit a simulated office floor
+  demo -o MAP.json [--plot MAP.png] [--offline]             live node + simulated office drive
   replay INPUT -o MAP.json [--plot MAP.png] ...             map a bag or CARMEN log scan by scan
   plot MAP.json [--points INPUT] -o MAP.png                 draw a map (over its points)
   export MAP.json -o OUT.{geojson,svg,csv}                  convert a map for other tools
   convert LOG -o BAG [--storage sqlite3|mcap]               CARMEN log -> rosbag2
+  play INPUT [--rate R] [--loop]                            publish a recording on live topics
+  record-map [TOPIC] -o MAP.json [--plot MAP.png]           save the map a running node publishes
 
 Errors in input, files or configuration end the program with exit code 2 and one line saying
 why; no output file is left behind by a failed run.
@@ -244,6 +246,8 @@ def cmd_fit(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    if not args.offline:
+        return cmd_live_demo(args)
     from .sim import LaserSpec, office_floor, simulate_drive
     config = load_config(args.config, args.set)
     world = office_floor()
@@ -256,6 +260,66 @@ def cmd_demo(args) -> int:
                                                     'scans': int(len(drive.poses))})
     if not args.quiet:
         print(summary_line(args.output, stats))
+    return 0
+
+
+def cmd_live_demo(args) -> int:
+    from .ros.live_demo import DemoError, run_live_demo
+    params = {}
+    for item in args.set:
+        key, sep, value = item.partition('=')
+        if not sep or not key.strip():
+            raise CliError(f'--set expects KEY=VALUE (a node parameter), got {item!r}')
+        params[key.strip()] = value.strip()
+    try:
+        res = run_live_demo('sim:office', rate=args.rate, seed=args.seed, noise=args.noise,
+                            params=params, params_file=args.config,
+                            domain_id=args.domain_id, progress=not args.quiet)
+    except DemoError as exc:
+        raise CliError(f'live demo failed: {exc}') from None
+    st = res.data['stats']
+    title = (f"simulated office, live node: {st['segments']} segments, mean distance "
+             f"{100 * st['mean_distance']:.2f} cm")
+    save_map(res.data, res.points, args.output, args.plot, title=title, truth=res.walls)
+    if not args.quiet:
+        print(f"wrote {args.output}{' and ' + args.plot if args.plot else ''}: "
+              f"{st['segments']} segments from {st['scans_used']} of {st['scans']} scans, "
+              f"mean distance {100 * st['mean_distance']:.2f} cm, coverage "
+              f"{100 * st['coverage_0_10m']:.1f}%, node update median "
+              f"{st['update_ms_median']:.1f} ms (p99 {st['update_ms_p99']:.1f} ms), "
+              f"{st['play_seconds']:.0f} s drive")
+    return 0
+
+
+def _ros_args(args) -> list:
+    """Return ``--ros-args ...`` given after the options (for remapping, domain, logging)."""
+    return (['--ros-args'] + list(args.ros_args)) if args.ros_args else None
+
+
+def cmd_play(args) -> int:
+    from .ros.player import run_play
+    stats = run_play(args.input, rate=args.rate, loop=args.loop, clock=not args.no_clock,
+                     clock_hz=args.clock_hz, scan_topic=args.scan_topic,
+                     odom_topic=args.odom_topic, wait_for_subscriber=args.wait_for_subscriber,
+                     progress=not args.quiet, seed=args.seed, noise=args.noise,
+                     period=args.period, ros_args=_ros_args(args),
+                     log=lambda text: print(f'polyline-mapper: {text}', file=sys.stderr))
+    if not args.quiet:
+        print(stats.summary())
+    return 130 if stats.interrupted else 0
+
+
+def cmd_record_map(args) -> int:
+    from .ros.recorder import run_record_map
+    data = run_record_map(args.topic, once=args.once, idle=args.idle, timeout=args.timeout,
+                          ros_args=_ros_args(args))
+    st = data['stats']
+    save_map(data, None, args.output, args.plot,
+             title=f"{st['segments']} segments from {st['topic']}")
+    if not args.quiet:
+        print(f"wrote {args.output}: {st['segments']} segments in {st['polylines']} polylines "
+              f"(frame {data['frame_id']}, stamp {st['stamp']:.3f} s) from {st['topic']}, "
+              f"{st['maps_received']} map(s) received")
     return 0
 
 
@@ -414,10 +478,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help='for logs: ignore readings beyond this range (m)')
     f.set_defaults(func=cmd_fit)
 
-    d = sub.add_parser('demo', help='simulate a drive through an office floor and fit it')
+    d = sub.add_parser('demo', help='map a simulated office drive with the live node (or '
+                       'offline with --offline)')
     common(d)
     d.add_argument('--noise', type=float, default=0.01, help='laser range noise (m)')
     d.add_argument('--seed', type=int, default=1, help='simulation seed')
+    d.add_argument('--rate', type=float, default=1.0,
+                   help='live: play the drive at this many times real time (default 1)')
+    d.add_argument('--domain-id', type=int, metavar='N',
+                   help='live: ROS_DOMAIN_ID to run on (default: a random one in 1-101, '
+                   'discovery on this machine only, so the demo never reaches a robot)')
+    d.add_argument('--offline', action='store_true',
+                   help="no ROS: fit all the drive's points at once (batch) in this process; "
+                   '--config / --set are then fit parameters, not node parameters')
     d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser('replay', help='map a bag or CARMEN log scan by scan (incremental)')
@@ -444,6 +517,44 @@ def build_parser() -> argparse.ArgumentParser:
                    help='format (default: from the output suffix)')
     e.add_argument('-q', '--quiet', action='store_true', help='no summary')
     e.set_defaults(func=cmd_export)
+
+    py = sub.add_parser('play', help='publish a bag, CARMEN log or simulated drive on live '
+                        'topics with its timing (scan, odom, /tf, /tf_static, /clock)')
+    py.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, CARMEN .log(.gz), '
+                    'or a built-in drive: sim:office, sim:hall, sim:corridors')
+    py.add_argument('--rate', type=float, default=1.0, help='time scale (default 1: as recorded)')
+    py.add_argument('--loop', action='store_true', help='play again and again (stamps shifted '
+                    'by the recording length each pass, so time never runs backwards)')
+    py.add_argument('--no-clock', action='store_true', help='do not publish /clock')
+    py.add_argument('--clock-hz', type=float, default=40.0, help='/clock ticks per second '
+                    'between messages (default 40)')
+    py.add_argument('--scan-topic', help='bags: LaserScan topic (default: the only one)')
+    py.add_argument('--odom-topic', help='bags: Odometry topic (default: the only one, if any)')
+    py.add_argument('--wait-for-subscriber', type=float, default=0.0, metavar='SECONDS',
+                    help='wait up to this long for a subscriber on the scan topic first')
+    py.add_argument('--seed', type=int, default=1, help='sim: drives: simulation seed')
+    py.add_argument('--noise', type=float, default=0.01, help='sim: drives: range noise (m)')
+    py.add_argument('--period', type=float, default=1.0, help='CARMEN logs: seconds between '
+                    'scans when the log times do not increase')
+    py.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
+    py.add_argument('--ros-args', nargs=argparse.REMAINDER, default=None,
+                    help='ROS arguments, e.g. --ros-args -r /scan:=/front/scan')
+    py.set_defaults(func=cmd_play)
+
+    rm = sub.add_parser('record-map', help='save the map a running node publishes (JSON, PNG)')
+    rm.add_argument('topic', nargs='?', default='polyline_map',
+                    help='polyline_mapper_msgs/PolylineMap topic (default: polyline_map)')
+    rm.add_argument('-o', '--output', required=True, help='map JSON to write')
+    rm.add_argument('--plot', metavar='PNG', help='also write a PNG of the map')
+    rm.add_argument('--once', action='store_true', help='save the first map received and stop')
+    rm.add_argument('--idle', type=float, metavar='SECONDS',
+                    help='stop once no new map came for this long (default: run until Ctrl-C)')
+    rm.add_argument('--timeout', type=float, default=30.0, metavar='SECONDS',
+                    help='give up (exit 2) if no map arrives within this long; 0: wait forever')
+    rm.add_argument('-q', '--quiet', action='store_true', help='no summary')
+    rm.add_argument('--ros-args', nargs=argparse.REMAINDER, default=None,
+                    help='ROS arguments, e.g. --ros-args -r __ns:=/robot1')
+    rm.set_defaults(func=cmd_record_map)
 
     c = sub.add_parser('convert', help='convert a CARMEN log to a rosbag2 (scan, tf, odom)')
     c.add_argument('input', help='CARMEN .log / .log.gz')

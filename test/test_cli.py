@@ -78,9 +78,9 @@ def test_fit_carmen_log_registers_scans(tmp_path):
     assert '1 malformed' in data['stats']['input_type']
 
 
-def test_demo_runs(tmp_path, capsys):
+def test_offline_demo_fits_the_office(tmp_path, capsys):
     out, png = tmp_path / 'd.json', tmp_path / 'd.png'
-    assert main(['demo', '-o', str(out), '--plot', str(png)]) == 0
+    assert main(['demo', '--offline', '-o', str(out), '--plot', str(png)]) == 0
     assert 'segments' in capsys.readouterr().out
     data = json.loads(out.read_text())
     assert 15 <= data['stats']['segments'] <= 45 and data['stats']['coverage_0_10m'] > 0.99

@@ -136,7 +136,7 @@ case "$cmd" in
     setup
     cd "$repo"
     # Each run gets its own DDS domain, and discovery stays on this machine.
-    export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( (RANDOM % 100) + 100 ))}"
+    export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( (RANDOM % 101) + 1 ))}"
     export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
     export MPLBACKEND=Agg
     "$venv/bin/python" -m pytest -q -p no:cacheprovider test "$@"

@@ -1,0 +1,166 @@
+"""play, record-map and the live demo, over real DDS with the real node."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.core import map_metrics
+from polyline_mapper.formats.bag import BagWriter
+from polyline_mapper.formats.mapjson import read_map
+from polyline_mapper.playback import drive_messages, make_drive, open_recording
+from polyline_mapper.replay import run_replay
+import pytest
+from rosnode import NodeProcess, Peer
+
+CLI = [sys.executable, '-m', 'polyline_mapper.cli']
+
+
+def cli(*args, **kwargs) -> subprocess.CompletedProcess:
+    """Run polyline-mapper in a subprocess (its own rclpy), capturing its output."""
+    return subprocess.run(CLI + [str(a) for a in args], capture_output=True, text=True,
+                          timeout=kwargs.pop('timeout', 120), **kwargs)
+
+
+@pytest.fixture(scope='module')
+def office_bag(tmp_path_factory):
+    """Write the built-in office drive (sim:office, seed 1) as a rosbag2 (mcap)."""
+    path = tmp_path_factory.mktemp('play') / 'office.mcap'
+    drive = make_drive('sim:office', seed=1)
+    with BagWriter(str(path.with_suffix('')), 'mcap') as out:
+        for t, topic, record in drive_messages(drive):
+            out.write(topic, record, t)
+    return path.with_suffix(''), drive
+
+
+def test_sim_recordings_place_the_laser_through_map_odom_base_laser():
+    # The recording's TF chain must give back the drive's true laser poses.
+    from polyline_mapper.poses import TransformBuffer2D
+    with open_recording('sim:hall', seed=2) as rec:
+        buf = TransformBuffer2D(1000.0)
+        scans = []
+        for _, topic, r in rec.messages():
+            if topic in ('/tf', '/tf_static'):
+                for t in r:
+                    buf.set_transform(t.parent, t.child, t.stamp, t.translation, t.rotation,
+                                      t.static)
+            elif topic == '/scan':
+                scans.append(r)
+        poses = np.array([buf.lookup_planar('map', 'laser', s.stamp, 0.0).xyz for s in scans])
+        assert len(scans) == rec.scan_count == len(rec.drive.poses)
+        np.testing.assert_allclose(poses[:, :2], rec.drive.poses[:, :2], atol=1e-9)
+        dyaw = np.angle(np.exp(1j * (poses[:, 2] - rec.drive.poses[:, 2])))
+        np.testing.assert_allclose(dyaw, 0.0, atol=1e-9)
+        stamps = [s.stamp for s in scans]
+        assert stamps[0] == 1000.0 and np.all(np.diff(stamps) > 0)
+
+
+def test_play_into_the_live_node_matches_offline_replay(tmp_path, office_bag):
+    bag, drive = office_bag
+    node = NodeProcess(tmp_path, {'use_sim_time': True, 'stats_period': 0.0})
+    try:
+        assert node.wait_for_line('mapping scans on', 30), node.stderr()
+        play = cli('play', bag, '--rate', 3, '--wait-for-subscriber', 20)
+        assert play.returncode == 0, play.stderr
+        assert 'played 355 scans in 1 pass(es)' in play.stdout, play.stdout
+        out, png = tmp_path / 'live.json', tmp_path / 'live.png'
+        rec = cli('record-map', '-o', out, '--plot', png, '--idle', 2, '--timeout', 20)
+        assert rec.returncode == 0, rec.stderr
+    finally:
+        assert node.stop() == 0
+    summary = node.lines('summary:')[0]
+    assert '355 scans received, 355 used' in summary and '0 dropped' in summary, summary
+    live = read_map(out)
+    assert live['frame_id'] == 'map' and png.stat().st_size > 10_000
+    assert live['stats']['stamp'] == pytest.approx(1000.0 + drive.stamps[-1], abs=1e-6)
+    assert len(live['polylines']) == live['stats']['polylines'] >= 1
+
+    offline = run_replay(str(bag))
+    assert offline.used == 355
+    pts = offline.points
+    segs_off, _, _ = offline.mapper.polylines()
+    m_off = map_metrics(pts, segs_off)
+    m_live = map_metrics(pts, live['segments_array'])
+    # The issue's bar: the live map within 1.25x the offline replay's mean distance.
+    assert m_live['mean_distance'] <= 1.25 * m_off['mean_distance'], (m_live, m_off)
+    assert m_live['coverage_0_10m'] >= m_off['coverage_0_10m'] - 0.01
+    assert 0.67 <= len(live['segments']) / len(segs_off) <= 1.5
+
+
+def test_play_loop_keeps_time_increasing_and_latches_tf_static(tmp_path):
+    from rclpy.qos import qos_profile_sensor_data
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import LaserScan
+    from polyline_mapper.ros.player import CLOCK_QOS
+    from polyline_mapper.ros.tf_listener import TF_STATIC_QOS
+    peer = Peer('loop_listener')
+    scans, clocks = [], []
+    n = peer.node
+    n.create_subscription(LaserScan, '/scan', lambda m: scans.append(
+        m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec), qos_profile_sensor_data)
+    n.create_subscription(Clock, '/clock', lambda m: clocks.append(
+        m.clock.sec + 1e-9 * m.clock.nanosec), CLOCK_QOS)
+    proc = subprocess.Popen(CLI + ['play', 'sim:hall', '--rate', '8', '--loop',
+                                   '--wait-for-subscriber', '20'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert peer.spin_until(lambda: len(scans) >= 83 + 30, 60), len(scans)
+        # A subscriber that joins late still gets the mount on /tf_static (transient local).
+        statics = []
+        n.create_subscription(peer.TFMessage, '/tf_static', statics.append, TF_STATIC_QOS)
+        assert peer.spin_until(lambda: statics, 10)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 130, err
+    assert 'interrupted' in out and '1 /tf_static' in out, out
+    assert [t.child_frame_id for t in statics[0].transforms] == ['laser']
+    s = np.array(scans)
+    assert np.all(np.diff(s) > 0), 'scan stamps must keep increasing across passes'
+    period = 0.1
+    # The second pass starts one scan period after the first pass ended.
+    first, second = s[:83], s[83:]
+    assert second[0] == pytest.approx(first[-1] + period, abs=1e-6)
+    assert np.all(np.diff(clocks) >= 0) and max(clocks) >= second[0] - 0.05
+
+
+def test_play_and_record_map_fail_with_one_line(tmp_path, office_bag, capsys):
+    bag, _ = office_bag
+    empty = tmp_path / 'empty.mcap'
+    empty.write_bytes(b'')
+    cases = [(['play', str(tmp_path / 'missing.mcap')], 'no such file'),
+             (['play', 'sim:nowhere'], 'unknown simulated drive'),
+             (['play', str(empty)], 'empty file'),
+             (['play', str(bag), '--scan-topic', '/odom'], 'not sensor_msgs/msg/LaserScan'),
+             (['play', str(bag), '--rate', '0'], 'rate must be a positive number'),
+             (['record-map', '/nobody/publishes/this', '-o', str(tmp_path / 'm.json'),
+               '--timeout', '1'], 'no map on /nobody/publishes/this within 1 s')]
+    for argv, needle in cases:
+        assert main(argv + ['-q']) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0] and 'Traceback' not in err[0], (argv, err)
+    assert not (tmp_path / 'm.json').exists()
+
+
+def test_live_demo_maps_the_office_and_reports_node_update_times(tmp_path, capsys):
+    out, png = tmp_path / 'demo.json', tmp_path / 'demo.png'
+    domain = os.environ.get('ROS_DOMAIN_ID', '42')
+    t0 = time.monotonic()
+    assert main(['demo', '-o', str(out), '--plot', str(png), '--rate', '4',
+                 '--domain-id', domain]) == 0
+    took = time.monotonic() - t0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    data = json.loads(out.read_text())
+    st = data['stats']
+    assert st['scans'] == st['scans_played'] == st['scans_used'] == 355, st
+    assert st['scans_dropped'] == 0
+    assert 15 <= st['segments'] <= 45 and st['coverage_0_10m'] > 0.99, st
+    assert st['mean_distance'] < 0.015, st
+    assert 0 < st['update_ms_median'] <= st['update_ms_p99'], st
+    assert f"{st['segments']} segments from 355 of 355 scans" in line, line
+    assert 'node update median' in line and png.stat().st_size > 10_000
+    assert took < 60, took      # 355 scans at 4x: about 9 s of drive
