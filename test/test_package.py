@@ -1,5 +1,6 @@
 """Packaging: package.xml dependencies, install layout, config file in step with the code."""
 
+import re
 import xml.etree.ElementTree as ET
 
 from conftest import REPO
@@ -19,6 +20,17 @@ def test_package_xml_format3_with_real_dependencies():
                 'polyline_mapper_msgs'):
         assert dep in deps, dep
     assert root.find('export/build_type').text == 'ament_python'
+    # Every ROS package the code imports is declared (tf2_ros's Python module is tf2_ros_py).
+    imported = set()
+    for path in list((REPO / 'polyline_mapper').rglob('*.py')) + list(
+            (REPO / 'launch').glob('*.py')):
+        for m in re.finditer(r'^\s*(?:from|import) (\w+)', path.read_text(), re.M):
+            name = m.group(1)
+            if name.endswith(('_msgs', '_srvs', '_interfaces')) or name in (
+                    'rclpy', 'tf2_ros', 'launch', 'launch_ros'):
+                imported.add('tf2_ros_py' if name == 'tf2_ros' else name)
+    assert {'rclpy', 'sensor_msgs', 'tf2_msgs', 'launch_ros'} <= imported
+    assert imported <= deps, sorted(imported - deps)
     msgs = ET.parse(REPO / 'polyline_mapper_msgs' / 'package.xml').getroot()
     assert msgs.find('export/build_type').text == 'ament_cmake'
     assert msgs.findtext('member_of_group') == 'rosidl_interface_packages'
