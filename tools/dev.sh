@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One entry point for users, developers and CI.
 #
-#   bash tools/dev.sh demo    set up (if needed), then fit a simulated office -> out/demo.{png,json}
+#   bash tools/dev.sh demo    set up (if needed), then map a simulated office drive with the live
+#                             node -> out/demo.{png,json} (--offline: batch fit, no ROS)
 #   bash tools/dev.sh test    set up (if needed), then run the whole test suite
 #   bash tools/dev.sh setup   only set up
 #
@@ -129,8 +130,9 @@ case "$cmd" in
     ;;
   demo)
     setup
-    mkdir -p "$repo/out"
-    "$venv/bin/polyline-mapper" demo -o "$repo/out/demo.json" --plot "$repo/out/demo.png" "$@"
+    cd "$repo"
+    mkdir -p out
+    "$venv/bin/polyline-mapper" demo -o out/demo.json --plot out/demo.png "$@"
     ;;
   test)
     setup
