@@ -6,7 +6,7 @@ from polyline_mapper.core import fit, map_metrics
 from polyline_mapper.core.geometry import sample_segments
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper, SegmentGrid
 from polyline_mapper.core.metrics import twin_fraction
-from polyline_mapper.sim import corridor_loop, LaserSpec, simulate_drive
+from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive
 import pytest
 
 
@@ -143,3 +143,22 @@ def test_batch_and_incremental_agree_on_the_same_points(office_drive, office_inc
     batch = fit(pts)
     mapper, _ = office_incremental
     assert abs(len(mapper.segments) - len(batch.segments)) <= 0.5 * len(batch.segments)
+
+
+def test_sparse_low_noise_scans_give_the_batch_map():
+    """1 degree between beams, 0.5 cm noise: squares of 2r = 5 sigma would miss far wall points."""
+    world = office_floor()
+    drive = simulate_drive(world, LaserSpec(beams=271, range_max=12.0, noise=0.005,
+                                            dropout=0.01), step=0.5, rng=0)
+    mapper, _ = run_drive(drive)
+    pts, hits = drive.points(with_hits=True)
+    segs, _, _ = mapper.polylines()
+    for i, (a, b) in enumerate(world.walls):
+        u = (b - a) / np.linalg.norm(b - a)
+        t = (pts[hits == i] - a) @ u
+        err = end_errors(segs, a + t.min() * u, a + t.max() * u).min()
+        assert err <= 0.10, f'wall {i}: end-point error {err:.3f} m'
+    inc, bat = map_metrics(pts, segs), map_metrics(pts, fit(pts).segments)
+    assert inc['mean_distance'] <= 1.25 * bat['mean_distance']
+    assert inc['segments'] <= 1.5 * bat['segments']
+    assert inc['coverage_0_10m'] >= bat['coverage_0_10m'] - 0.01

@@ -31,20 +31,104 @@ again a few centimetres off would be doubled. The running median has that spread
 point: when sigma is too small the truncated residuals look uniform and their scale is about
 2 sigma, so sigma grows; when it is large enough the scale is the spread itself. Each update
 runs ``iterations`` SMEMSF iterations.
+
+The LSS half-size r is ``r_over_sigma`` x sigma as in batch, but the square side 2r is never
+below the spacing of one scan's points (the upper quartile of each scan's nearest-neighbour
+distances, running median over ``sigma_window`` scans). Batch sees every scan at once; the
+mapper sees a window of a few, and with a sparse scanner (1 degree between beams: 5-9 cm between
+points on a wall 3-5 m away) and low noise, squares of 2r = 5 sigma hold no point on most of a
+real wall, so the density tests of trimming, seeding and LSS chop it into fragments.
+
+A short chord across a corner, once in the map, is kept alive by its own virtual points; it is
+dropped when the new points near it all lie on the two longer walls whose corner it cuts
+(``_corner_chords``).
 """
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import time
 from typing import Optional
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from .geometry import as_points, lengths, PointIndex, sample_segments
+from .geometry import as_points, directions, lengths, PointIndex, project, sample_segments
 from .noise import estimate_noise
 from .polylines import assemble_polylines
 from .smemsf import smemsf_iteration, SMEMSFConfig
 from ..scan import scan_to_points
+
+
+SPACING_QUANTILE = 75.0
+"""Percentile of a scan's nearest-neighbour distances that one LSS square (2r) must span."""
+
+
+def _corner_chords(index: PointIndex, segs: np.ndarray, reach: float, near: float,
+                   short: float, min_angle: float, share: float = 0.9) -> np.ndarray:
+    """
+    Short segments cutting across a corner of longer ones that explain their points.
+
+    A segment no longer than ``short`` is a corner chord when (1) its two ends lie within
+    ``reach`` of two different longer segments, each at an angle of at least ``min_angle``
+    (rad) to it, and (2) measured points lie within ``reach`` of it and at least ``share`` of
+    them lie within ``near`` of such a segment. Its virtual points (its own past) keep a chord
+    alive through trimming, LSS and the redundancy test, which is why it is judged on the new
+    points only. Condition (1) spares short clutter pieces beside a single wall. Returns a (K,)
+    bool mask.
+    """
+    k_all = len(segs)
+    chord = np.zeros(k_all, dtype=bool)
+    length = lengths(segs)
+    sid = np.flatnonzero(length <= short)
+    if sid.size == 0:
+        return chord
+    # Candidate (stub, segment) pairs: longer, at an angle, bounding boxes within 2 reach
+    # (>= reach + near, so every segment that can explain a stub's point is among them).
+    lo, hi = segs.min(axis=1), segs.max(axis=1)
+    box = np.all((lo[None] <= hi[sid][:, None] + 2 * reach)
+                 & (hi[None] >= lo[sid][:, None] - 2 * reach), axis=2)
+    si, k = np.nonzero(box)
+    s = sid[si]
+    u, _ = directions(segs)
+    fit = (length[k] > length[s]) & (np.abs(np.sum(u[s] * u[k], axis=1)) <= np.cos(min_angle))
+    s, k = s[fit], k[fit]
+    if s.size == 0:
+        return chord
+    # (1) each end within reach of a different one of them.
+    on = []
+    for end in (0, 1):
+        d = project(segs[s, end], segs[k])[0]
+        best = np.full(k_all, np.inf)
+        np.minimum.at(best, s, d)
+        hit = (d == best[s]) & (d <= reach)
+        which = np.full(k_all, -1)
+        which[s[hit]] = k[hit]
+        on.append(which)
+    cand = np.flatnonzero((on[0] >= 0) & (on[1] >= 0) & (on[0] != on[1]))
+    if cand.size == 0:
+        return chord
+    # (2) the new points near each candidate, on those segments.
+    keep = np.isin(s, cand)
+    s, k = s[keep], k[keep]
+    p = index.pairs(segs[cand], reach)
+    real = p.pt < index.n_real
+    pt, stub = p.pt[real], cand[p.seg[real]]
+    if pt.size == 0:
+        return chord
+    # every (point, stub) pair against each of the stub's partners
+    order = np.argsort(s, kind='stable')
+    s, k = s[order], k[order]
+    first = np.searchsorted(s, stub, 'left')
+    count = np.searchsorted(s, stub, 'right') - first
+    row = np.repeat(np.arange(pt.size), count)
+    col = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(int(count.sum()))
+    d = project(index.points[pt[row]], segs[k[col]])[0]
+    explained = np.zeros(pt.size, dtype=bool)
+    explained[row[d <= near]] = True
+    seen = np.bincount(stub, minlength=k_all)
+    good = np.bincount(stub, weights=explained.astype(float), minlength=k_all)
+    chord[cand] = (seen[cand] > 0) & (good[cand] >= share * seen[cand])
+    return chord
 
 
 @dataclass
@@ -191,8 +275,10 @@ class IncrementalMapper:
         self._buffer = deque(maxlen=int(self.config.buffer_scans))
         self._noise = []
         self._scales = deque(maxlen=int(self.config.sigma_window))
+        self._spacings = deque(maxlen=int(self.config.sigma_window))
         self.sigma = self.config.smemsf.sigma
         self._sigma0 = self.sigma
+        self._fit_config = None
         self.updates = 0
 
     # -- the map -------------------------------------------------------------------------------
@@ -208,8 +294,7 @@ class IncrementalMapper:
 
     def polylines(self) -> tuple:
         """Chain the current map: (segments with joined ends, polylines, closed flags)."""
-        r = self.config.smemsf.r_over_sigma * (self.sigma or self.config.smemsf.sigma_min)
-        return assemble_polylines(self.segments, self.config.smemsf.join_over_r * r)
+        return assemble_polylines(self.segments, self.config.smemsf.join_over_r * self.r)
 
     def load(self, segments, support=None) -> None:
         """
@@ -219,7 +304,7 @@ class IncrementalMapper:
         """
         from .geometry import as_segments
         segs = as_segments(segments)
-        r = self.config.smemsf.r_over_sigma * (self.sigma or self.config.smemsf.sigma_min)
+        r = self.r
         cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
         sup = cap if support is None else np.asarray(support, dtype=np.float64)
         if sup.shape != (len(segs),) or not np.all(np.isfinite(sup)) or np.any(sup < 0):
@@ -258,13 +343,14 @@ class IncrementalMapper:
         if len(pts) == 0:
             return UpdateInfo(0, 0, int(self._alive.sum()), 0.0, skipped='no valid points')
         self._buffer.append(pts)
+        self._note_spacing(pts)
         window = np.concatenate(self._buffer)
         if not self._sigma_ready(window):
             return UpdateInfo(len(pts), 0, int(self._alive.sum()),
                               time.perf_counter() - t0, skipped='estimating noise')
-        cfg = self.config.smemsf
         sigma = self.sigma
-        r = cfg.r_over_sigma * sigma
+        r = self.r
+        cfg = self._config_for(r, sigma)
         reach = cfg.merge_reach * r + cfg.kappa * sigma + self.config.margin
         active = self._grid.near(window, reach)
         active = active[self._alive[active]]
@@ -275,6 +361,11 @@ class IncrementalMapper:
         segs = old
         for _ in range(int(self.config.iterations)):
             segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, merge_fresh_only=True)
+        # A short chord across a corner (e.g. a T-junction seen from few angles) is kept alive by
+        # its own virtual points; the new points decide whether the walls explain it.
+        keep = ~_corner_chords(index, segs, cfg.kappa * sigma, 2.0 * sigma, 8.0 * r,
+                               np.deg2rad(20.0))
+        segs, sup = segs[keep], sup[keep]
         if cfg.sigma is None and np.isfinite(info['residual_scale']):
             self._scales.append(info['residual_scale'])
             self.sigma = max(float(np.median(self._scales)), self._sigma0)
@@ -284,7 +375,41 @@ class IncrementalMapper:
         return UpdateInfo(len(pts), int(active.size), int(self._alive.sum()),
                           time.perf_counter() - t0)
 
+    @property
+    def r(self) -> float:
+        """
+        Return the LSS half-size in metres.
+
+        That is ``r_over_sigma`` x sigma, but the square side 2r is never below the point
+        spacing of a scan: the running median, over the last ``sigma_window`` scans, of the
+        upper quartile of each scan's nearest-neighbour distances.
+        """
+        cfg = self.config.smemsf
+        r = cfg.r_over_sigma * (self.sigma or cfg.sigma_min)
+        if self._spacings:
+            r = max(r, 0.5 * float(np.median(self._spacings)))
+        return r
+
     # -- internals -----------------------------------------------------------------------------
+    def _note_spacing(self, pts: np.ndarray) -> None:
+        """Pool the upper quartile of one scan's point spacing (nearest neighbour within it)."""
+        if len(pts) < 3:
+            return
+        # At most about 256 query points (a scan's upper quartile needs no more; the running
+        # median over scans smooths it further), so the cost stays far below the fit's.
+        probe = pts[::max(1, len(pts) // 256)]
+        d, _ = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(probe, k=2)
+        self._spacings.append(float(np.percentile(d[:, 1], SPACING_QUANTILE)))
+
+    def _config_for(self, r: float, sigma: float) -> SMEMSFConfig:
+        cfg = self.config.smemsf
+        ratio = r / sigma
+        if ratio == cfg.r_over_sigma:
+            return cfg
+        if self._fit_config is None or self._fit_config.r_over_sigma != ratio:
+            self._fit_config = replace(cfg, r_over_sigma=ratio)
+        return self._fit_config
+
     def _sigma_ready(self, window: np.ndarray) -> bool:
         if self.sigma is not None:
             return True
