@@ -1,8 +1,8 @@
 """
 Ours against the line-map methods users would pick instead, on the same data, in one run.
 
-Usage (from the repository root, after ``bash tools/dev.sh setup`` and
-``.venv/bin/python -m pip install -r benchmarks/requirements.txt``)::
+Usage (from the repository root, after ``bash tools/dev.sh setup``, which installs the
+baselines' libraries, listed in benchmarks/requirements.txt)::
 
     .venv/bin/python benchmarks/compare.py [--quick] [--datasets DIR] [--report]
 
