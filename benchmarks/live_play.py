@@ -99,7 +99,7 @@ def main() -> int:
         'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--scan-hz', type=float, default=25.0,
-                    help='scans per second the node gets (sets each log\'s play rate)')
+                    help="scans per second the node gets (sets each log's play rate)")
     args = ap.parse_args()
     domain = random.SystemRandom().randrange(1, 102)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',

@@ -33,6 +33,10 @@ from typing import NamedTuple
 import numpy as np
 
 
+CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
+"""Lookup failures that newer transforms can cure: the node and replay let such a scan wait."""
+
+
 class TransformLookupError(LookupError):
     """
     A pose that cannot be given; ``cause`` says why in one word.
@@ -46,6 +50,11 @@ class TransformLookupError(LookupError):
     def __init__(self, cause: str, reason: str):
         super().__init__(reason)
         self.cause = cause
+
+    @property
+    def curable(self) -> bool:
+        """Whether transforms still to come can cure it (the scan should wait, in order)."""
+        return self.cause in CURABLE
 
 
 class PlanarPose(NamedTuple):

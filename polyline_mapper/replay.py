@@ -44,8 +44,6 @@ from .scan import check_scan, scan_to_points, ScanError
 POSE_SOURCES = ('tf', 'odom')
 MOUNT_FRAME = '_replay_laser'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
-# Lookup failures that newer pose data can still cure: the scan waits for it.
-_CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
 
 
 @dataclass
@@ -324,7 +322,7 @@ class Replay:
             try:
                 pose = self.poses.pose(scan)
             except TransformLookupError as exc:
-                if exc.cause in _CURABLE and not give_up:
+                if exc.curable and not give_up:
                     return
                 self._pending.popleft()
                 self._skip(f'no pose: {exc.cause}', str(exc))

@@ -33,10 +33,6 @@ from ..poses import TransformLookupError
 from ..scan import scan_to_points, ScanArrays
 
 
-# Lookup failures that transforms still to come can cure: such a scan waits (in order).
-CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
-
-
 class WarningThrottle:
     """Log each cause at most once per ``period`` seconds; count every occurrence."""
 
@@ -170,7 +166,7 @@ class ScanPipeline:
             try:
                 pose = self.lookup(scan.frame_id, scan.stamp, s.transform_tolerance)
             except TransformLookupError as exc:
-                if exc.cause in CURABLE and now - arrived < s.transform_timeout:
+                if exc.curable and now - arrived < s.transform_timeout:
                     break                   # its transform may still come: keep the order
                 self._waiting.popleft()
                 self.skip(exc.cause, f'no pose for frame {scan.frame_id!r} at '
