@@ -3,9 +3,10 @@
 from conftest import end_errors
 import numpy as np
 from polyline_mapper.core import fit, map_metrics
-from polyline_mapper.core.geometry import sample_segments
+from polyline_mapper.core.geometry import PointIndex, sample_segments
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper, SegmentGrid
 from polyline_mapper.core.metrics import twin_fraction
+from polyline_mapper.core.split import split_segments
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive
 import pytest
 
@@ -162,3 +163,13 @@ def test_sparse_low_noise_scans_give_the_batch_map():
     assert inc['mean_distance'] <= 1.25 * bat['mean_distance']
     assert inc['segments'] <= 1.5 * bat['segments']
     assert inc['coverage_0_10m'] >= bat['coverage_0_10m'] - 0.01
+
+
+def test_a_virtual_point_a_rounding_error_past_the_end_holds_the_end_square():
+    """LSS on the old map: the span virtual points cover is never low, end squares included."""
+    seg = np.array([[[0.0, 0.0], [1.0, 0.0]]])
+    virt = np.c_[np.linspace(0.0, 1.0, 21), np.zeros(21)]
+    virt[0, 0] = -1e-12                      # a refit end, a rounding error off the old sample
+    index = PointIndex(virt, np.full(21, 30.0), virtual=21)
+    pieces, _ = split_segments(index, seg, 0.02)
+    np.testing.assert_allclose(pieces, seg)

@@ -104,8 +104,13 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         # gone: never low. (The span, not each square's count: virtual points and squares are
         # both about 2r apart and their phases drift. Within 2r of the line: a refit may tilt a
         # long wall a little.)
-        virtual = p.pt[inside] >= index.n_real
-        vlo, vhi = group_minmax(p.along[inside][virtual], seg[virtual], k)
+        # Projections are taken with a float tolerance: a virtual point sampled at a segment's
+        # end projects to -1e-17 as often as to 0, and must still hold the end square.
+        tol = 1e-9 * np.maximum(length[p.seg], 1.0)
+        virtual = ((p.pt >= index.n_real) & (p.along >= -tol)
+                   & (p.along <= length[p.seg] + tol))
+        vlo, vhi = group_minmax(np.clip(p.along[virtual], 0.0, length[p.seg[virtual]]),
+                                p.seg[virtual], k)
         centre = (sub_k + 0.5) * sub_len[sub_seg]
         held = (centre >= vlo[sub_seg] - 0.5 * sub_len[sub_seg]) & \
                (centre <= vhi[sub_seg] + 0.5 * sub_len[sub_seg])
