@@ -85,8 +85,9 @@ def _corner_chords(index: PointIndex, segs: np.ndarray, reach: float, near: floa
     # Candidate (stub, segment) pairs: longer, at an angle, bounding boxes within 2 reach
     # (>= reach + near, so every segment that can explain a stub's point is among them).
     lo, hi = segs.min(axis=1), segs.max(axis=1)
-    box = np.all((lo[None] <= hi[sid][:, None] + 2 * reach)
-                 & (hi[None] >= lo[sid][:, None] - 2 * reach), axis=2)
+    slo, shi = lo[sid] - 2 * reach, hi[sid] + 2 * reach
+    box = ((lo[:, 0] <= shi[:, :1]) & (hi[:, 0] >= slo[:, :1])
+           & (lo[:, 1] <= shi[:, 1:]) & (hi[:, 1] >= slo[:, 1:]))
     si, k = np.nonzero(box)
     s = sid[si]
     u, _ = directions(segs)
