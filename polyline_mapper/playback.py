@@ -110,7 +110,7 @@ def open_recording(path: str, scan_topic: str = None, odom_topic: str = None,
     line when the input cannot be used.
     """
     from .formats.bag import BagReader, is_bag
-    from .replay import CARMEN_SUFFIXES
+    from .formats.convert import carmen_messages, is_carmen, read_for_messages
     if is_sim(path):
         if scan_topic is not None or odom_topic is not None:
             raise ValueError('--scan-topic and --odom-topic apply to bags, not simulated drives')
@@ -119,17 +119,8 @@ def open_recording(path: str, scan_topic: str = None, odom_topic: str = None,
                         f'simulated drive {path}, {len(drive.poses)} scans of '
                         f'{drive.spec.beams} beams', drive=drive)
         return
-    if str(path).lower().endswith(CARMEN_SUFFIXES) and os.path.isfile(path):
-        from .formats.carmen import read_carmen
-        from .formats.convert import carmen_messages
-        if scan_topic is not None or odom_topic is not None:
-            raise ValueError('--scan-topic and --odom-topic apply to bags, not CARMEN logs')
-        log = read_carmen(path)
-        stamps, _ = log.stamps(period)
-        warnings = []
-        if log.skipped:
-            warnings.append(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
-                            f'{log.skipped_examples[0]}')
+    if is_carmen(path):
+        log, stamps, warnings = read_for_messages(path, period, scan_topic, odom_topic)
 
         def carmen():
             for topic, record, t in carmen_messages(log, stamps):

@@ -361,9 +361,6 @@ class Replay:
             self._ms.append(1000.0 * dt)
 
 
-CARMEN_SUFFIXES = ('.log', '.log.gz', '.clf', '.clf.gz', '.carmen', '.carmen.gz')
-
-
 @dataclass
 class Source:
     """An opened input: its records, how many scans it holds, and a description."""
@@ -383,17 +380,9 @@ def open_input(path: str, scan_topic: str = None, odom_topic: str = None,
     Raises ValueError (BagError for bags) with one line when the input cannot be used.
     """
     from .formats.bag import BagReader, is_bag
-    if str(path).lower().endswith(CARMEN_SUFFIXES) and os.path.isfile(path):
-        from .formats.carmen import read_carmen
-        from .formats.convert import carmen_messages
-        if scan_topic is not None or odom_topic is not None:
-            raise ValueError('--scan-topic and --odom-topic apply to bags, not CARMEN logs')
-        log = read_carmen(path)
-        stamps, made_up = log.stamps(period)
-        warnings = []
-        if log.skipped:
-            warnings.append(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
-                            f'{log.skipped_examples[0]}')
+    from .formats.convert import carmen_messages, is_carmen, read_for_messages
+    if is_carmen(path):
+        log, stamps, warnings = read_for_messages(path, period, scan_topic, odom_topic)
         records = (one for _, rec, _ in carmen_messages(log, stamps)
                    for one in (rec if isinstance(rec, list) else [rec]))
         desc = f'CARMEN log, {len(log.records)} scans'

@@ -27,6 +27,8 @@ from .carmen import CarmenLog, read_carmen
 from .records import Odometry, Transform
 from ..poses import quaternion_from_yaw
 
+CARMEN_SUFFIXES = ('.log', '.log.gz', '.clf', '.clf.gz', '.carmen', '.carmen.gz')
+
 
 def se2_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Compose planar poses row-wise: a then b, (..., 3) arrays of (x, y, yaw)."""
@@ -67,6 +69,30 @@ def carmen_messages(log: CarmenLog, stamps: np.ndarray) -> Iterator[tuple]:
         yield '/tf', [_transform(t, 'map', 'odom', map_odom[i]), base], t
         yield '/odom', Odometry(t, 'odom', 'base_link', base.translation, base.rotation), t
         yield '/scan', scan, t
+
+
+def is_carmen(path) -> bool:
+    """Return whether ``path`` is an existing file with a CARMEN log suffix."""
+    return str(path).lower().endswith(CARMEN_SUFFIXES) and os.path.isfile(path)
+
+
+def read_for_messages(path: str, period: float = 1.0, scan_topic: str = None,
+                      odom_topic: str = None) -> tuple:
+    """
+    Read a CARMEN log to replay or play it: return (log, stamps (R,), warnings).
+
+    ``stamps`` as ``CarmenLog.stamps(period)``; ``warnings`` name skipped malformed records.
+    ValueError when topic names are given (they apply to bags) or the log cannot be read.
+    """
+    if scan_topic is not None or odom_topic is not None:
+        raise ValueError('--scan-topic and --odom-topic apply to bags, not CARMEN logs')
+    log = read_carmen(path)
+    stamps, _ = log.stamps(period)
+    warnings = []
+    if log.skipped:
+        warnings.append(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
+                        f'{log.skipped_examples[0]}')
+    return log, stamps, warnings
 
 
 def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period: float = 1.0,
