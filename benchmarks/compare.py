@@ -45,6 +45,9 @@ NOISES = (0.005, 0.02, 0.05)
 SUBSAMPLE = 50_000
 """Global baselines (EM, EM+BIC, RANSAC) fit at most this many points (seeded random subset);
 every method is scored on all points."""
+MEMORY_LIMIT_GIB = 18
+"""Address-space limit of the run: a method that needs more gets a MemoryError, noted in its
+row, instead of the kernel killing the whole run (24 GiB machine)."""
 BIG = 1_000_000
 """Datasets with more points run each method at its main setting only (no sweep)."""
 
@@ -237,8 +240,14 @@ def run_dataset(ds: dict, cap: float, missing: set) -> list:
             rows.append({**base, 'segments': None,
                          'note': f'n/a: {NEEDS[method]} not installed'})
             continue
-        out = run_method(method, value, ds, k_ours or 1, cap)
-        row = {**base, **score(ds, out)}
+        try:
+            out = run_method(method, value, ds, k_ours or 1, cap)
+            row = {**base, **score(ds, out)}
+        except MemoryError:         # the address-space limit set in main(), not a crash
+            rows.append({**base, 'segments': None, 'note': 'n/a: out of memory '
+                         f'(limit {MEMORY_LIMIT_GIB} GiB)'})
+            tqdm.write(f"  {ds['name']:28s} {method:16s} out of memory")
+            continue
         if method == 'em-fixed-k':
             row['k'] = max(1, int(round(value * (k_ours or 1))))
         if method == 'ours-batch' and row['main']:
@@ -528,7 +537,10 @@ def report(data: dict, path: pathlib.Path) -> None:
             f"Measured {meta['date']} on {meta['machine']}; {meta['versions']}; commit "
             f"{meta['commit']}; load before the run: {meta['load']}; with "
             f"`{meta['command']}` ({meta['seconds'] / 60:.0f} min).\n\n"
-            'Plots: [error against segment count](results/compare_curves.png) (every swept '
+            + ''.join(f"Interrupted and resumed {m['date']} (commit {m['commit']}) with "
+                      f"`{m['command']}`; only the datasets not finished before ran then.\n\n"
+                      for m in data.get('resumed', []))
+            + 'Plots: [error against segment count](results/compare_curves.png) (every swept '
             'setting), [per-scan latency](results/compare_latency.png). Raw numbers: '
             '[results/compare.json](results/compare.json).\n\n')
     if data['notes']:
@@ -562,6 +574,9 @@ def main(argv=None) -> int:
                     help='sim-office-2cm and the first 500 Intel scans only')
     ap.add_argument('--cap', type=float, default=300.0,
                     help='time cap (s) of one global baseline run')
+    ap.add_argument('--resume', action='store_true',
+                    help='keep the datasets results/compare.json has finished, run the rest '
+                    '(after an interrupted run; results.md names both commands)')
     ap.add_argument('--report', action='store_true',
                     help='only rewrite results.md and the plots from results/compare.json')
     args = ap.parse_args(argv)
@@ -590,6 +605,18 @@ def main(argv=None) -> int:
     data = {'meta': meta, 'notes': notes, 'datasets': [], 'info': {}, 'rows': [],
             'planned': len(specs)}
     t_start = time.perf_counter()
+    if args.resume and json_path.exists():
+        data = json.loads(json_path.read_text())
+        data.setdefault('resumed', []).append(meta)
+        meta = data['meta']
+        t_start -= meta.get('seconds', 0.0)
+        specs = [(n, f) for n, f in specs if n not in data['datasets']]
+    try:
+        import resource
+        limit = MEMORY_LIMIT_GIB * 2 ** 30
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    except (ImportError, ValueError, OSError):      # pragma: no cover - not Linux
+        pass
     for name, load in tqdm(specs, desc='datasets', unit='dataset'):
         ds = load()
         data['datasets'].append(ds['name'])

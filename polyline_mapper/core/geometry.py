@@ -221,12 +221,15 @@ class PointIndex:
 
 
 def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,
-                     radius: float = 0.5, chunk: int = 4_000_000) -> tuple:
+                     radius: float = 0.5, chunk: int = 4_000_000,
+                     segment_chunk: int = 2000) -> tuple:
     """
     Exact distance from every point to its nearest segment.
 
-    Points within ``radius`` of some segment are resolved through the index; the rest (usually
-    few) are compared with every segment, in chunks of at most ``chunk`` point-segment pairs.
+    Points within ``radius`` of some segment are resolved through the index, ``segment_chunk``
+    segments per query (so a map of many overlapping segments cannot make one query's pair list
+    exhaust memory); the rest (usually few) are compared with every segment, in chunks of at
+    most ``chunk`` point-segment pairs.
 
     Returns
     -------
@@ -240,11 +243,14 @@ def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex
     if len(segments) == 0 or n == 0:
         return dist, nearest
     index = index if index is not None else PointIndex(points)
-    p = index.pairs(segments, radius)
-    if len(p.pt):
-        np.minimum.at(dist, p.pt, p.dist)
-        win = p.dist == dist[p.pt]
-        nearest[p.pt[win]] = p.seg[win]
+    for s0 in range(0, len(segments), segment_chunk):
+        p = index.pairs(segments[s0:s0 + segment_chunk], radius)
+        if len(p.pt):
+            closer = p.dist < dist[p.pt]
+            pt, d, seg = p.pt[closer], p.dist[closer], p.seg[closer] + s0
+            np.minimum.at(dist, pt, d)
+            win = d == dist[pt]
+            nearest[pt[win]] = seg[win]
     rest = np.flatnonzero(~np.isfinite(dist))
     k = len(segments)
     step = max(1, chunk // k)
