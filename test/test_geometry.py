@@ -1,8 +1,8 @@
 """Segment geometry and the spatial index, against brute force."""
 
 import numpy as np
-from polyline_mapper.core.geometry import (as_points, nearest_distance, PointIndex, project,
-                                           sample_segments)
+from polyline_mapper.core.geometry import (as_points, lengths, nearest_distance, piece_pairs,
+                                           PointIndex, project, sample_segments)
 import pytest
 
 
@@ -34,6 +34,29 @@ def test_pairs_equal_brute_force(radius):
     assert len(got) == len(set(got)), 'pairs must be unique'
     assert set(got) == want
     np.testing.assert_allclose(p.dist, d[p.pt, p.seg], atol=1e-12)
+
+
+@pytest.mark.parametrize('extend', [0.0, 0.3])
+def test_piece_pairs_equal_brute_force(extend):
+    # Pieces of segments (several per parent, one reaching past its parent's ends by `extend`),
+    # their pairs derived from the parents' pairs, against brute force on the pieces.
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0, 10, (4000, 2))
+    segs = rng.uniform(0, 10, (30, 2, 2))
+    length = lengths(segs)
+    u = (segs[:, 1] - segs[:, 0]) / length[:, None]
+    parent = rng.integers(0, 30, 60)
+    t0 = rng.uniform(0, 0.6, 60) * length[parent] - extend
+    t1 = t0 + extend + rng.uniform(0.05, 0.4, 60) * length[parent] + extend
+    pieces = segs[parent, :1] + np.stack([t0, t1], axis=1)[:, :, None] * u[parent, None]
+    radius = 0.2
+    p = piece_pairs(PointIndex(pts).pairs(segs, radius + extend), parent, t0, t1 - t0, radius)
+    d = brute_distance(pts, pieces)
+    assert set(zip(p.pt.tolist(), p.seg.tolist())) == set(zip(*np.nonzero(d <= radius)))
+    np.testing.assert_allclose(p.dist, d[p.pt, p.seg], atol=1e-12)
+    _, along, normal = project(pts[p.pt], pieces[p.seg])
+    np.testing.assert_allclose(p.along, along, atol=1e-12)
+    np.testing.assert_allclose(p.normal, normal, atol=1e-12)
 
 
 def test_nearest_distance_exact_including_far_points():

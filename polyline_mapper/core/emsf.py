@@ -31,7 +31,7 @@ class EStep:
 
 
 def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
-           extend: float = 0.0) -> EStep:
+           extend: float = 0.0, pairs: Pairs = None) -> EStep:
     """
     Compute responsibilities of the segments for the points.
 
@@ -49,13 +49,18 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
         Distances are measured to the segments extended by this much (m) at both ends, so that
         a wall can claim the collinear points just past its end and grow as it comes into view;
         trimming still stops at its last supporting point.
+    pairs : Pairs
+        The pairs of the (extended) segments within ``kappa * sigma``, when the caller already
+        has them (see ``geometry.piece_pairs``); queried from ``index`` when None.
 
     """
     n = len(index)
-    if extend > 0 and len(segments):
-        u, _ = directions(segments)
-        segments = np.stack([segments[:, 0] - extend * u, segments[:, 1] + extend * u], axis=1)
-    pairs = index.pairs(segments, kappa * sigma)
+    if pairs is None:
+        if extend > 0 and len(segments):
+            u, _ = directions(segments)
+            segments = np.stack([segments[:, 0] - extend * u, segments[:, 1] + extend * u],
+                                axis=1)
+        pairs = index.pairs(segments, kappa * sigma)
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
     # Kernel and outlier class relative to each point's nearest segment, so nothing underflows
@@ -212,9 +217,21 @@ def redundant_segments(est: EStep, segments: np.ndarray, r: float,
     return cand & longer
 
 
+def extend_for(index: PointIndex, r: float) -> float:
+    """How far (m) the E-step extends segments at both ends: r with an old map present, else 0."""
+    return r if index.n_real < len(index) else 0.0
+
+
+def _along(index: PointIndex, pt: np.ndarray, centre: np.ndarray, direction: np.ndarray,
+           seg: np.ndarray) -> np.ndarray:
+    """Position of points ``pt`` along the lines (centre, direction) of ``seg``, pair by pair."""
+    return ((np.take(index.x, pt) - np.take(centre[:, 0], seg)) * np.take(direction[:, 0], seg)
+            + (np.take(index.y, pt) - np.take(centre[:, 1], seg)) * np.take(direction[:, 1], seg))
+
+
 def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
               min_support: float, min_density: float = 0.0, r: float = 1.0,
-              tail_fraction: float = 0.0) -> tuple:
+              tail_fraction: float = 0.0, pairs: Pairs = None) -> tuple:
     """
     One EM iteration followed by MAP trimming.
 
@@ -229,6 +246,9 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     stretch it over its neighbour; a far, sparse end of a wall is kept, since there the wall
     owns all the points near it, however few.
 
+    ``pairs``: the E-step's pairs when the caller has them (see ``e_step``; the segments
+    extended by ``extend_for(index, r)``).
+
     Returns
     -------
     segments : (K', 2, 2) the refitted, trimmed segments that survive; order follows the
@@ -241,17 +261,17 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     # Incremental mapping (an old map present as virtual points): walls grow as they come into
     # view, so distances are measured to segments extended by r. A batch fit grows walls by
     # going coarse to fine, and extending there would overshoot shallow corners.
-    extend = r if index.n_real < len(index) else 0.0
-    est = e_step(index, segments, sigma, kappa, extend=extend)
+    est = e_step(index, segments, sigma, kappa, extend=extend_for(index, r), pairs=pairs)
     if k == 0 or len(est.pairs.pt) == 0:
         est.kept = np.zeros(0, dtype=np.intp)
         return np.zeros((0, 2, 2)), np.zeros(0), est
     pw = est.weight * index.weights[est.pairs.pt]
-    centre, direction, mass = weighted_lines(index.points[est.pairs.pt], est.pairs.seg, pw, k)
+    centre, direction, mass = weighted_lines(np.take(index.points, est.pairs.pt, axis=0),
+                                             est.pairs.seg, pw, k)
     sup_pts = np.flatnonzero(est.support >= 0)
     sup_seg = est.support[sup_pts]
     sup_mass = np.bincount(sup_seg, weights=index.weights[sup_pts], minlength=k)
-    t = np.einsum('ij,ij->i', index.points[sup_pts] - centre[sup_seg], direction[sup_seg])
+    t = _along(index, sup_pts, centre, direction, sup_seg)
     lo, hi = group_minmax(t, sup_seg, k)
     if tail_fraction > 0:
         # Points near a segment that count against its ends: its own, and those of segments
@@ -260,10 +280,11 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
         owner = est.support[est.pairs.pt]
         u_old, _ = directions(segments)
         o = np.where(owner >= 0, owner, est.pairs.seg)
-        cos = np.abs(np.einsum('ij,ij->i', u_old[est.pairs.seg], u_old[o]))
+        cos = np.abs(np.take(u_old[:, 0], est.pairs.seg) * np.take(u_old[:, 0], o)
+                     + np.take(u_old[:, 1], est.pairs.seg) * np.take(u_old[:, 1], o))
         near = (est.pairs.dist <= r) & (owner >= 0) & (cos > np.cos(np.pi / 4))
         pn, sn = est.pairs.pt[near], est.pairs.seg[near]
-        t_near = np.einsum('ij,ij->i', index.points[pn] - centre[sn], direction[sn])
+        t_near = _along(index, pn, centre, direction, sn)
         lo, hi = _trim_foreign_tails(t, sup_seg, index.weights[sup_pts], t_near, sn,
                                      index.weights[pn], lo, hi, 2.0 * r, tail_fraction)
     extent = np.where(hi > lo, hi - lo, 0.0)

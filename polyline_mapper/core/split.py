@@ -29,7 +29,7 @@ low: they were tested when observed, and a sparse new look is no evidence that a
 import numpy as np
 from scipy.special import pdtr
 
-from .geometry import directions, group_minmax, label_runs, PointIndex
+from .geometry import directions, group_minmax, label_runs, Pairs, PointIndex
 
 
 def _flank_level(support, group, pos, n, flank):
@@ -47,7 +47,8 @@ def _flank_level(support, group, pos, n, flank):
 
 def split_segments(index: PointIndex, segments: np.ndarray, r: float,
                    split_fraction: float = 0.1, gap_p: float = 1e-3,
-                   flank: int = 8) -> tuple:
+                   flank: int = 8, query_radius: float = 0.0,
+                   return_pairs: bool = False) -> tuple:
     """
     Split segments where their support drops (LSS).
 
@@ -65,16 +66,27 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         Significance of a low run (see the module docstring).
     flank : int
         Squares on each side whose mean support is a square's expected support.
+    query_radius : float
+        Query the point-segment pairs out to at least this distance (m), for the caller to
+        derive the pieces' pairs from (``geometry.piece_pairs``); the split itself uses those
+        within r (2r with an old map present, for the span its virtual points hold).
+    return_pairs : bool
+        Also return those pairs and where each piece starts on its parent.
 
     Returns
     -------
     segments : (K', 2, 2) the surviving pieces.
     parent : (K',) index of the input segment each piece came from.
+    pairs : Pairs of the input segments (only with ``return_pairs``).
+    start : (K',) along-position of each piece's first end on its parent, metres (only with
+        ``return_pairs``).
 
     """
     k = len(segments)
+    none = (np.zeros((0, 2, 2)), np.zeros(0, dtype=np.intp))
     if k == 0:
-        return np.zeros((0, 2, 2)), np.zeros(0, dtype=np.intp)
+        return none + ((Pairs(*(np.zeros(0, dtype=np.intp),) * 2, *(np.zeros(0),) * 3),
+                        np.zeros(0)) if return_pairs else ())
     u, length = directions(segments)
     n_sub = np.maximum(1, np.rint(length / (2.0 * r)).astype(np.intp))
     sub_len = length / n_sub
@@ -84,7 +96,13 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     sub_k = np.arange(total) - offset[sub_seg]
 
     incremental = index.n_real < len(index)
-    p = index.pairs(segments, 2.0 * r if incremental else r)
+    own = 2.0 * r if incremental else r
+    queried = index.pairs(segments, max(own, query_radius))
+    p = queried
+    if query_radius > own:
+        near = np.flatnonzero(queried.dist <= own)
+        p = Pairs(*(np.take(a, near) for a in (
+            queried.pt, queried.seg, queried.dist, queried.along, queried.normal)))
     inside = (p.along >= 0) & (p.along <= length[p.seg])
     band = (np.abs(p.normal) <= r)[inside]
     seg = p.seg[inside]
@@ -123,7 +141,7 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     drop = low & (run_logp[run] <= np.log(gap_p / n_sub[sub_seg]))
     keep = ~drop
     if not keep.any():
-        return np.zeros((0, 2, 2)), np.zeros(0, dtype=np.intp)
+        return none + ((queried, np.zeros(0)) if return_pairs else ())
 
     run, n_runs = label_runs(keep, sub_seg)
     kept_runs = np.unique(run[keep])
@@ -138,4 +156,6 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     t0 = (sub_k[first] * sub_len[parent])[:, None]
     t1 = ((sub_k[last] + 1) * sub_len[parent])[:, None]
     pieces = np.stack([a + t0 * u[parent], a + t1 * u[parent]], axis=1)
+    if return_pairs:
+        return pieces, parent, queried, t0[:, 0]
     return pieces, parent

@@ -190,7 +190,7 @@ class ScanPipeline:
             if gen != self._generation:
                 return False                # a reset came in between: these scans are gone
             t0 = time.perf_counter()
-            info = self.mapper.update(points)
+            info = self.mapper.update(points, ordered=True)
             seconds = time.perf_counter() - t0
             self.used += len(group)
             self.header = group[-1][1].header
