@@ -21,13 +21,14 @@ def test_project_distance_to_segment_not_line():
     np.testing.assert_allclose(normal, [2.0, 0.0, -1.0, -0.5])
 
 
+@pytest.mark.parametrize('spacing', [3.0, 8.0])
 @pytest.mark.parametrize('radius', [0.02, 0.3, 1.5, 6.0])
-def test_pairs_equal_brute_force(radius):
+def test_pairs_equal_brute_force(radius, spacing):
     rng = np.random.default_rng(3)
     pts = rng.uniform(-5, 5, (3000, 2))
     segs = rng.uniform(-5, 5, (40, 2, 2))
     segs[0, 1] = segs[0, 0]                          # a zero-length segment too
-    p = PointIndex(pts).pairs(segs, radius)
+    p = PointIndex(pts, sample_spacing=spacing).pairs(segs, radius)
     d = brute_distance(pts, segs)
     want = set(zip(*np.nonzero(d <= radius)))
     got = list(zip(p.pt.tolist(), p.seg.tolist()))

@@ -227,14 +227,24 @@ class SegmentGrid:
         self._main = (key[ok][order], sid[ok][order], gen[ok][order])
         self._tail = tuple(a[:0] for a in self._tail)
 
-    def near(self, points: np.ndarray, dist: float) -> np.ndarray:
-        """Ids of segments registered in cells within ``dist`` of any point (a superset)."""
-        if len(points) == 0:
+    def cells(self, points: np.ndarray) -> np.ndarray:
+        """Keys of the cells holding the points (sorted, unique), for ``near``."""
+        return np.unique(self._keys(points))
+
+    def near(self, points: np.ndarray, dist: float, cells: np.ndarray = None) -> np.ndarray:
+        """
+        Ids of segments registered in cells within ``dist`` of any point (a superset).
+
+        ``cells``: the points' cell keys (``cells(points)``, or a union of them) when known.
+        """
+        if cells is None:
+            cells = self.cells(points)
+        if len(cells) == 0:
             return np.zeros(0, dtype=np.intp)
         reach = int(np.ceil(dist / self.cell))
         offs = np.arange(-reach, reach + 1, dtype=np.int64)
         shift = ((offs[:, None] << 32) + offs[None]).ravel()
-        cells = np.unique((np.unique(self._keys(points))[:, None] + shift).ravel())
+        cells = np.unique((cells[:, None] + shift).ravel())
         key, sid, gen = self._main
         lo = np.searchsorted(key, cells, 'left')
         cnt = np.searchsorted(key, cells, 'right') - lo
@@ -274,6 +284,7 @@ class IncrementalMapper:
         self._alive = np.zeros(64, dtype=bool)
         self._grid = SegmentGrid(self.config.cell)
         self._buffer = deque(maxlen=int(self.config.buffer_scans))
+        self._cells = deque(maxlen=int(self.config.buffer_scans))   # grid cells of each scan
         self._noise = []
         self._scales = deque(maxlen=int(self.config.sigma_window))
         self._spacings = deque(maxlen=int(self.config.sigma_window))
@@ -319,7 +330,7 @@ class IncrementalMapper:
     def nbytes(self) -> int:
         """Bytes held by the map arrays and the scan buffer."""
         return (self._seg.nbytes + self._sup.nbytes + self._alive.nbytes
-                + sum(p.nbytes for p in self._buffer))
+                + sum(p.nbytes for p in self._buffer) + sum(c.nbytes for c in self._cells))
 
     # -- updates -------------------------------------------------------------------------------
     def update_scan(self, ranges, angles, pose, range_min: float = 0.0,
@@ -349,6 +360,7 @@ class IncrementalMapper:
         if len(pts) == 0:
             return UpdateInfo(0, 0, int(self._alive.sum()), 0.0, skipped='no valid points')
         self._buffer.append(pts)
+        self._cells.append(self._grid.cells(pts))
         self._note_spacing(pts, ordered)
         window = np.concatenate(self._buffer)
         if not self._sigma_ready(window):
@@ -358,12 +370,13 @@ class IncrementalMapper:
         r = self.r
         cfg = self._config_for(r, sigma)
         reach = cfg.merge_reach * r + cfg.kappa * sigma + self.config.margin
-        active = self._grid.near(window, reach)
+        active = self._grid.near(window, reach, np.unique(np.concatenate(self._cells)))
         active = active[self._alive[active]]
         old = self._seg[active]
         virt, vw = self._virtual_points(old, self._sup[active], r)
         index = PointIndex(np.concatenate([window, virt]),
-                           np.concatenate([np.ones(len(window)), vw]), virtual=len(virt))
+                           np.concatenate([np.ones(len(window)), vw]), virtual=len(virt),
+                           sample_spacing=8.0)
         segs = old
         for _ in range(int(self.config.iterations)):
             segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, merge_fresh_only=True)

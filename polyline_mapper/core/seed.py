@@ -48,13 +48,14 @@ def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
     """
     if len(points) == 0:
         return np.zeros((0, 2, 2))
-    ij = np.floor(points / cell).astype(np.int64)
-    _, cell_id = np.unique(ij, axis=0, return_inverse=True)
-    cell_id = cell_id.ravel()
+    ij = np.floor(points / cell).astype(np.int64) + (1 << 30)
+    _, cell_id = np.unique((ij[:, 0] << 32) | ij[:, 1], return_inverse=True)
     k = int(cell_id.max()) + 1
     centre, direction, mass, thick = weighted_lines(points, cell_id, weights, k,
                                                     return_thickness=True)
-    t = np.einsum('ij,ij->i', points - centre[cell_id], direction[cell_id])
+    rel = points - np.take(centre, cell_id, axis=0)
+    dirs = np.take(direction, cell_id, axis=0)
+    t = rel[:, 0] * dirs[:, 0] + rel[:, 1] * dirs[:, 1]
     lo, hi = group_minmax(t, cell_id, k)
     keep = ((mass >= min_mass) & (mass >= min_density * (hi - lo) / (2.0 * r)) & (hi > lo)
             & (thick <= max_thickness))

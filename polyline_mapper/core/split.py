@@ -135,7 +135,8 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         low &= ~held
     # A run of low squares is a gap when its probability under the local levels, summed over
     # the run in logs, is below gap_p / (squares in the segment).
-    logp = np.where(low, np.log(np.clip(pdtr(c, lam), 1e-300, 1.0)), 0.0)
+    logp = np.zeros(total)
+    logp[low] = np.log(np.clip(pdtr(c[low], lam[low]), 1e-300, 1.0))
     run, n_runs = label_runs(low, sub_seg)
     run_logp = np.bincount(run, weights=logp, minlength=n_runs)
     drop = low & (run_logp[run] <= np.log(gap_p / n_sub[sub_seg]))
@@ -144,7 +145,8 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         return none + ((queried, np.zeros(0)) if return_pairs else ())
 
     run, n_runs = label_runs(keep, sub_seg)
-    kept_runs = np.unique(run[keep])
+    kept_runs = run[keep]                      # non-decreasing: runs are numbered in order
+    kept_runs = kept_runs[np.append(True, kept_runs[1:] != kept_runs[:-1])]
     first = np.full(n_runs, total, dtype=np.intp)
     last = np.full(n_runs, -1, dtype=np.intp)
     idx = np.arange(total)
