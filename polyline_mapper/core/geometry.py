@@ -75,6 +75,17 @@ def lengths(segments: np.ndarray) -> np.ndarray:
     return np.hypot(d[:, 0], d[:, 1])
 
 
+def cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
+    """
+    One int64 key per point for the square grid cell (side ``cell`` metres) that holds it.
+
+    Keys order like the cells' (column, row) pairs, so sorting keys sorts cells
+    lexicographically; cell indices up to +-2**30 are supported.
+    """
+    ij = np.floor(points / cell).astype(np.int64) + (1 << 30)
+    return (ij[:, 0] << 32) | ij[:, 1]
+
+
 def directions(segments: np.ndarray) -> tuple:
     """
     Return unit directions and lengths of segments.
@@ -192,11 +203,10 @@ class PointIndex:
         All (point, segment) pairs with point-to-segment distance <= radius.
 
         Each segment is sampled at ``n + 1`` evenly spaced points at most ``sample_spacing x
-        radius`` apart (see ``__init__``). A
-        point within ``radius`` of a segment is within ``reach = hypot(radius, step / 2)`` of the
-        sample nearest to its projection (its *home* sample), so one k-d tree query of all
-        samples with ``reach`` finds every pair; keeping only hits on the home sample leaves
-        each pair exactly once, without sorting.
+        radius`` apart (see ``__init__``). A point within ``radius`` of a segment is within
+        ``reach = hypot(radius, step / 2)`` of the sample nearest to its projection (its *home*
+        sample), so one k-d tree query of all samples with ``reach`` finds every pair; keeping
+        only hits on the home sample leaves each pair exactly once, without sorting.
         """
         if len(segments) == 0 or len(self.points) == 0 or radius <= 0:
             return Pairs(*(np.zeros(0, dtype=np.intp),) * 2, *(np.zeros(0),) * 3)

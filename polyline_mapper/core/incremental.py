@@ -52,7 +52,8 @@ from typing import Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import as_points, directions, lengths, PointIndex, project, sample_segments
+from .geometry import (as_points, cell_keys, directions, lengths, PointIndex, project,
+                       sample_segments)
 from .noise import estimate_noise
 from .polylines import assemble_polylines
 from .smemsf import smemsf_iteration, SMEMSFConfig
@@ -189,8 +190,7 @@ class SegmentGrid:
         self._main = self._tail = empty
 
     def _keys(self, points: np.ndarray) -> np.ndarray:
-        ij = np.floor(points / self.cell).astype(np.int64) + (1 << 30)
-        return (ij[:, 0] << 32) | ij[:, 1]
+        return cell_keys(points, self.cell)
 
     def _bump(self, ids: np.ndarray) -> None:
         if ids.size and ids.max() >= self._gen.size:

@@ -13,7 +13,7 @@ grid is joined again by merging; a blob of clutter keeps a short segment or lose
 import numpy as np
 
 from .emsf import weighted_lines
-from .geometry import group_minmax
+from .geometry import cell_keys, group_minmax
 
 
 def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
@@ -48,8 +48,7 @@ def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,
     """
     if len(points) == 0:
         return np.zeros((0, 2, 2))
-    ij = np.floor(points / cell).astype(np.int64) + (1 << 30)
-    _, cell_id = np.unique((ij[:, 0] << 32) | ij[:, 1], return_inverse=True)
+    _, cell_id = np.unique(cell_keys(points, cell), return_inverse=True)
     k = int(cell_id.max()) + 1
     centre, direction, mass, thick = weighted_lines(points, cell_id, weights, k,
                                                     return_thickness=True)
