@@ -350,7 +350,7 @@ class Replay:
             else:
                 self._skip('no valid points', f'scan at {scan.stamp:.3f} s')
             return
-        info = self.mapper.update(pts, ordered=True)
+        info = self.mapper.update(pts, ordered=True, origin=pose.xyz[:2])
         dt = time.perf_counter() - t0
         if info.skipped == 'no valid points':
             self._skip('no valid points', f'scan at {scan.stamp:.3f} s')

@@ -4,10 +4,13 @@ from conftest import end_errors
 import numpy as np
 from polyline_mapper.core import fit, map_metrics
 from polyline_mapper.core.geometry import PointIndex, sample_segments
-from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper, SegmentGrid
+from polyline_mapper.core.incremental import (IncrementalConfig, IncrementalMapper, near_points,
+                                               SegmentGrid, seen_through)
 from polyline_mapper.core.metrics import twin_fraction
 from polyline_mapper.core.split import split_segments
-from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive
+from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive, World
+from polyline_mapper.sim.laser import simulate_scan
+from polyline_mapper.sim.world import path_poses
 import pytest
 
 
@@ -173,3 +176,95 @@ def test_a_virtual_point_a_rounding_error_past_the_end_holds_the_end_square():
     index = PointIndex(virt, np.full(21, 30.0), virtual=21)
     pieces, _ = split_segments(index, seg, 0.02)
     np.testing.assert_allclose(pieces, seg)
+
+
+def test_near_points_keeps_every_segment_within_the_distance():
+    """Against brute force: none within the distance is missed, none beyond 4.3x is kept."""
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(0, 20, (300, 2))
+    a = rng.uniform(-5, 25, (400, 2))
+    segs = np.stack([a, a + rng.normal(0, 2, (400, 2))], axis=1)
+    dist = 0.4
+    samples, owner = sample_segments(segs, 0.005)
+    d = np.full(len(segs), np.inf)
+    np.minimum.at(d, owner, PointIndex(pts).tree.query(samples)[0])
+    keep = near_points(pts, segs, dist)
+    assert keep[d <= dist].all() and not keep[d > 4.3 * dist].any()
+    assert 0 < (d <= dist).sum() < len(segs)
+
+
+def _room_scan(extra=(), pose=(2.0, 2.0, 0.0), seed=0):
+    """A 360-beam scan in an 8 m x 6 m room (optionally with extra walls), and its points."""
+    room = np.array([[[0, 0], [8, 0]], [[8, 0], [8, 6]], [[8, 6], [0, 6]], [[0, 6], [0, 0]]],
+                    dtype=float)
+    walls = np.concatenate([room, np.array(extra, dtype=float).reshape(-1, 2, 2)])
+    spec = LaserSpec(beams=360, fov=2 * np.pi, range_max=12.0, noise=0.01, dropout=0.0)
+    ranges, _ = simulate_scan(World(walls=walls), np.asarray(pose), spec,
+                              np.random.default_rng(seed))
+    from polyline_mapper.scan import scan_to_points
+    return scan_to_points(ranges, spec.angles(), pose, spec.range_min, spec.range_max)
+
+
+def test_seen_through_flags_only_what_the_beams_pass():
+    pts = _room_scan(extra=[[[5.0, 1.0], [5.0, 2.0]]])     # a box edge in the room
+    o = np.array([2.0, 2.0])
+    segs = np.array([
+        [[3.0, 1.0], [3.0, 3.0]],      # 0: nothing there now, beams pass to the east wall
+        [[8.0, 1.0], [8.0, 5.0]],      # 1: the east wall, hit
+        [[6.0, 1.2], [6.0, 1.8]],      # 2: behind the box edge: occluded, no evidence
+        [[1.0, 5.0], [7.9, 5.0]],      # 3: seen past along most of it (to the north wall)
+        [[8.2, 1.0], [8.2, 5.0]],      # 4: beyond the east wall: never reached
+        [[2.5, 2.2], [2.5, 2.25]],     # 5: 5 cm stub: too few beams
+    ])
+    tol = 0.03
+    flags = seen_through(segs, o, pts, tol)
+    assert flags.tolist() == [True, False, False, True, False, False]
+    # Seen past along its whole length: flagged; seen past over its lowest 0.8 m only (the
+    # rest outside a narrower field of view): kept, one end is no evidence against a wall.
+    long_ = np.array([[[4.0, 0.5], [4.0, 5.5]]])
+    fov = pts[np.arctan2(pts[:, 1] - 2, pts[:, 0] - 2) < np.deg2rad(-20.0)]
+    assert seen_through(long_, o, pts, tol)[0]
+    assert (seen_through(long_, o, fov, tol, share=0.1)[0]
+            and not seen_through(long_, o, fov, tol)[0])
+
+
+def _drive_scans(world, poses, spec, rng):
+    return [simulate_scan(world, p, spec, rng)[0] for p in poses]
+
+
+@pytest.mark.parametrize('clear_length', [16.0, 0.0])
+def test_a_person_who_walks_away_is_cleared(clear_length):
+    """A person (0.4 m of legs) stands in the corridor for the first pass, then leaves."""
+    office = office_floor()
+    person = np.array([[[6.0, 5.6], [6.4, 5.6]]])
+    with_person = World(walls=np.concatenate([office.walls, person]), arcs=office.arcs)
+    spec = LaserSpec(beams=360, fov=2 * np.pi, range_max=12.0, noise=0.01)
+    poses = path_poses(office.path, 0.25)
+    k = int(np.argmax(poses[:, 0] > 9.0))      # the robot has passed the person
+    rng = np.random.default_rng(9)
+    ranges = (_drive_scans(with_person, poses[:k], spec, rng)
+              + _drive_scans(office, poses[k:], spec, rng))
+    mapper = IncrementalMapper(IncrementalConfig(clear_length=clear_length))
+    for r, p in zip(ranges[:k], poses[:k]):
+        mapper.update_scan(r, spec.angles(), p, spec.range_min, spec.range_max)
+    samples = sample_segments(mapper.segments, 0.02)[0]
+    on_person = np.hypot(samples[:, 0] - 6.2, samples[:, 1] - 5.6) < 0.3
+    assert on_person.any()                       # mapped while it stood there
+    for r, p in zip(ranges[k:], poses[k:]):
+        mapper.update_scan(r, spec.angles(), p, spec.range_min, spec.range_max)
+    samples = sample_segments(mapper.segments, 0.02)[0]
+    on_person = np.hypot(samples[:, 0] - 6.2, samples[:, 1] - 5.6) < 0.3
+    assert on_person.any() == (clear_length == 0)
+    # The walls are all still there.
+    pts = np.concatenate([simulate_drive(office, spec, step=0.25, rng=1).points()])
+    assert map_metrics(pts, mapper.segments)['coverage_0_10m'] > 0.99
+
+
+def test_bad_origin_is_rejected_and_leaves_the_map_unchanged(office_incremental):
+    mapper, _ = office_incremental
+    before = mapper.segments
+    pts = np.array([[5.0, 5.0], [5.1, 5.0], [5.2, 5.0]])
+    for origin in ([1.0], [np.nan, 0.0], np.zeros((2, 2))):
+        with pytest.raises(ValueError, match='origin'):
+            mapper.update(pts, origin=origin)
+    np.testing.assert_array_equal(mapper.segments, before)

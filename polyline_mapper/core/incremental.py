@@ -15,11 +15,22 @@ per LSS square), each weighing the segment's past support per sample, capped at
   between pieces).
 
 Only the part of the map near the new points is refit: a grid hash over the segments (cells
-updated only for the segments that change) gives the *active* segments, those within
-``margin`` of a new point. The margin is at least the merge reach, so a wall seen again after a
-loop meets its old segments in the same fit and merges with them instead of doubling them.
-Segments outside stay exactly as they are. Memory is the map plus the buffer of the last
-``buffer_scans`` scans: no point is kept longer.
+updated only for the segments that change) gives candidates, and a finer cell test over the
+buffer's points keeps the *active* ones, those within ``REFIT_REACH`` (2) reaches of a point,
+where the reach is the merge reach plus kappa sigma plus ``margin``. So a wall seen again after
+a loop meets its old segments in the same fit, and merging examines every pair of the active
+set, as batch does, so they join instead of doubling. Segments outside stay exactly as they
+are. Memory is the map plus the buffer of the last ``buffer_scans`` scans: no point is kept
+longer.
+
+Free-space clearing (``clear_length``): a segment in the map keeps itself alive through its
+virtual points, so a person who stood still for a few scans, or a door since opened, would stay
+in the map for good. After each update, the new scan's beams are traced through the short
+segments (up to ``clear_length`` r) near them; a segment that beams pass through over much of
+its length, with returns beyond it, is dropped (``seen_through``). Long walls are never
+cleared: a wall the scanner seems to see through is more likely a registration error or glass.
+Refitting only near the new points makes this necessary: with a wider refit, clutter wore
+away slowly under the fit of its neighbours, by accident rather than by evidence.
 
 The noise scale sigma is ``SMEMSFConfig.sigma`` when given (then fixed). Otherwise it starts
 from the local thickness of the first scans and then follows the scan-to-map spread: after every
@@ -59,6 +70,9 @@ from .polylines import assemble_polylines
 from .smemsf import smemsf_iteration, SMEMSFConfig
 from ..scan import scan_to_points
 
+
+REFIT_REACH = 2.0
+"""Segments within this many merge reaches of a point of the buffer are refit in an update."""
 
 SPACING_QUANTILE = 75.0
 """Percentile of a scan's nearest-neighbour distances that one LSS square (2r) must span."""
@@ -133,6 +147,113 @@ def _corner_chords(index: PointIndex, segs: np.ndarray, reach: float, near: floa
     return chord
 
 
+def seen_through(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: float,
+                 range_tol: float = 0.03, min_beams: int = 3, share: float = 0.5,
+                 min_sin: float = np.sin(np.deg2rad(20.0))) -> np.ndarray:
+    """
+    Segments that one scan's beams pass through: free-space evidence against them.
+
+    ``points`` are the scan's returns (fixed frame) measured from ``origin`` (the laser's
+    position, (2,)). A beam *passes through* a segment when it crosses the segment's line more
+    than ``tol`` from either end and its return lies beyond that line by more than ``tol +
+    range_tol x range`` (measured perpendicular to the line, so the test is as strict at a slant
+    as head-on; the range term allows for a heading error of the pose, about 1.7 degrees at
+    0.03). It *hits* the segment when its return lies within ``tol`` of the line where it crosses.
+    Beams meeting the line at less than asin(``min_sin``) are not counted (at grazing incidence
+    a small pose error moves the crossing far), nor are beams that end before the segment
+    (occlusion says nothing). A segment is seen through when at least ``min_beams`` beams pass,
+    they are at least ``share`` of the beams that pass or hit, and their crossings spread over
+    at least ``share`` of its length (a long wall seen past at one end, a doorway in it, is not
+    contradicted as a whole). Returns a (K,) bool mask.
+    """
+    k_all = len(segs)
+    out = np.zeros(k_all, dtype=bool)
+    n = len(points)
+    if k_all == 0 or n == 0:
+        return out
+    rel = points - origin
+    rng = np.hypot(rel[:, 0], rel[:, 1])
+    ang = np.arctan2(rel[:, 1], rel[:, 0])
+    order = np.argsort(ang)
+    ang2 = np.concatenate([ang[order], ang[order] + 2 * np.pi])
+    w = segs[:, 0] - origin                                   # (K, 2) first end from the laser
+    e = segs[:, 1] - segs[:, 0]
+    ea = np.arctan2(w[:, 1], w[:, 0])
+    eb = np.arctan2(w[:, 1] + e[:, 1], w[:, 0] + e[:, 0])
+    lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
+    wrap = hi - lo > np.pi                                    # the span crosses +-pi
+    lo, hi = np.where(wrap, hi, lo), np.where(wrap, lo + 2 * np.pi, hi)
+    first = np.searchsorted(ang2, lo, 'left')
+    count = np.minimum(np.searchsorted(ang2, hi, 'right'), first + n) - first
+    k = np.repeat(np.arange(k_all), count)
+    if k.size == 0:
+        return out
+    beam = np.take(order, (np.repeat(first - (np.cumsum(count) - count), count)
+                           + np.arange(k.size)) % n)
+    dx, dy = np.take(rel[:, 0], beam), np.take(rel[:, 1], beam)
+    ex, ey = np.take(e[:, 0], k), np.take(e[:, 1], k)
+    wx, wy = np.take(w[:, 0], k), np.take(w[:, 1], k)
+    den = dx * ey - dy * ex
+    elen = np.hypot(ex, ey)
+    r = np.take(rng, beam)
+    sin = np.abs(den) / np.maximum(r * elen, 1e-12)
+    ok = sin >= min_sin
+    den = np.where(ok, den, 1.0)
+    t = (wx * ey - wy * ex) / den                             # crossing, in units of the range
+    s = (wx * dy - wy * dx) / den * elen                      # crossing, metres from the first end
+    past = (1.0 - t) * r * sin                                # return beyond the line (m, perp.)
+    inside = ok & (t > 0) & (s >= tol) & (s <= elen - tol)
+    through = inside & (past > tol + range_tol * r)
+    hit = inside & (np.abs(past) <= tol)
+    n_through = np.bincount(k[through], minlength=k_all)
+    n_hit = np.bincount(k[hit], minlength=k_all)
+    # the crossings must spread over at least `share` of the segment's length
+    lo_s = np.full(k_all, np.inf)
+    hi_s = np.full(k_all, -np.inf)
+    np.minimum.at(lo_s, k[through], s[through])
+    np.maximum.at(hi_s, k[through], s[through])
+    spread = hi_s - lo_s >= share * (lengths(segs) - 2 * tol)
+    return (n_through >= min_beams) & (n_through >= share * (n_through + n_hit)) & spread
+
+
+def near_points(points: np.ndarray, segs: np.ndarray, dist: float) -> np.ndarray:
+    """
+    Segments that pass within ``dist`` of some point: a (K,) bool mask.
+
+    A superset by at most a factor of about 4 in distance: the points' cells (side 1.5 dist),
+    dilated by one cell, against samples along each segment at most ``dist`` apart (a sample
+    lies within dist / 2 of every point of its segment, so a point within dist of the segment
+    lies within 1.5 dist of a sample, inside the dilated cells).
+    """
+    if len(segs) == 0 or len(points) == 0:
+        return np.zeros(len(segs), dtype=bool)
+    cell = 1.5 * dist
+    offs = np.arange(-1, 2, dtype=np.int64)
+    shift = ((offs[:, None] << 32) + offs[None]).ravel()
+    keys = np.unique((np.unique(cell_keys(points, cell))[:, None] + shift).ravel())
+    samples, owner = sample_segments(segs, dist)
+    hit = np.isin(cell_keys(samples, cell), keys, assume_unique=False)
+    return np.bincount(owner[hit], minlength=len(segs)) > 0
+
+
+def _views(origin, n: int) -> list:
+    """Validate ``origin`` ((2,) or (n, 2)); return (first, stop, origin) per run of points."""
+    if origin is None:
+        return []
+    o = np.asarray(origin, dtype=np.float64)
+    if o.shape == (2,):
+        o = o[None]
+        runs = np.array([0, n])
+    elif o.shape == (n, 2):
+        runs = np.concatenate([[0], np.flatnonzero(np.any(o[1:] != o[:-1], axis=1)) + 1, [n]])
+    else:
+        raise ValueError(f'origin must have shape (2,) or ({n}, 2), got {o.shape}')
+    if not np.isfinite(o).all():
+        raise ValueError('origin has NaN or inf')
+    return [(int(a), int(b), o[min(int(a), len(o) - 1)]) for a, b in zip(runs[:-1], runs[1:])
+            if b > a]
+
+
 @dataclass
 class IncrementalConfig:
     """Tunables of the incremental mapper (lengths in metres)."""
@@ -152,6 +273,10 @@ class IncrementalConfig:
     """Updates whose thickness estimates are pooled (median) for the first sigma."""
     sigma_window: int = 50
     """Updates whose residual scales are pooled (running median) for sigma."""
+    clear_length: float = 16.0
+    """Segments up to this many r long that the new scan's beams pass through are dropped
+    (free-space clearing: people, opened doors, moved chairs); 0 turns clearing off. Needs the
+    laser position of each scan (update_scan, replay and the node give it)."""
     smemsf: SMEMSFConfig = field(default_factory=SMEMSFConfig)
     """The fit parameters (sigma, r_over_sigma, merge and split thresholds ...)."""
 
@@ -161,7 +286,8 @@ class IncrementalConfig:
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f'{name} must be an integer >= 1, got {v!r}')
-        for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 1e-9)):
+        for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 1e-9),
+                         ('clear_length', 0.0)):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
@@ -342,9 +468,9 @@ class IncrementalMapper:
         mismatched lengths or a bad pose, leaving the map unchanged.
         """
         return self.update(scan_to_points(ranges, angles, pose, range_min, range_max),
-                           ordered=True)
+                           ordered=True, origin=np.asarray(pose, dtype=np.float64)[:2])
 
-    def update(self, points, ordered: bool = False) -> UpdateInfo:
+    def update(self, points, ordered: bool = False, origin=None) -> UpdateInfo:
         """
         Add the points of one scan (N, 2, fixed frame, metres) and refit the map near them.
 
@@ -352,11 +478,17 @@ class IncrementalMapper:
         runs concatenated), so a point's nearest neighbour in its scan is the one before or after
         it; the point spacing is then read off in order instead of from a k-d tree.
 
+        ``origin``: where the laser was, fixed frame, metres: (2,) for one scan, or (N, 2), one
+        row per point, for the points of several scans. With it, the beams clear the short
+        segments they pass through (``IncrementalConfig.clear_length``); without it (bare
+        points) nothing is cleared.
+
         An empty point set changes nothing. Raises ValueError on NaN / inf / wrong shapes,
         leaving the map unchanged.
         """
         t0 = time.perf_counter()
         pts = as_points(points)
+        views = _views(origin, len(pts))
         if len(pts) == 0:
             return UpdateInfo(0, 0, int(self._alive.sum()), 0.0, skipped='no valid points')
         self._buffer.append(pts)
@@ -370,8 +502,10 @@ class IncrementalMapper:
         r = self.r
         cfg = self._config_for(r, sigma)
         reach = cfg.merge_reach * r + cfg.kappa * sigma + self.config.margin
-        active = self._grid.near(window, reach, np.unique(np.concatenate(self._cells)))
+        active = self._grid.near(window, REFIT_REACH * reach,
+                                 np.unique(np.concatenate(self._cells)))
         active = active[self._alive[active]]
+        active = active[near_points(window, self._seg[active], REFIT_REACH * reach)]
         old = self._seg[active]
         virt, vw = self._virtual_points(old, self._sup[active], r)
         index = PointIndex(np.concatenate([window, virt]),
@@ -379,12 +513,19 @@ class IncrementalMapper:
                            sample_spacing=8.0)
         segs = old
         for _ in range(int(self.config.iterations)):
-            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, merge_fresh_only=True)
+            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg)
         # A short chord across a corner (e.g. a T-junction seen from few angles) is kept alive by
         # its own virtual points; the new points decide whether the walls explain it.
         keep = ~_corner_chords(index, segs, cfg.kappa * sigma, 2.0 * sigma, 8.0 * r,
                                np.deg2rad(20.0))
         segs, sup = segs[keep], sup[keep]
+        # Free-space clearing: a short segment the new scan sees through is gone.
+        if self.config.clear_length > 0:
+            short = lengths(segs) <= self.config.clear_length * r
+            for lo, hi, o in views:
+                if short.any():
+                    gone = short & seen_through(segs, o, pts[lo:hi], cfg.kappa * sigma)
+                    segs, sup, short = segs[~gone], sup[~gone], short[~gone]
         if cfg.sigma is None and np.isfinite(info['residual_scale']):
             self._scales.append(info['residual_scale'])
             self.sigma = max(float(np.median(self._scales)), self._sigma0)

@@ -213,7 +213,7 @@ def _second_chance(index, ms, cost, pair_support, sigma, r, threshold):
 def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray, sigma: float,
                    r: float, theta_ref: float = np.deg2rad(10.0), threshold: float = 1.0,
                    reach: float = None, split_fraction: float = 0.1, gap_p: float = 1e-3,
-                   max_rounds: int = 50, fresh: np.ndarray = None) -> tuple:
+                   max_rounds: int = 50) -> tuple:
     """
     Merge similar segments until no pair passes the cost and gap tests.
 
@@ -241,9 +241,6 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
         As in LSS, for the gap test.
     max_rounds : int
         Cap on merge rounds.
-    fresh : (K,) bool array, optional
-        Only pairs with at least one fresh segment are examined (the incremental mapper: old
-        segments that merely moved were merge-stable already). None examines all pairs.
 
     Returns
     -------
@@ -254,8 +251,7 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
     support = np.asarray(support, dtype=np.float64)
     reach = 4.0 * r if reach is None else reach
     merges = 0
-    if fresh is not None and not np.any(fresh):
-        return segments, support, merges
+    fresh = None                      # round 1 examines every pair
     for _ in range(max_rounds):       # after round 1 only pairs with a new segment can change
         pairs = candidate_pairs(segments, reach, fresh)
         if len(pairs) == 0:

@@ -32,7 +32,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .emsf import emsf_step, extend_for
-from .geometry import as_points, as_segments, end_distance, lengths, piece_pairs, PointIndex
+from .geometry import as_points, as_segments, lengths, piece_pairs, PointIndex
 from .merge import merge_segments
 from .noise import estimate_noise
 from .polylines import assemble_polylines
@@ -217,14 +217,9 @@ def check_fit_input(points, weights=None) -> tuple:
 
 
 def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
-                     config: SMEMSFConfig, merge_fresh_only: bool = False) -> tuple:
+                     config: SMEMSFConfig) -> tuple:
     """
     One SMEMSF iteration at noise scale ``sigma`` (seed, EMSF, LSS, EMSF, merge).
-
-    With ``merge_fresh_only`` (the incremental mapper) merging examines only pairs involving a
-    seed, a piece that LSS cut from a longer segment, a segment whose ends moved by more than
-    r / 2 in this iteration (it grew into view and may now touch another), or a short segment
-    (<= 8 r, whose direction is still settling).
 
     Returns
     -------
@@ -233,16 +228,13 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
 
     """
     r = config.r_over_sigma * sigma
-    before = segments
     segments, _, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                  config.min_density, r)
-    moved = end_distance(before[est.kept], segments) > 0.5 * r
     covered = np.zeros(len(index), dtype=bool)
     covered[est.pairs.pt] = True
     seeds = seed_segments(index.points[~covered], index.weights[~covered],
                           config.seed_cell * r, config.min_support, config.min_density, r,
                           config.seed_thickness * sigma)
-    n_old = len(segments)
     segments = np.concatenate([segments, seeds])
     # The second E-step's pairs come from LSS's query, widened to reach them: a piece lies on
     # its parent's line, so a point within kappa sigma of a piece extended by e is within
@@ -254,14 +246,11 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
         return_pairs=True)
     piece_len = lengths(segments)
     pairs = piece_pairs(parent_pairs, parent, start - extend, piece_len + 2.0 * extend, rho)
-    fresh = ((parent >= n_old) | (np.bincount(parent, minlength=n_old + len(seeds))[parent] > 1)
-             | np.concatenate([moved, np.ones(len(seeds), dtype=bool)])[parent])
     segments, support, est = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                        config.min_density, r, config.tail_fraction, pairs=pairs)
     segments, support, merges = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
-        config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p,
-        fresh=(fresh[est.kept] | (lengths(segments) <= 8.0 * r)) if merge_fresh_only else None)
+        config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
     # Residuals of supported points (to their MAP segment) and the truncated nearest distance.
     cap = config.kappa * sigma
     nearest = np.full(len(index), cap)

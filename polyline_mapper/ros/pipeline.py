@@ -175,7 +175,7 @@ class ScanPipeline:
             self._waiting.popleft()
             pts = scan_to_points(scan.ranges, pose.beam_angles(scan.angles), pose.xyz,
                                  scan.range_min, scan.range_max)
-            self._ready.append((pts, scan, arrived))
+            self._ready.append((pts, scan, arrived, pose.xyz[:2]))
         done = 0
         n = s.update_every_n_scans
         while len(self._ready) >= n:
@@ -186,11 +186,12 @@ class ScanPipeline:
 
     def _update(self, group: list, gen: int) -> bool:
         points = np.concatenate([g[0] for g in group])
+        origins = np.repeat(np.array([g[3] for g in group]), [len(g[0]) for g in group], axis=0)
         with self.map_lock:
             if gen != self._generation:
                 return False                # a reset came in between: these scans are gone
             t0 = time.perf_counter()
-            info = self.mapper.update(points, ordered=True)
+            info = self.mapper.update(points, ordered=True, origin=origins)
             seconds = time.perf_counter() - t0
             self.used += len(group)
             self.header = group[-1][1].header
