@@ -4,8 +4,8 @@ from conftest import end_errors
 import numpy as np
 from polyline_mapper.core import fit, map_metrics
 from polyline_mapper.core.geometry import PointIndex, sample_segments
-from polyline_mapper.core.incremental import (IncrementalConfig, IncrementalMapper, near_points,
-                                               SegmentGrid, seen_through)
+from polyline_mapper.core.incremental import (
+    IncrementalConfig, IncrementalMapper, near_points, seen_through, SegmentGrid)
 from polyline_mapper.core.metrics import twin_fraction
 from polyline_mapper.core.split import split_segments
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive, World
@@ -194,7 +194,7 @@ def test_near_points_keeps_every_segment_within_the_distance():
 
 
 def _room_scan(extra=(), pose=(2.0, 2.0, 0.0), seed=0):
-    """A 360-beam scan in an 8 m x 6 m room (optionally with extra walls), and its points."""
+    """Simulate a 360-beam scan in an 8 m x 6 m room (optionally with extra walls): its points."""
     room = np.array([[[0, 0], [8, 0]], [[8, 0], [8, 6]], [[8, 6], [0, 6]], [[0, 6], [0, 0]]],
                     dtype=float)
     walls = np.concatenate([room, np.array(extra, dtype=float).reshape(-1, 2, 2)])
