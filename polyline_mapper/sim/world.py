@@ -66,8 +66,10 @@ class World:
             hit = np.where(np.isfinite(best), j, -1)
         for k, arc in enumerate(self.arcs):
             oc = o - np.asarray(arc.centre, dtype=np.float64)
-            bq = d @ oc
-            cq = oc @ oc - arc.radius ** 2
+            # Element-wise, not BLAS (d @ oc): BLAS kernels differ by CPU in the last bit, and a
+            # drive simulated on one machine must be bit for bit the drive on another.
+            bq = d[:, 0] * oc[0] + d[:, 1] * oc[1]
+            cq = oc[0] * oc[0] + oc[1] * oc[1] - arc.radius ** 2
             disc = bq ** 2 - cq
             root = np.sqrt(np.maximum(disc, 0.0))
             for t in (-bq - root, -bq + root):
