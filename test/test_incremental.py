@@ -232,9 +232,14 @@ def _drive_scans(world, poses, spec, rng):
     return [simulate_scan(world, p, spec, rng)[0] for p in poses]
 
 
-@pytest.mark.parametrize('clear_length', [16.0, 0.0])
-def test_a_person_who_walks_away_is_cleared(clear_length):
-    """A person (0.4 m of legs) stands in the corridor for the first pass, then leaves."""
+@pytest.mark.parametrize('clear_length, grouped', [(16.0, False), (0.0, False), (16.0, True)])
+def test_a_person_who_walks_away_is_cleared(clear_length, grouped):
+    """
+    A person (0.4 m of legs) stands in the corridor for the first pass, then leaves.
+
+    ``grouped``: after the person left, scans arrive two per update with one laser position
+    per point (as the node sends them with update_every_n_scans = 2).
+    """
     office = office_floor()
     person = np.array([[[6.0, 5.6], [6.4, 5.6]]])
     with_person = World(walls=np.concatenate([office.walls, person]), arcs=office.arcs)
@@ -250,8 +255,16 @@ def test_a_person_who_walks_away_is_cleared(clear_length):
     samples = sample_segments(mapper.segments, 0.02)[0]
     on_person = np.hypot(samples[:, 0] - 6.2, samples[:, 1] - 5.6) < 0.3
     assert on_person.any()                       # mapped while it stood there
-    for r, p in zip(ranges[k:], poses[k:]):
-        mapper.update_scan(r, spec.angles(), p, spec.range_min, spec.range_max)
+    if grouped:
+        from polyline_mapper.scan import scan_to_points
+        for i in range(k, len(poses) - 1, 2):
+            pts = [scan_to_points(ranges[j], spec.angles(), poses[j], spec.range_min,
+                                  spec.range_max) for j in (i, i + 1)]
+            origin = np.repeat(poses[i:i + 2, :2], [len(q) for q in pts], axis=0)
+            mapper.update(np.concatenate(pts), ordered=True, origin=origin)
+    else:
+        for r, p in zip(ranges[k:], poses[k:]):
+            mapper.update_scan(r, spec.angles(), p, spec.range_min, spec.range_max)
     samples = sample_segments(mapper.segments, 0.02)[0]
     on_person = np.hypot(samples[:, 0] - 6.2, samples[:, 1] - 5.6) < 0.3
     assert on_person.any() == (clear_length == 0)
