@@ -416,7 +416,8 @@ claim 1 lets each baseline use its best swept setting on each dataset.
   {METHODS['ours-batch']['sweep']} for the curve.
 - **ours-incremental**: `IncrementalMapper(IncrementalConfig(smemsf=SMEMSFConfig(sigma=...)))`,
   every scan in order through `update_scan`, map from `polylines()`; default configuration
-  (3-scan buffer, one iteration per scan) for the table, sigma swept over
+  (3-scan buffer, one iteration per scan, free-space clearing of segments up to 16 r) for
+  the table, sigma swept over
   {METHODS['ours-incremental']['sweep']}. Per-scan time is each `update_scan` call.
 - **em-fixed-k** (plain EM, no split or merge; `baselines.em_lines`): K segments seeded at K
   random cells of a 0.5 m grid (each a line fitted to its 15 nearest points), E-step on the

@@ -76,9 +76,17 @@ def log_scans(path: pathlib.Path):
     return scans, log.points()
 
 
-def quality_row(name, scans, points) -> dict:
-    """Incremental vs batch on the same points."""
-    mapper, times = run_mapper(scans)
+def quality_row(name, scans, points, repeat: int = 1) -> dict:
+    """
+    Incremental vs batch on the same points.
+
+    The scans are mapped ``repeat`` times (the map is the same every time); the update times
+    reported are those of the run with the median median, and the range of the runs' medians
+    is kept, because this machine's speed drifts by up to 2x within minutes.
+    """
+    runs = [run_mapper(scans) for _ in range(max(1, int(repeat)))]
+    medians = [float(np.median(t)) for _, t in runs]
+    mapper, times = runs[int(np.argsort(medians)[len(medians) // 2])]
     inc_segs, _, _ = mapper.polylines()
     t0 = time.perf_counter()
     batch = fit(points)
@@ -93,12 +101,14 @@ def quality_row(name, scans, points) -> dict:
            'inc_twins_pct': 100 * twin_fraction(inc_segs),
            'batch_twins_pct': 100 * twin_fraction(batch.segments),
            'median_ms': float(np.median(times)), 'p99_ms': float(np.percentile(times, 99)),
-           'max_ms': float(times.max()), 'batch_s': batch_s, 'times': times.tolist()}
+           'max_ms': float(times.max()), 'batch_s': batch_s, 'times': times.tolist(),
+           'run_medians_ms': medians}
     print(f"{name}: inc {row['inc_segments']} segs {row['inc_mean_cm']:.2f} cm "
           f"{row['inc_coverage']:.1f}% twins {row['inc_twins_pct']:.1f}% | batch "
           f"{row['batch_segments']} segs {row['batch_mean_cm']:.2f} cm "
           f"{row['batch_coverage']:.1f}% | update median {row['median_ms']:.1f} ms "
-          f"p99 {row['p99_ms']:.1f} ms", flush=True)
+          f"p99 {row['p99_ms']:.1f} ms (run medians {', '.join(f'{m:.1f}' for m in medians)})",
+          flush=True)
     return row
 
 
@@ -116,14 +126,24 @@ def synthetic_map(n: int, rng) -> np.ndarray:
     return np.array(segs[:n]) + rng.normal(0, 0.002, (n, 2, 2))
 
 
-def size_curve(scans, sizes, out_dir) -> list:
-    """Median update time of the office drive against the size of a pre-loaded map."""
+def size_curve(scans, sizes, out_dir, rounds: int = 1) -> list:
+    """
+    Median update time of the office drive against the size of a pre-loaded map.
+
+    The sizes are run round-robin, ``rounds`` times, and each size's times pooled, so that a
+    drift of the machine's speed during the run is spread over all sizes instead of showing up
+    as a slope.
+    """
+    pooled = {n: [] for n in sizes}
+    for _ in range(max(1, int(rounds))):
+        for n in sizes:
+            # sigma fixed at the office drive's estimate, so every map size does the same work
+            mapper = IncrementalMapper(IncrementalConfig(smemsf=SMEMSFConfig(sigma=0.0085)))
+            mapper.load(synthetic_map(n, np.random.default_rng(n)))
+            pooled[n].append(run_mapper(scans, mapper)[1])
     rows = []
     for n in sizes:
-        # sigma fixed at the office drive's estimate, so every map size does the same work
-        mapper = IncrementalMapper(IncrementalConfig(smemsf=SMEMSFConfig(sigma=0.0085)))
-        mapper.load(synthetic_map(n, np.random.default_rng(n)))
-        _, times = run_mapper(scans, mapper)
+        times = np.concatenate(pooled[n])
         rows.append({'map_segments': n, 'median_ms': float(np.median(times)),
                      'p99_ms': float(np.percentile(times, 99))})
         print(f'  map {n:5d} segments: median {rows[-1]["median_ms"]:.2f} ms '
@@ -191,6 +211,8 @@ def main(argv=None) -> int:
         'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
     ap.add_argument('--quick', action='store_true', help='fewer map sizes, no memory run')
     ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
+    ap.add_argument('--repeat', type=int, default=3,
+                    help='map each drive and log this many times for the update times')
     args = ap.parse_args(argv)
     out_dir = HERE / 'results'
     out_dir.mkdir(exist_ok=True)
@@ -198,17 +220,17 @@ def main(argv=None) -> int:
     rows = []
     for beams in (360, 720):
         scans, pts = sim_scans(beams)
-        rows.append(quality_row(f'sim-office-{beams}', scans, pts))
+        rows.append(quality_row(f'sim-office-{beams}', scans, pts, args.repeat))
     for name in ('intel-corrected', 'freiburg-079-corrected'):
         path = radish / f'{name}.log.gz'
         if path.is_file():
             scans, pts = log_scans(path)
-            rows.append(quality_row(name, scans, pts))
+            rows.append(quality_row(name, scans, pts, args.repeat))
         else:
             print(f'skip {name}: {path} not found', file=sys.stderr)
     scans, _ = sim_scans(720)
     sizes = [100, 1000, 5000] if args.quick else [100, 300, 1000, 2000, 5000]
-    curve = size_curve(scans, sizes, out_dir)
+    curve = size_curve(scans, sizes, out_dir, args.repeat)
     histograms(rows, out_dir)
     fr079 = radish / 'freiburg-079-corrected.log.gz'
     mem = memory(fr079) if fr079.is_file() and not args.quick else None
@@ -219,10 +241,13 @@ def main(argv=None) -> int:
         {'meta': meta, 'quality': rows, 'size_curve': curve, 'memory': mem}, indent=1))
     block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
              f"`{meta['command']}` (default IncrementalConfig: 3-scan buffer, one SMEMSF "
-             'iteration per scan).\n\n'
+             f'iteration per scan). Every drive and log is mapped {args.repeat} times; the '
+             'update times are those of the run with the median median, and the last column '
+             'gives the median of every run (the speed of this virtual machine drifts).\n\n'
              '| dataset | scans x beams | segments inc / batch | mean cm inc / batch | '
-             'coverage inc / batch | twins inc / batch | update median / p99 / max (ms) |\n'
-             '|---|---:|---:|---:|---:|---:|---:|\n')
+             'coverage inc / batch | twins inc / batch | update median / p99 / max (ms) | '
+             'run medians (ms) |\n'
+             '|---|---:|---:|---:|---:|---:|---:|---:|\n')
     for r in rows:
         block += (f"| {r['dataset']} | {r['scans']} x {r['beams']} | {r['inc_segments']} / "
                   f"{r['batch_segments']} ({r['inc_segments'] / r['batch_segments']:.2f}x) | "
@@ -230,9 +255,11 @@ def main(argv=None) -> int:
                   f"({r['inc_mean_cm'] / r['batch_mean_cm']:.2f}x) | "
                   f"{r['inc_coverage']:.1f}% / {r['batch_coverage']:.1f}% | "
                   f"{r['inc_twins_pct']:.1f}% / {r['batch_twins_pct']:.1f}% | "
-                  f"{r['median_ms']:.1f} / {r['p99_ms']:.1f} / {r['max_ms']:.1f} |\n")
+                  f"{r['median_ms']:.1f} / {r['p99_ms']:.1f} / {r['max_ms']:.1f} | "
+                  + ', '.join(f'{m:.1f}' for m in r['run_medians_ms']) + ' |\n')
     block += ('\nUpdate time against map size (720-beam office drive, map pre-loaded with '
-              'synthetic corridor loops; plot `results/incremental-map-size.png`, histograms '
+              f'synthetic corridor loops, sizes run round-robin {args.repeat} times; plot '
+              '`results/incremental-map-size.png`, histograms '
               '`results/incremental-update-times.png`):\n\n| segments in map | median ms | '
               'p99 ms |\n|---:|---:|---:|\n')
     block += ''.join(f"| {c['map_segments']} | {c['median_ms']:.2f} | {c['p99_ms']:.2f} |\n"
