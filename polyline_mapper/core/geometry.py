@@ -86,6 +86,13 @@ def cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
     return (ij[:, 0] << 32) | ij[:, 1]
 
 
+def dilate_cells(keys: np.ndarray, rings: int) -> np.ndarray:
+    """Keys (``cell_keys`` layout) of the cells within ``rings`` cells of any ``keys``, sorted."""
+    offs = np.arange(-rings, rings + 1, dtype=np.int64)
+    shift = ((offs[:, None] << 32) + offs[None]).ravel()
+    return np.unique((np.asarray(keys)[:, None] + shift).ravel())
+
+
 def directions(segments: np.ndarray) -> tuple:
     """
     Return unit directions and lengths of segments.

@@ -63,8 +63,8 @@ from typing import Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import (as_points, cell_keys, directions, lengths, PointIndex, project,
-                       sample_segments)
+from .geometry import (as_points, cell_keys, dilate_cells, directions, lengths, PointIndex,
+                       project, sample_segments)
 from .noise import estimate_noise
 from .polylines import assemble_polylines
 from .smemsf import smemsf_iteration, SMEMSFConfig
@@ -228,9 +228,7 @@ def near_points(points: np.ndarray, segs: np.ndarray, dist: float) -> np.ndarray
     if len(segs) == 0 or len(points) == 0:
         return np.zeros(len(segs), dtype=bool)
     cell = 1.5 * dist
-    offs = np.arange(-1, 2, dtype=np.int64)
-    shift = ((offs[:, None] << 32) + offs[None]).ravel()
-    keys = np.unique((np.unique(cell_keys(points, cell))[:, None] + shift).ravel())
+    keys = dilate_cells(np.unique(cell_keys(points, cell)), 1)
     samples, owner = sample_segments(segs, dist)
     hit = np.isin(cell_keys(samples, cell), keys, assume_unique=False)
     return np.bincount(owner[hit], minlength=len(segs)) > 0
@@ -367,10 +365,7 @@ class SegmentGrid:
             cells = self.cells(points)
         if len(cells) == 0:
             return np.zeros(0, dtype=np.intp)
-        reach = int(np.ceil(dist / self.cell))
-        offs = np.arange(-reach, reach + 1, dtype=np.int64)
-        shift = ((offs[:, None] << 32) + offs[None]).ravel()
-        cells = np.unique((cells[:, None] + shift).ravel())
+        cells = dilate_cells(cells, int(np.ceil(dist / self.cell)))
         key, sid, gen = self._main
         lo = np.searchsorted(key, cells, 'left')
         cnt = np.searchsorted(key, cells, 'right') - lo
