@@ -239,17 +239,17 @@ def _views(origin, n: int) -> list:
     if origin is None:
         return []
     o = np.asarray(origin, dtype=np.float64)
-    if o.shape == (2,):
-        o = o[None]
-        runs = np.array([0, n])
-    elif o.shape == (n, 2):
-        runs = np.concatenate([[0], np.flatnonzero(np.any(o[1:] != o[:-1], axis=1)) + 1, [n]])
-    else:
+    if o.shape not in ((2,), (n, 2)):
         raise ValueError(f'origin must have shape (2,) or ({n}, 2), got {o.shape}')
     if not np.isfinite(o).all():
         raise ValueError('origin has NaN or inf')
-    return [(int(a), int(b), o[min(int(a), len(o) - 1)]) for a, b in zip(runs[:-1], runs[1:])
-            if b > a]
+    if n == 0:
+        return []
+    if o.shape == (2,):
+        return [(0, n, o)]
+    starts = np.concatenate([[0], np.flatnonzero(np.any(o[1:] != o[:-1], axis=1)) + 1])
+    stops = np.append(starts[1:], n)
+    return [(int(a), int(b), o[a]) for a, b in zip(starts, stops)]
 
 
 @dataclass
