@@ -93,6 +93,14 @@ def dilate_cells(keys: np.ndarray, rings: int) -> np.ndarray:
     return np.unique((np.asarray(keys)[:, None] + shift).ravel())
 
 
+def in_sorted(values: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """``np.isin(values, table)`` for a sorted ``table``, by binary search (no sorting)."""
+    if len(table) == 0:
+        return np.zeros(len(values), dtype=bool)
+    at = np.minimum(np.searchsorted(table, values), len(table) - 1)
+    return table.take(at) == values
+
+
 def directions(segments: np.ndarray) -> tuple:
     """
     Return unit directions and lengths of segments.
@@ -227,19 +235,23 @@ class PointIndex:
         hits = cKDTree(samples, balanced_tree=False, compact_nodes=False).sparse_distance_matrix(
             self.tree, reach, output_type='ndarray')
         si = hits['i']
-        seg = np.take(owner, si)
+        seg = owner.take(si)
         pt = hits['j'].astype(np.intp)
-        ux, uy, a = np.take(u[:, 0], seg), np.take(u[:, 1], seg), segments[:, 0]
-        rx = np.take(self.x, pt) - np.take(a[:, 0], seg)
-        ry = np.take(self.y, pt) - np.take(a[:, 1], seg)
+        ux, uy, a = u[:, 0].take(seg), u[:, 1].take(seg), segments[:, 0]
+        rx = self.x.take(pt) - a[:, 0].take(seg)
+        ry = self.y.take(pt) - a[:, 1].take(seg)
         along = rx * ux + ry * uy
-        clipped = np.clip(along, 0.0, np.take(length, seg))
-        safe_step = np.take(np.where(step > 0, step, 1.0), seg)
-        home = np.take(first, seg) + np.rint(clipped / safe_step).astype(np.intp)
+        clipped = np.clip(along, 0.0, length.take(seg))
+        safe_step = np.where(step > 0, step, 1.0).take(seg)
+        home = first.take(seg) + np.rint(clipped / safe_step).astype(np.intp)
+        # Most hits are another sample's: drop them before the distances.
+        h = np.flatnonzero(si == home)
+        ux, uy, rx, ry, along, clipped = (v.take(h) for v in (ux, uy, rx, ry, along, clipped))
         normal = ux * ry - uy * rx
         dist = np.hypot(normal, clipped - along)
-        keep = np.flatnonzero((si == home) & (dist <= radius))
-        return Pairs(*(np.take(a, keep) for a in (pt, seg, dist, along, normal)))
+        k = np.flatnonzero(dist <= radius)
+        keep = h.take(k)
+        return Pairs(pt.take(keep), seg.take(keep), dist.take(k), along.take(k), normal.take(k))
 
     def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """Total point weight within ``radius`` of each centre, shape (len(centres),)."""
