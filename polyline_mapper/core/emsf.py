@@ -65,23 +65,24 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
     # Kernel and outlier class relative to each point's nearest segment, so nothing underflows
     # however far the cut-off (log-sum-exp shift).
+    pt = pairs.pt
     z = (pairs.dist / sigma) ** 2
     zmin = np.full(n, np.inf)
-    np.minimum.at(zmin, pairs.pt, z)
-    g = np.exp(-0.5 * (z - zmin[pairs.pt]))
+    np.minimum.at(zmin, pt, z)
+    g = np.exp(-0.5 * (z - zmin.take(pt)))
     outlier = np.zeros(n)
     has = np.isfinite(zmin)
     outlier[has] = np.exp(-0.5 * (kappa ** 2 - zmin[has]))
-    norm = np.bincount(pairs.pt, weights=g, minlength=n) + outlier
-    w = g / norm[pairs.pt]
+    norm = np.bincount(pt, weights=g, minlength=n) + outlier
+    norm_p = norm.take(pt)
+    w = g / norm_p
     # MAP support: the pair with the largest weight of its point, if it beats the outlier class
     # (ties go to the later pair; both are equally good).
     best = np.zeros(n)
-    np.maximum.at(best, pairs.pt, w)
-    outlier_w = outlier[pairs.pt] / norm[pairs.pt]
-    win = (w == best[pairs.pt]) & (w >= outlier_w)
+    np.maximum.at(best, pt, w)
+    win = np.flatnonzero((w == best.take(pt)) & (w >= outlier.take(pt) / norm_p))
     support = np.full(n, -1, dtype=np.intp)
-    support[pairs.pt[win]] = pairs.seg[win]
+    support[pt.take(win)] = pairs.seg.take(win)
     return EStep(pairs, w, support)
 
 

@@ -79,10 +79,7 @@ SPACING_QUANTILE = 75.0
 
 
 def _percentile(x: np.ndarray, q: float) -> float:
-    """
-    ``np.percentile(x, q)`` (linear method, finite x) by partial sort: the same value, a tenth
-    of the time on one scan's few hundred values.
-    """
+    """``np.percentile(x, q)`` (linear method, finite x) by partial sort, 10x faster."""
     v = (x.size - 1) * (q / 100.0)
     lo = int(np.floor(v))
     hi = min(lo + 1, x.size - 1)

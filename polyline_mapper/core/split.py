@@ -103,13 +103,13 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         near = np.flatnonzero(queried.dist <= own)
         p = Pairs(*(np.take(a, near) for a in (
             queried.pt, queried.seg, queried.dist, queried.along, queried.normal)))
-    inside = (p.along >= 0) & (p.along <= length[p.seg])
-    band = (np.abs(p.normal) <= r)[inside]
-    seg = p.seg[inside]
-    kk = np.clip((p.along[inside] / np.where(sub_len[seg] > 0, sub_len[seg], 1.0)).astype(np.intp),
-                 0, n_sub[seg] - 1)
-    support = np.bincount(offset[seg[band]] + kk[band],
-                          weights=index.weights[p.pt[inside][band]], minlength=total)
+    sq = np.flatnonzero((p.along >= 0) & (p.along <= length.take(p.seg))
+                        & (np.abs(p.normal) <= r))
+    seg = p.seg.take(sq)
+    safe_len = np.where(sub_len > 0, sub_len, 1.0)
+    kk = np.clip((p.along.take(sq) / safe_len.take(seg)).astype(np.intp), 0, n_sub.take(seg) - 1)
+    support = np.bincount(offset.take(seg) + kk, weights=index.weights.take(p.pt.take(sq)),
+                          minlength=total)
 
     # Expected support of each square from its flanks: the larger of the mean supports of the
     # `flank` squares before and after it, within its segment (at least 1).
