@@ -1,8 +1,8 @@
 """Segment geometry and the spatial index, against brute force."""
 
 import numpy as np
-from polyline_mapper.core.geometry import (as_points, lengths, nearest_distance, piece_pairs,
-                                           PointIndex, project, sample_segments)
+from polyline_mapper.core.geometry import (as_points, in_sorted, lengths, nearest_distance,
+                                           piece_pairs, PointIndex, project, sample_segments)
 import pytest
 
 
@@ -86,3 +86,11 @@ def test_sample_segments_spacing_and_ends():
 def test_as_points_rejects_bad_input(bad, why):
     with pytest.raises(ValueError, match=why):
         as_points(bad)
+
+
+def test_in_sorted_matches_isin():
+    rng = np.random.default_rng(11)
+    for n_table in (0, 1, 7, 500):
+        table = np.unique(rng.integers(-50, 50, n_table))
+        values = rng.integers(-60, 60, 300)
+        np.testing.assert_array_equal(in_sorted(values, table), np.isin(values, table))

@@ -5,7 +5,8 @@ import numpy as np
 from polyline_mapper.core import fit, map_metrics
 from polyline_mapper.core.geometry import PointIndex, sample_segments
 from polyline_mapper.core.incremental import (
-    IncrementalConfig, IncrementalMapper, near_points, seen_through, SegmentGrid)
+    _median, _percentile, IncrementalConfig, IncrementalMapper, near_points, seen_through,
+    SegmentGrid)
 from polyline_mapper.core.metrics import twin_fraction
 from polyline_mapper.core.split import split_segments
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive, World
@@ -281,3 +282,15 @@ def test_bad_origin_is_rejected_and_leaves_the_map_unchanged(office_incremental)
         with pytest.raises(ValueError, match='origin'):
             mapper.update(pts, origin=origin)
     np.testing.assert_array_equal(mapper.segments, before)
+
+
+def test_running_statistics_equal_numpy():
+    # The partial-sort median and percentile must give numpy's values exactly (sigma and r
+    # follow them, and a last-bit difference would change maps).
+    rng = np.random.default_rng(5)
+    for n in list(range(1, 60)) + [359, 360, 720]:
+        x = rng.exponential(0.03, n)
+        assert _median(list(x)) == float(np.median(x))
+        if n >= 2:
+            for q in (25.0, 50.0, 75.0, 90.0):
+                assert _percentile(x, q) == float(np.percentile(x, q))
