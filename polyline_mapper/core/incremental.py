@@ -144,7 +144,7 @@ def _corner_chords(index: PointIndex, segs: np.ndarray, reach: float, near: floa
     if cand.size == 0:
         return chord
     # (2) the new points near each candidate, on those segments.
-    keep = np.isin(s, cand)
+    keep = in_sorted(s, cand)
     s, k = s[keep], k[keep]
     p = index.pairs(segs[cand], reach)
     real = p.pt < index.n_real
@@ -393,7 +393,7 @@ class SegmentGrid:
         found = sid[at][gen[at] == self._gen[sid[at]]]
         tkey, tsid, tgen = self._tail
         if len(tkey):
-            hit = np.isin(tkey, cells) & (tgen == self._gen[tsid])
+            hit = in_sorted(tkey, cells) & (tgen == self._gen[tsid])
             found = np.concatenate([found, tsid[hit]])
         return np.unique(found)
 
