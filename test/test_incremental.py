@@ -233,8 +233,8 @@ def _drive_scans(world, poses, spec, rng):
     return [simulate_scan(world, p, spec, rng)[0] for p in poses]
 
 
-@pytest.mark.parametrize('clear_length, grouped', [(16.0, False), (0.0, False), (16.0, True)])
-def test_a_person_who_walks_away_is_cleared(clear_length, grouped):
+@pytest.mark.parametrize('clear_max_length, grouped', [(0.9, False), (0.0, False), (0.9, True)])
+def test_a_person_who_walks_away_is_cleared(clear_max_length, grouped):
     """
     A person (0.4 m of legs) stands in the corridor for the first pass, then leaves.
 
@@ -250,7 +250,7 @@ def test_a_person_who_walks_away_is_cleared(clear_length, grouped):
     rng = np.random.default_rng(9)
     ranges = (_drive_scans(with_person, poses[:k], spec, rng)
               + _drive_scans(office, poses[k:], spec, rng))
-    mapper = IncrementalMapper(IncrementalConfig(clear_length=clear_length))
+    mapper = IncrementalMapper(IncrementalConfig(clear_max_length=clear_max_length))
     for r, p in zip(ranges[:k], poses[:k]):
         mapper.update_scan(r, spec.angles(), p, spec.range_min, spec.range_max)
     samples = sample_segments(mapper.segments, 0.02)[0]
@@ -268,7 +268,7 @@ def test_a_person_who_walks_away_is_cleared(clear_length, grouped):
             mapper.update_scan(r, spec.angles(), p, spec.range_min, spec.range_max)
     samples = sample_segments(mapper.segments, 0.02)[0]
     on_person = np.hypot(samples[:, 0] - 6.2, samples[:, 1] - 5.6) < 0.3
-    assert on_person.any() == (clear_length == 0)
+    assert on_person.any() == (clear_max_length == 0)
     # The walls are all still there.
     pts = np.concatenate([simulate_drive(office, spec, step=0.25, rng=1).points()])
     assert map_metrics(pts, mapper.segments)['coverage_0_10m'] > 0.99

@@ -23,12 +23,15 @@ set, as batch does, so they join instead of doubling. Segments outside stay exac
 are. Memory is the map plus the buffer of the last ``buffer_scans`` scans: no point is kept
 longer.
 
-Free-space clearing (``clear_length``): a segment in the map keeps itself alive through its
+Free-space clearing (``clear_max_length``): a segment in the map keeps itself alive through its
 virtual points, so a person who stood still for a few scans, or a door since opened, would stay
 in the map for good. After each update, the new scan's beams are traced through the short
-segments (up to ``clear_length`` r) near them; a segment that beams pass through over much of
-its length, with returns beyond it, is dropped (``seen_through``). Long walls are never
-cleared: a wall the scanner seems to see through is more likely a registration error or glass.
+segments (up to ``clear_max_length``, 0.9 m: a person, a chair, a door leaf) near them; a
+segment that beams pass through over much of its length, with returns beyond it, is dropped
+(``seen_through``). Long walls are never cleared: a wall the scanner seems to see through is more
+likely a registration error or glass. The limit is a length in metres, not in units of r, since
+what it is for has a size of its own: at 16 r it was 0.45 m on fr079 but 1.5 m on the campus log
+(r = 9.4 cm), where it cleared hedges and the sides of parked cars.
 Refitting only near the new points makes this necessary: with a wider refit, clutter wore
 away slowly under the fit of its neighbours, by accident rather than by evidence.
 
@@ -291,10 +294,10 @@ class IncrementalConfig:
     """Updates whose thickness estimates are pooled (median) for the first sigma."""
     sigma_window: int = 50
     """Updates whose residual scales are pooled (running median) for sigma."""
-    clear_length: float = 16.0
-    """Segments up to this many r long that the new scan's beams pass through are dropped
-    (free-space clearing: people, opened doors, moved chairs); 0 turns clearing off. Needs the
-    laser position of each scan (update_scan, replay and the node give it)."""
+    clear_max_length: float = 0.9
+    """Segments up to this long (m) that the new scan's beams pass through are dropped
+    (free-space clearing: people, moved chairs, opened door leaves); 0 turns clearing off. Needs
+    the laser position of each scan (update_scan, replay and the node give it)."""
     smemsf: SMEMSFConfig = field(default_factory=SMEMSFConfig)
     """The fit parameters (sigma, r_over_sigma, merge and split thresholds ...)."""
 
@@ -305,7 +308,7 @@ class IncrementalConfig:
             if int(v) != v or v < 1:
                 raise ValueError(f'{name} must be an integer >= 1, got {v!r}')
         for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 1e-9),
-                         ('clear_length', 0.0)):
+                         ('clear_max_length', 0.0)):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
@@ -495,7 +498,7 @@ class IncrementalMapper:
 
         ``origin``: where the laser was, fixed frame, metres: (2,) for one scan, or (N, 2), one
         row per point, for the points of several scans. With it, the beams clear the short
-        segments they pass through (``IncrementalConfig.clear_length``); without it (bare
+        segments they pass through (``IncrementalConfig.clear_max_length``); without it (bare
         points) nothing is cleared.
 
         An empty point set changes nothing. Raises ValueError on NaN / inf / wrong shapes,
@@ -535,8 +538,8 @@ class IncrementalMapper:
                                np.deg2rad(20.0))
         segs, sup = segs[keep], sup[keep]
         # Free-space clearing: a short segment the new scan sees through is gone.
-        if self.config.clear_length > 0:
-            short = lengths(segs) <= self.config.clear_length * r
+        if self.config.clear_max_length > 0:
+            short = lengths(segs) <= self.config.clear_max_length
             for lo, hi, o in views:
                 if short.any():
                     gone = short & seen_through(segs, o, pts[lo:hi], cfg.kappa * sigma)

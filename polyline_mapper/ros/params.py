@@ -115,7 +115,7 @@ CORE_RANGES = {
     'incremental.cell': (0.01, 1000.0),
     'incremental.noise_updates': (1, 10000),
     'incremental.sigma_window': (1, 100000),
-    'incremental.clear_length': (0.0, 1000.0),
+    'incremental.clear_max_length': (0.0, 100.0),
     'smemsf.sigma': (0.0, 10.0),
     'smemsf.sigma_min': (0.0, 10.0),
     'smemsf.sigma_start': (0.0, 100.0),
