@@ -32,3 +32,21 @@ def test_every_segment_in_exactly_one_polyline():
     _, polys, closed = assemble_polylines(segs, join=0.3)
     edges = sum(len(p) - 1 + int(c) for p, c in zip(polys, closed))
     assert edges == 60
+
+
+def test_corner_join_does_not_cut_a_wall_back_past_its_points():
+    # A wall to x = 4 and a crossing segment whose line meets it 0.2 m before its end (within
+    # the corner reach): joining would cut off 0.2 m of wall, farther from the other line than
+    # join / 2, so they stay apart. A corner that overshoots by less is still joined.
+    join = 0.1
+    wall = [[0.0, 0.0], [4.0, 0.0]]
+    crossing = [[3.8, 0.05], [3.8, 1.0]]
+    out, polylines, _ = assemble_polylines(np.array([wall, crossing]), join)
+    np.testing.assert_allclose(out[0], wall)
+    assert len(polylines) == 2
+    overshooting = [[0.0, 0.0], [4.03, 0.0]]
+    corner = [[4.0, 0.02], [4.0, 1.0]]
+    out, polylines, _ = assemble_polylines(np.array([overshooting, corner]), join)
+    np.testing.assert_allclose(out[0, 1], [4.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out[1, 0], [4.0, 0.0], atol=1e-12)
+    assert len(polylines) == 1

@@ -21,10 +21,15 @@ def assemble_polylines(segments: np.ndarray, join: float,
 
     - the two lines meet at an angle theta of at least ``min_angle`` and their intersection lies
       within ``join * max(corner_reach, 1 / sin(theta))`` of both ends, moving neither end by
-      more than half its segment: the shared vertex is the intersection. Fitted segments that
+      more than half its segment, and cutting neither back by more than ``join / 2 / sin(theta)``
+      (the piece cut off stays within join / 2 of the other line, so the points it explained are
+      still near the map): the shared vertex is the intersection. Without that limit, cutting
+      ends back to far intersections took fr079's incremental map from 3.72 to 4.00 cm mean
+      distance and 94.4 to 92.9 % coverage (with it: 3.71 cm, 94.4 %, but 895 polylines
+      instead of 638; a limit of join: 3.75 cm, 94.3 %, 771 polylines). Fitted segments that
       meet at a shallow angle, as along an arc, overlap or fall short by about the noise band
-      over tan(theta / 2), because near the crossing noise decides which line a point supports;
-      hence the 1 / sin(theta) reach. Or
+      over tan(theta / 2), because near the crossing noise decides which line a point
+      supports; hence the 1 / sin(theta) reach. Or
     - the ends are closer than ``join`` and the lines are nearly collinear: the shared vertex is
       the midpoint of the two ends.
 
@@ -69,8 +74,15 @@ def assemble_polylines(segments: np.ndarray, join: float,
         xb = np.linalg.norm(x - ends[b], axis=1)
         gap = np.linalg.norm(ends[a] - ends[b], axis=1)
         reach = join * np.maximum(corner_reach, 1.0 / np.maximum(sin, np.sin(min_angle)))
+        # How far each end moves inwards (m; negative when the segment is extended): the cut
+        # piece must stay within join / 2 of the other line, or points it explains lose it.
+        ina = (np.einsum('ij,ij->i', x - ends[a], np.where((a % 2 == 0)[:, None], ua, -ua))
+               / np.maximum(la, 1e-300))
+        inb = (np.einsum('ij,ij->i', x - ends[b], np.where((b % 2 == 0)[:, None], ub, -ub))
+               / np.maximum(lb, 1e-300))
         corner = ((sin >= np.sin(min_angle)) & np.isfinite(x).all(axis=1)
-                  & (np.fmax(xa, xb) <= reach) & (xa <= la / 2) & (xb <= lb / 2))
+                  & (np.fmax(xa, xb) <= reach) & (xa <= la / 2) & (xb <= lb / 2)
+                  & (np.fmax(ina, inb) * sin <= 0.5 * join))
         straight = ~corner & (gap <= join) & (sin < np.sin(min_angle))
         ok = corner | straight
         cost = np.where(corner, np.fmax(xa, xb), gap)
