@@ -417,7 +417,7 @@ claim 1 lets each baseline use its best swept setting on each dataset.
   {METHODS['ours-batch']['sweep']} for the curve.
 - **ours-incremental**: `IncrementalMapper(IncrementalConfig(smemsf=SMEMSFConfig(sigma=...)))`,
   every scan in order through `update_scan`, map from `polylines()`; default configuration
-  (3-scan buffer, one iteration per scan, free-space clearing of segments up to 16 r) for
+  (3-scan buffer, one iteration per scan, free-space clearing of segments up to 0.9 m) for
   the table, sigma swept over
   {METHODS['ours-incremental']['sweep']}. Per-scan time is each `update_scan` call.
 - **em-fixed-k** (plain EM, no split or merge; `baselines.em_lines`): K segments seeded at K
