@@ -584,7 +584,7 @@ class IncrementalMapper:
         # median over scans smooths it further), so the cost stays far below the fit's.
         probe = pts[::max(1, len(pts) // 256)]
         d, _ = cKDTree(pts, balanced_tree=False, compact_nodes=False).query(probe, k=2)
-        self._spacings.append(float(np.percentile(d[:, 1], SPACING_QUANTILE)))
+        self._spacings.append(_percentile(d[:, 1], SPACING_QUANTILE))
 
     def _config_for(self, r: float, sigma: float) -> SMEMSFConfig:
         cfg = self.config.smemsf
