@@ -3,7 +3,10 @@ polyline_mapper_node: LaserScan in, PolylineMap and MarkerArray out, poses from 
 
 Topics (relative names, remappable):
 
-- ``scan`` (sensor_msgs/LaserScan, sensor-data QoS) in;
+- ``scan`` (sensor_msgs/LaserScan, sensor-data QoS: best effort, depth 5) in. The standard
+  QoS overrides apply: ``qos_overrides./scan.subscription.reliability`` (``reliable`` for
+  lossless playback from a reliable publisher such as ``polyline-mapper play``), ``.depth`` and
+  ``.history``, with the resolved topic name after remapping;
 - ``/tf``, ``/tf_static`` (pose_source tf) or ``odom`` (nav_msgs/Odometry, pose_source odom) in;
 - ``polyline_map`` (polyline_mapper_msgs/PolylineMap) and ``polyline_map/markers``
   (visualization_msgs/MarkerArray) out, reliable + transient local, depth 1: a subscriber that
@@ -38,6 +41,7 @@ from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import LaserScan
 from std_srvs.srv import Trigger
@@ -104,7 +108,9 @@ class PolylineMapperNode(Node):
                 raise ConfigError(str(exc)) from None
         else:
             self.poses = OdomSource(self, self.settings, self.warnings.warn)
-        self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data)
+        overrides = QoSOverridingOptions.with_default_policies()   # reliability, depth, history
+        self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data,
+                                 qos_overriding_options=overrides)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publish_lock = threading.Lock()

@@ -126,8 +126,9 @@ class Player:
 
         Then wait ``settle`` s more: DDS discovery is two-sided, the publisher can see the
         subscription before the subscriber has matched the publisher, and a best-effort
-        subscriber (sensor-data QoS, as the node's scan input) drops what an unmatched writer
-        sends (seen once in this repository's live-play test: 1 of 355 scans lost).
+        subscriber (sensor-data QoS, as the node's scan input by default) drops what an
+        unmatched writer sends. A reliable subscriber gets every sample written after this
+        publisher matched it; best effort may still drop samples later on.
         """
         pub = self.publisher(topic, record)
         deadline = time.monotonic() + timeout
