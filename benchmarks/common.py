@@ -35,14 +35,27 @@ def machine() -> str:
             f'numpy {np.__version__}, scipy {scipy.__version__}')
 
 
+OUTPUTS = ('benchmarks/results', 'benchmarks/README.md', 'benchmarks/results.md', 'README.md')
+"""What the benchmarks write: changes there do not make a measured tree dirty."""
+
+
 def git_rev() -> str:
-    """Return the short commit hash of the working tree (with -dirty when modified)."""
+    """
+    Return the short commit hash of the working tree, with -dirty when its code is modified.
+
+    Changes to the benchmarks' own outputs (``OUTPUTS``, written by an earlier benchmark of the
+    same run) do not count: the measured code is still the commit.
+    """
     try:
-        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=REPO,
+        rev = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=REPO,
                              capture_output=True, text=True, check=True).stdout.strip()
+        changed = subprocess.run(
+            ['git', 'status', '--porcelain', '--untracked-files=no', '--', '.']
+            + [f':(exclude){p}' for p in OUTPUTS],
+            cwd=REPO, capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        rev = 'unknown'
-    return rev
+        return 'unknown'
+    return rev + ('-dirty' if changed else '')
 
 
 def stamp(command: str) -> dict:
