@@ -17,13 +17,28 @@ def test_square_becomes_one_closed_polyline_with_exact_corners():
     assert len(out) == 4
 
 
-def test_collinear_ends_meet_at_midpoint_and_far_ends_stay_apart():
+def test_collinear_ends_meet_at_the_length_weighted_point_and_far_ends_stay_apart():
     segs = np.array([[[0, 0], [1, 0]], [[1.04, 0], [2, 0]], [[5, 5], [6, 5]]], dtype=float)
     _, polys, closed = assemble_polylines(segs, join=0.1)
     assert sorted(len(p) for p in polys) == [2, 3]
     chain = [p for p in polys if len(p) == 3][0]
-    np.testing.assert_allclose(chain[1], [1.02, 0.0])
+    np.testing.assert_allclose(chain[1], [(1.0 * 1.0 + 0.96 * 1.04) / 1.96, 0.0])
     assert closed == [False, False]
+
+
+def test_a_short_piece_joined_straight_does_not_tilt_a_long_wall():
+    # An 8 m wall and a 0.28 m piece 2 deg off its line, 1 cm below its end (an arc's first
+    # chord, say): the wall's end moves by the piece's share of the gap, 0.34 mm, not by half
+    # of it (5 mm with the midpoint, a 0.036 deg tilt over the whole wall).
+    wall = [[0.0, 0.0], [8.0, 0.0]]
+    piece = [[8.02, -0.01], [8.30, -0.02]]
+    out, polys, _ = assemble_polylines(np.array([wall, piece]), join=0.05)
+    assert len(polys) == 1 and len(polys[0]) == 3
+    np.testing.assert_allclose(out[0, 0], wall[0])
+    share = np.hypot(0.28, 0.01) / (8.0 + np.hypot(0.28, 0.01))
+    np.testing.assert_allclose(out[0, 1], np.array([8.0, 0.0]) + share * np.array([0.02, -0.01]))
+    assert abs(out[0, 1, 1]) < 4e-4
+    np.testing.assert_allclose(out[1, 0], out[0, 1])
 
 
 def test_every_segment_in_exactly_one_polyline():

@@ -31,7 +31,11 @@ def assemble_polylines(segments: np.ndarray, join: float,
       over tan(theta / 2), because near the crossing noise decides which line a point
       supports; hence the 1 / sin(theta) reach. Or
     - the ends are closer than ``join`` and the lines are nearly collinear: the shared vertex is
-      the midpoint of the two ends.
+      the length-weighted mean of the two ends, so the longer segment's end moves less (a
+      segment's points follow its end linearly, so moving each end in inverse proportion to
+      its length disturbs the fewest; the merge weighs lengths the same way). With the
+      midpoint, an 8 m wall joined to a 0.14 m arc chord 1.2 cm off its line tilted by
+      0.04 deg, and the hall-with-arc simulation's mean distance rose from 0.388 to 0.416 cm.
 
     Parameters
     ----------
@@ -86,7 +90,9 @@ def assemble_polylines(segments: np.ndarray, join: float,
         straight = ~corner & (gap <= join) & (sin < np.sin(min_angle))
         ok = corner | straight
         cost = np.where(corner, np.fmax(xa, xb), gap)
-        vertex = np.where(corner[:, None], x, 0.5 * (ends[a] + ends[b]))
+        wa = la / np.where(la + lb > 0, la + lb, 1.0)
+        straight_vertex = wa[:, None] * ends[a] + (1.0 - wa)[:, None] * ends[b]
+        vertex = np.where(corner[:, None], x, straight_vertex)
         order = np.flatnonzero(ok)[np.argsort(cost[ok], kind='stable')]
         chosen = []
         for m in order:                         # greedy over end pairs (segments, not points)
