@@ -194,7 +194,7 @@ def table(r: dict, meta: dict) -> str:
     elif r['scans_used'] == r['scans_received'] and r['queue_dropped'] == 0:
         # The scan input is best effort (sensor-data QoS, as laser drivers publish): DDS may
         # drop a sample before the node sees it, which says nothing about the node's speed.
-        verdict = (f"kept up: every scan the node received was used, none dropped; {lost} of "
+        verdict = (f'kept up: every scan the node received was used, none dropped; {lost} of '
                    f"{r['scans_sent']} never reached it (best-effort sensor-data QoS: lost in "
                    'transport, not by the node)')
     else:
