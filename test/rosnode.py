@@ -114,6 +114,20 @@ class Peer:
         """Spin (handle incoming messages) for ``seconds``, e.g. to pace publishing."""
         self.spin_until(lambda: False, seconds)
 
+    def subscription_qos(self, topic: str, node_name: str = 'polyline_mapper_node',
+                         timeout: float = 0.0) -> list:
+        """
+        Return the QoS profiles of ``node_name``'s subscriptions to ``topic`` (discovery's view).
+
+        Waits up to ``timeout`` s for at least one. Discovery carries reliability and
+        durability, not the history depth.
+        """
+        def found():
+            return [i.qos_profile for i in self.node.get_subscriptions_info_by_topic(topic)
+                    if i.node_name == node_name]
+        self.spin_until(lambda: found(), timeout)
+        return found()
+
     def wait_for_node(self, timeout: float = 30.0, odom: bool = False) -> bool:
         """Wait until the node's subscriptions and map publisher are discovered."""
         pub = self.odom_pub if odom else self.tf_pub

@@ -59,19 +59,6 @@ def test_sim_recordings_place_the_laser_through_map_odom_base_laser():
         assert stamps[0] == 1000.0 and np.all(np.diff(stamps) > 0)
 
 
-def scan_subscription_qos(node_name: str = 'polyline_mapper_node'):
-    """Return the QoS of ``node_name``'s /scan subscription, as another node sees it."""
-    peer = Peer('qos_probe')
-    try:
-        found = []
-        peer.spin_until(lambda: found.extend(
-            i.qos_profile for i in peer.node.get_subscriptions_info_by_topic('/scan')
-            if i.node_name == node_name) or found, 10)
-        return found[0] if found else None
-    finally:
-        peer.close()
-
-
 def test_play_into_the_live_node_matches_offline_replay(tmp_path, office_bag):
     from rclpy.qos import ReliabilityPolicy
     bag, drive = office_bag
@@ -84,9 +71,13 @@ def test_play_into_the_live_node_matches_offline_replay(tmp_path, office_bag):
                                   'qos_overrides./scan.subscription.depth': 50})
     try:
         assert node.wait_for_line('mapping scans on', 30), node.stderr()
-        qos = scan_subscription_qos()
-        assert qos is not None and qos.reliability == ReliabilityPolicy.RELIABLE, qos  # (DDS
-        # discovery does not carry the history depth, so depth 50 is not visible here)
+        probe = Peer('qos_probe')
+        try:
+            qos = probe.subscription_qos('/scan', timeout=10.0)
+        finally:
+            probe.close()
+        # (discovery does not carry the history depth, so depth 50 is not visible here)
+        assert len(qos) == 1 and qos[0].reliability == ReliabilityPolicy.RELIABLE, qos
         play = cli('play', bag, '--rate', 3, '--wait-for-subscriber', 20)
         assert play.returncode == 0, play.stderr
         assert 'played 355 scans in 1 pass(es)' in play.stdout, play.stdout

@@ -43,11 +43,9 @@ def tf_run(office_drive, tmp_path_factory):
 def test_scan_input_has_sensor_data_qos_by_default(tf_run):
     from rclpy.qos import qos_profile_sensor_data
     _, peer, _, _, _ = tf_run
-    info = [i for i in peer.node.get_subscriptions_info_by_topic('/scan')
-            if i.node_name == 'polyline_mapper_node']
-    assert len(info) == 1, info
+    qos = peer.subscription_qos('/scan')
     # Best effort (the history depth is not carried by DDS discovery, so it is not checked).
-    assert info[0].qos_profile.reliability == qos_profile_sensor_data.reliability
+    assert len(qos) == 1 and qos[0].reliability == qos_profile_sensor_data.reliability, qos
 
 
 def test_map_of_the_drive_matches_the_walls(tf_run, office_drive):
