@@ -344,6 +344,11 @@ def claims(data: dict) -> str:
         t_fast += not faster
         t_equal += not better
         t_same += not same
+        verdict = f" -> not faster than {', '.join(faster)}" if faster else ''
+        if better:
+            verdict += (f" (at least as accurate: {', '.join(better)}; "
+                        + (f"with at most as many segments: {', '.join(same)})" if same
+                           else 'none with at most as many segments)'))
         t_lines.append(
             f"- {d}: ours-incremental median {inc['median_ms']:.2f} ms/scan "
             f"(p99 {inc['p99_ms']:.1f}), mean {inc['mean_cm']:.2f} cm at {inc['segments']} "
@@ -352,10 +357,7 @@ def claims(data: dict) -> str:
             + ', '.join(f"{m} {1000 * r['seconds']:.1f} / {r['per_scan_total_ms']:.2f} ms "
                         f"({r['mean_cm']:.2f} cm, {r['segments']} segments)"
                         for m, r in glob.items())
-            + (f" -> not faster than {', '.join(faster)}" if faster else '')
-            + (f" (at least as accurate: {', '.join(better)}" if better else '')
-            + ((f"; with at most as many segments: {', '.join(same)})" if same
-                else '; none with at most as many segments)') if better else ''))
+            + verdict)
     out.append(f'\n3. **Incremental median <= 5 ms per scan**: on {t_five} of {len(t_lines)} '
                f'datasets. **Faster per scan than every global baseline**: on {t_fast} of '
                f'{len(t_lines)} datasets, counting a global method used online at one refit of '
