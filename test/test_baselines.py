@@ -153,6 +153,22 @@ def test_walls_are_cut_at_t_junctions():
     assert s['found'] == 2 and s['end_error_median'] == pytest.approx(0.0)
 
 
+def test_pieces_no_scan_saw_are_not_counted():
+    # The outer wall is seen from x = 0 to 4 only (the stretch behind the cross wall is hidden);
+    # the cross wall is seen whole. Given the points, the hidden piece is not a wall to find.
+    walls = np.array([[[0, 0], [10, 0]], [[4, 0], [4, 3]]], float)
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 4, 400)
+    y = rng.uniform(0, 3, 300)
+    points = np.concatenate([np.c_[x, rng.normal(0, 0.01, x.size)],
+                             np.c_[4 + rng.normal(0, 0.01, y.size), y]])
+    segs = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]]], float)
+    all_pieces = B.wall_scores(segs, walls)
+    assert (all_pieces['found'], all_pieces['walls']) == (2, 3)
+    seen = B.wall_scores(segs, walls, points=points)
+    assert (seen['found'], seen['walls']) == (2, 2) and seen['f1'] == pytest.approx(1.0)
+
+
 def test_cluttered_room_is_a_valid_world():
     world = B.cluttered_room()
     assert world.walls.shape[1:] == (2, 2) and len(world.walls) == 26 and len(world.arcs) == 10

@@ -45,7 +45,7 @@ def observed_walls(walls: np.ndarray, points: np.ndarray, tol: float = 0.10,
 
 
 def wall_scores(segments: np.ndarray, walls: np.ndarray, truth_distance=None, tol: float = 0.10,
-                cover: float = 0.8, step: float = 0.02) -> dict:
+                cover: float = 0.8, step: float = 0.02, points: np.ndarray = None) -> dict:
     """
     Wall recall, segment precision, F1 and end-point error.
 
@@ -56,7 +56,9 @@ def wall_scores(segments: np.ndarray, walls: np.ndarray, truth_distance=None, to
       chains along curved walls count; default: distance to ``walls``). Precision = correct
       segments / segments.
     - Walls are first cut at T-junctions (``split_at_junctions``); precision, recall and F1
-      count the pieces.
+      count the pieces. Given the data ``points``, a piece no scan saw (``observed_walls``:
+      points within ``tol`` of less than ``cover`` of it, e.g. a room corner closed off behind
+      a slanted wall) is left out: no method can find it.
     - End-point error: at each end of an uncut wall with a found piece (corners, door jambs,
       free ends), the distance to the nearest end of a segment running along that wall (both
       ends within ``tol`` of its line, within 10 degrees); median and mean over those ends.
@@ -69,6 +71,9 @@ def wall_scores(segments: np.ndarray, walls: np.ndarray, truth_distance=None, to
     segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
     whole = np.asarray(walls, dtype=np.float64).reshape(-1, 2, 2)
     walls, parent = split_at_junctions(whole) if len(whole) else (whole, np.zeros(0, int))
+    if points is not None and len(walls):
+        seen = observed_walls(walls, np.asarray(points, dtype=np.float64), tol, cover)
+        walls, parent = walls[seen], parent[seen]
     nw, k = len(walls), len(segs)
     out = {'walls': nw, 'segments': k, 'found': 0, 'precision': 0.0, 'recall': 0.0, 'f1': 0.0,
            'end_error_median': float('nan'), 'end_error_mean': float('nan')}
