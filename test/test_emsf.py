@@ -42,3 +42,19 @@ def test_emsf_step_trims_to_support_and_drops_empty_segments():
     ends = np.sort(new[0, :, 0])
     assert abs(ends[0] - pts[:, 0].min()) < 0.01 and abs(ends[1] - pts[:, 0].max()) < 0.01
     assert np.allclose(new[0, :, 1], 1.0, atol=0.003)
+
+
+def test_fit_keeps_a_sparsely_seen_face_at_low_noise():
+    # A 6 m x 4 m room seen densely, and a 0.8 m box face passed at a distance: 22 points,
+    # 3.6 cm apart on average, wider than the noise band (0.5 cm noise: 2r is about 2.5 cm).
+    # Its points are a clean line no other segment explains, so the map must keep it.
+    from polyline_mapper.core import fit
+    rng = np.random.default_rng(7)
+    corners = [(0, 0), (6, 0), (6, 4), (0, 4)]
+    room = [noisy_line(corners[i], corners[(i + 1) % 4], 1500, 0.005, rng) for i in range(4)]
+    face_a, face_b = np.array([2.0, 2.5]), np.array([2.8, 2.5])
+    face = noisy_line(face_a, face_b, 22, 0.005, rng)
+    res = fit(np.concatenate(room + [face]))
+    along = [min(s[:, 0].max(), face_b[0]) - max(s[:, 0].min(), face_a[0])
+             for s in res.segments if np.abs(s[:, 1] - face_a[1]).max() < 0.02]
+    assert along and max(along) >= 0.8 * 0.8      # one segment along >= 80 % of the face

@@ -238,7 +238,7 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
 
     A trimmed segment survives when its supporting point weight is at least ``min_support`` and
     at least ``min_density`` per ``2 r`` of its length (sparse scattered points that merely line
-    up over a long stretch do not make a wall).
+    up over a long stretch do not make a wall). The batch fit passes 0 (see ``smemsf_iteration``).
 
     With ``tail_fraction > 0`` the ends ignore foreign tails of the support: along the new line,
     in bins 2r wide, an end bin is dropped while the segment owns (as MAP support) less than

@@ -531,7 +531,7 @@ class IncrementalMapper:
                            sample_spacing=8.0)
         segs = old
         for _ in range(int(self.config.iterations)):
-            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg)
+            segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, incremental=True)
         # A short chord across a corner (e.g. a T-junction seen from few angles) is kept alive by
         # its own virtual points; the new points decide whether the walls explain it.
         keep = ~_corner_chords(index, segs, cfg.kappa * sigma, 2.0 * sigma, 8.0 * r,
