@@ -17,6 +17,7 @@ why; no output file is left behind by a failed run.
 
 import argparse
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -306,7 +307,9 @@ def cmd_play(args) -> int:
                      log=lambda text: print(f'polyline-mapper: {text}', file=sys.stderr))
     if not args.quiet:
         print(stats.summary())
-    return 130 if stats.interrupted else 0
+    if stats.interrupted:        # the shell's convention: 128 + signal (130 Ctrl-C, 143 TERM)
+        return 128 + int(stats.stop_signal or signal.SIGINT)
+    return 0
 
 
 def cmd_record_map(args) -> int:

@@ -105,6 +105,23 @@ def test_play_into_the_live_node_matches_offline_replay(tmp_path, office_bag):
     assert 0.67 <= len(live['segments']) / len(segs_off) <= 1.5
 
 
+def start_player(*args, sigint=signal.SIG_DFL) -> subprocess.Popen:
+    """
+    Start ``polyline-mapper play ARGS``; SIGINT as a terminal gives it, unless ``sigint``.
+
+    (A test run in the background of a non-interactive shell passes SIGINT on as ignored.)
+    """
+    return subprocess.Popen(CLI + ['play', *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
+
+
+def kill(proc: subprocess.Popen) -> str:
+    """SIGKILL a player that would not stop (it would publish into every later test)."""
+    proc.kill()
+    return proc.communicate()[1]
+
+
 def test_play_loop_keeps_time_increasing_and_latches_tf_static(tmp_path):
     from rclpy.qos import qos_profile_sensor_data
     from rosgraph_msgs.msg import Clock
@@ -118,9 +135,7 @@ def test_play_loop_keeps_time_increasing_and_latches_tf_static(tmp_path):
         m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec), qos_profile_sensor_data)
     n.create_subscription(Clock, '/clock', lambda m: clocks.append(
         m.clock.sec + 1e-9 * m.clock.nanosec), CLOCK_QOS)
-    proc = subprocess.Popen(CLI + ['play', 'sim:hall', '--rate', '8', '--loop',
-                                   '--wait-for-subscriber', '20'],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = start_player('sim:hall', '--rate', '8', '--loop', '--wait-for-subscriber', '20')
     try:
         assert peer.spin_until(lambda: len(scans) >= 83 + 30, 60), len(scans)
         # A subscriber that joins late still gets the mount on /tf_static (transient local).
@@ -129,7 +144,13 @@ def test_play_loop_keeps_time_increasing_and_latches_tf_static(tmp_path):
         assert peer.spin_until(lambda: statics, 10)
     finally:
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
+        try:
+            out, err = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            raise AssertionError('the player did not stop within 20 s of Ctrl-C:\n'
+                                 + kill(proc))
+        finally:
+            peer.close()
     assert proc.returncode == 130, err
     assert 'interrupted' in out and '1 /tf_static' in out, out
     assert [t.child_frame_id for t in statics[0].transforms] == ['laser']
@@ -140,6 +161,25 @@ def test_play_loop_keeps_time_increasing_and_latches_tf_static(tmp_path):
     first, second = s[:83], s[83:]
     assert second[0] == pytest.approx(first[-1] + period, abs=1e-6)
     assert np.all(np.diff(clocks) >= 0) and max(clocks) >= second[0] - 0.05
+
+
+def test_sigterm_stops_the_player_and_an_inherited_ignored_sigint_stays_ignored():
+    # No subscriber: it waits for one. A Ctrl-C it was told to ignore must not stop it; SIGTERM
+    # must, with its summary and the shell's exit code 128 + 15.
+    proc = start_player('sim:hall', '--loop', '--wait-for-subscriber', '60',
+                        sigint=signal.SIG_IGN)
+    try:
+        time.sleep(3.0)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(1.0)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        raise AssertionError('the player did not stop within 10 s of SIGTERM:\n' + kill(proc))
+    assert proc.returncode == 143, err
+    assert 'played 0 scans' in out and 'interrupted' in out, out
+    assert 'playing anyway' not in err, err
 
 
 def test_play_and_record_map_fail_with_one_line(tmp_path, office_bag, capsys):

@@ -17,8 +17,10 @@ their content when it does). Messages keep their recorded header stamps otherwis
 """
 
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 import math
+import signal
 import threading
 import time
 from typing import Callable, Optional
@@ -60,6 +62,8 @@ class PlayStats:
     last_scan_stamp: Optional[float] = None
     """Header stamp of the last scan published (shift of its pass included), seconds."""
     interrupted: bool = False
+    stop_signal: Optional[int] = None
+    """The signal (SIGINT, SIGTERM) that stopped playing, if one did."""
 
     def summary(self) -> str:
         """One line for a person."""
@@ -77,8 +81,12 @@ class Player:
     Publish timed records on ``node``: call ``play(messages_factory)``.
 
     ``messages_factory()`` returns an iterator of (log_time, topic, record), as
-    ``playback.Recording.messages``. ``stop`` (a threading.Event) ends playing early.
+    ``playback.Recording.messages``. ``stop`` (a threading.Event, for other threads) or
+    ``request_stop`` (safe in a signal handler, see ``stop_on_signals``) ends playing early.
     """
+
+    POLL = 0.05
+    """Longest sleep (s) between two looks at the stop request."""
 
     def __init__(self, node, rate: float = 1.0, loop: bool = False, clock: bool = True,
                  clock_hz: float = 40.0, stop: threading.Event = None,
@@ -92,6 +100,7 @@ class Player:
         self.loop = bool(loop)
         self.clock_period = 1.0 / clock_hz
         self.stop = stop or threading.Event()
+        self.stop_signal = None
         self.on_message = on_message
         self._pubs = {}
         self._statics = {}
@@ -101,6 +110,26 @@ class Player:
             self._clock_pub = node.create_publisher(Clock, '/clock', CLOCK_QOS)
             self._clock_type = Clock
         self.stats = PlayStats()
+
+    # -- stopping -------------------------------------------------------------------------------
+    def request_stop(self, signum: int = None) -> None:
+        """Stop at the next look (within ``POLL`` s); only sets an attribute, takes no lock."""
+        self.stop_signal = signal.SIGINT if signum is None else signum
+
+    @property
+    def stopped(self) -> bool:
+        """Whether a stop was requested (``stop`` set or ``request_stop`` called)."""
+        return self.stop_signal is not None or self.stop.is_set()
+
+    def _sleep(self, seconds: float) -> bool:
+        """Sleep ``seconds`` unless stopped meanwhile; return whether still running."""
+        end = time.monotonic() + seconds
+        while not self.stopped:
+            left = end - time.monotonic()
+            if left <= 0:
+                return True
+            time.sleep(min(left, self.POLL))
+        return False
 
     # -- publishers -----------------------------------------------------------------------------
     def publisher(self, topic: str, record):
@@ -133,11 +162,10 @@ class Player:
         pub = self.publisher(topic, record)
         deadline = time.monotonic() + timeout
         while pub.get_subscription_count() == 0:
-            if time.monotonic() >= deadline or self.stop.is_set():
+            if time.monotonic() >= deadline or self.stopped:
                 return False
             time.sleep(0.02)
-        self.stop.wait(settle)
-        return True
+        return self._sleep(settle)
 
     def _publish(self, topic: str, record, shift: float) -> None:
         pub = self.publisher(topic, record)
@@ -172,7 +200,7 @@ class Player:
         t_origin = wall_origin = None
         shift = 0.0
         wall_start = time.monotonic()
-        while not self.stop.is_set():
+        while not self.stopped:
             first = last = None
             scans_before = st.scans
             for log_t, topic, record in messages():
@@ -193,8 +221,7 @@ class Player:
                 st.max_late_ms = max(st.max_late_ms, 1e3 * (time.monotonic() - due))
                 if self.on_message is not None:
                     self.on_message(topic, record)
-            if self.stop.is_set():
-                st.interrupted = True
+            if self.stopped:
                 break
             st.passes += 1
             scans = st.scans - scans_before
@@ -204,6 +231,8 @@ class Player:
             span = last - first
             shift += span + (span / (scans - 1) if scans > 1 else 1.0)
         st.wall_seconds = time.monotonic() - wall_start
+        st.interrupted = self.stopped
+        st.stop_signal = self.stop_signal
         return st
 
     def _wait_until(self, due: float, t_origin: float, wall_origin: float) -> bool:
@@ -212,7 +241,7 @@ class Player:
             now = time.monotonic()
             if now >= due:
                 return True
-            if self.stop.wait(min(due - now, self.clock_period)):
+            if not self._sleep(min(due - now, self.clock_period)):
                 return False
             if self._clock_pub is not None and time.monotonic() < due:
                 self._clock(t_origin + (time.monotonic() - wall_origin) * self.rate)
@@ -225,17 +254,54 @@ def _same(a, b) -> bool:
             and list(a.rotation) == list(b.rotation))
 
 
+@contextmanager
+def stop_on_signals(request_stop: Callable[[int], None]):
+    """
+    Inside, SIGINT and SIGTERM call ``request_stop(signum)`` instead of raising at once.
+
+    A player stops at its next look at the request (``Player.POLL``), never in the middle of a
+    publish, a DDS call or a thread start, so it always ends with its summary and a clean
+    shutdown; a second signal raises KeyboardInterrupt for whatever is stuck. A SIGINT the
+    process inherited as ignored (a background job of a non-interactive shell) stays ignored,
+    as POSIX intends. Outside the main thread (where signals cannot be set) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    calls = []
+
+    def handler(signum, frame):
+        calls.append(signum)
+        if len(calls) > 1:
+            raise KeyboardInterrupt
+        request_stop(signum)
+
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        prev = signal.getsignal(sig)
+        if sig == signal.SIGINT and prev == signal.SIG_IGN:
+            continue
+        old[sig] = signal.SIG_DFL if prev is None else prev
+        signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, prev in old.items():
+            signal.signal(sig, prev)
+
+
 def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = True,
              clock_hz: float = 40.0, scan_topic: str = None, odom_topic: str = None,
              wait_for_subscriber: float = 0.0, progress: bool = False, seed: int = 1,
              noise: float = 0.01, period: float = 1.0, ros_args=None,
              log: Callable[[str], None] = print) -> PlayStats:
     """
-    Play ``path`` (bag, CARMEN log or ``sim:`` drive) on live topics until done or Ctrl-C.
+    Play ``path`` (bag, CARMEN log or ``sim:`` drive) on live topics until done or stopped.
 
     Runs its own rclpy context and node ``polyline_mapper_player``. ``wait_for_subscriber``:
     seconds to wait, before starting, for a subscriber on the scan topic (0: start at once).
-    ValueError (one line) for a bad input or option.
+    SIGINT (Ctrl-C) or SIGTERM stop it (``stop_on_signals``); the stats say which
+    (``interrupted``, ``stop_signal``). ValueError (one line) for a bad input or option.
     """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
@@ -246,32 +312,43 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
             log(f'warning: {w}')
         context = rclpy.Context()
         rclpy.init(args=ros_args, context=context,
-                   signal_handler_options=SignalHandlerOptions.NO)   # Ctrl-C: KeyboardInterrupt
+                   signal_handler_options=SignalHandlerOptions.NO)   # ours: stop_on_signals
         node = rclpy.create_node('polyline_mapper_player', context=context)
         bar = None
         try:
             player = Player(node, rate, loop, clock, clock_hz)
-            if wait_for_subscriber > 0:
-                first_scan = next(((t, r) for _, t, r in rec.messages()
-                                   if isinstance(r, Scan)), None)
-                if first_scan is not None and not player.wait_for_subscriber(
-                        first_scan[0], first_scan[1], wait_for_subscriber):
-                    log(f'warning: no subscriber on {first_scan[0]} after '
-                        f'{wait_for_subscriber:g} s; playing anyway')
-            if progress:
-                import sys
-                from tqdm import tqdm
-                bar = tqdm(total=None if loop else rec.scan_count, desc='play', unit='scan',
-                           leave=False, disable=None, file=sys.stderr)
-                player.on_message = lambda topic, r: bar.update(1) if isinstance(r, Scan) \
-                    else None
-            try:
+            with stop_on_signals(player.request_stop):
+                if wait_for_subscriber > 0:
+                    first_scan = _first_scan(rec)
+                    if (first_scan is not None and not player.wait_for_subscriber(
+                            first_scan[0], first_scan[1], wait_for_subscriber)
+                            and not player.stopped):
+                        log(f'warning: no subscriber on {first_scan[0]} after '
+                            f'{wait_for_subscriber:g} s; playing anyway')
+                if progress:
+                    import sys
+                    from tqdm import tqdm
+                    bar = tqdm(total=None if loop else rec.scan_count, desc='play',
+                               unit='scan', leave=False, disable=None, file=sys.stderr)
+                    player.on_message = lambda topic, r: bar.update(1) \
+                        if isinstance(r, Scan) else None
                 return player.play(rec.messages)
-            except KeyboardInterrupt:
-                player.stats.interrupted = True
-                return player.stats
         finally:
             if bar is not None:
                 bar.close()
             node.destroy_node()
             rclpy.try_shutdown(context=context)
+
+
+def _first_scan(rec) -> Optional[tuple]:
+    """(topic, record) of the recording's first scan, or None."""
+    messages = rec.messages()
+    try:
+        for _, topic, record in messages:
+            if isinstance(record, Scan):
+                return topic, record
+        return None
+    finally:
+        close = getattr(messages, 'close', None)
+        if close is not None:
+            close()
