@@ -67,7 +67,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     from diagnostic_msgs.msg import DiagnosticArray
-    from .player import Player
+    from .player import first_scan_of, Player
     from .recorder import MapRecorder
     from ..playback import open_recording
 
@@ -105,7 +105,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
             spinner = threading.Thread(target=executor.spin, daemon=True)
             spinner.start()
             player = Player(node, rate=rate, clock=True)
-            first_scan = next((t, r) for _, t, r in rec.messages() if isinstance(r, Scan))
+            first_scan = first_scan_of(rec)
             started = (player.wait_for_subscriber(*first_scan, timeout)
                        and _wait(lambda: recorder.count > 0, proc, timeout))
             if not started:

@@ -319,7 +319,7 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
             player = Player(node, rate, loop, clock, clock_hz)
             with stop_on_signals(player.request_stop):
                 if wait_for_subscriber > 0:
-                    first_scan = _first_scan(rec)
+                    first_scan = first_scan_of(rec)
                     if (first_scan is not None and not player.wait_for_subscriber(
                             first_scan[0], first_scan[1], wait_for_subscriber)
                             and not player.stopped):
@@ -340,7 +340,7 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
             rclpy.try_shutdown(context=context)
 
 
-def _first_scan(rec) -> Optional[tuple]:
+def first_scan_of(rec) -> Optional[tuple]:
     """(topic, record) of the recording's first scan, or None."""
     messages = rec.messages()
     try:
