@@ -42,6 +42,8 @@ STATIC_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 CLOCK_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+ACK_TIMEOUT = 5.0
+"""Longest wait (s) at the end of a play for reliable subscribers to acknowledge."""
 
 
 @dataclass
@@ -189,6 +191,23 @@ class Player:
                                               for t in record]))
         self.stats.published[topic] += 1
 
+    def wait_for_acks(self, timeout: float) -> list:
+        """
+        Wait up to ``timeout`` s in all for reliable subscribers to acknowledge every message.
+
+        Return the topics whose messages are not all acknowledged by then. Destroying a writer
+        drops what it has not delivered yet, so without this the last messages of a play can
+        miss a reliable subscriber (what ``ros2 bag play --wait-for-all-acked`` guards against).
+        """
+        from rclpy.duration import Duration
+        deadline = time.monotonic() + timeout
+        late = []
+        for topic, pub in list(self._pubs.items()):
+            left = max(0.0, deadline - time.monotonic())
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                late.append(topic)
+        return late
+
     def _clock(self, t: float) -> None:
         if self._clock_pub is not None and t >= 0:
             self._clock_pub.publish(self._clock_type(clock=time_msg(t)))
@@ -332,7 +351,12 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
                                unit='scan', leave=False, disable=None, file=sys.stderr)
                     player.on_message = lambda topic, r: bar.update(1) \
                         if isinstance(r, Scan) else None
-                return player.play(rec.messages)
+                stats = player.play(rec.messages)
+                late = player.wait_for_acks(ACK_TIMEOUT)
+                if late:
+                    log('warning: not every subscriber acknowledged the last messages on '
+                        f"{', '.join(late)} within {ACK_TIMEOUT:g} s")
+                return stats
         finally:
             if bar is not None:
                 bar.close()
