@@ -68,6 +68,7 @@ from scipy.spatial import cKDTree
 
 from .geometry import (as_points, cell_keys, dilate_cells, directions, in_sorted, lengths,
                        PointIndex, project, sample_segments)
+from .merge import noise_stubs
 from .noise import estimate_noise
 from .polylines import assemble_polylines
 from .smemsf import smemsf_iteration, SMEMSFConfig
@@ -449,8 +450,16 @@ class IncrementalMapper:
         return self._sup[self._alive].copy()
 
     def polylines(self) -> tuple:
-        """Chain the current map: (segments with joined ends, polylines, closed flags)."""
-        return assemble_polylines(self.segments, self.config.smemsf.join_over_r * self.r)
+        """
+        Chain the current map: (segments with joined ends, polylines, closed flags).
+
+        Short stubs inside a wall's noise band (``merge.noise_stubs``) are left out, as in a
+        batch fit; they stay in ``segments``, where later scans may still grow them.
+        """
+        segs = self.segments
+        if self.sigma is not None:
+            segs = segs[~noise_stubs(segs, self.sigma, self.r, self.config.smemsf.kappa)]
+        return assemble_polylines(segs, self.config.smemsf.join_over_r * self.r)
 
     def load(self, segments, support=None) -> None:
         """

@@ -285,3 +285,44 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
         fresh[int(keep.sum()):] = True
         merges += chosen.size
     return segments, support, merges
+
+
+STUB_BAND = 1.5
+"""``noise_stubs``: a stub must lie within this many cut-offs (kappa sigma) of the wall's line."""
+STUB_ANGLE = np.deg2rad(30.0)
+"""``noise_stubs``: a stub must cross the wall's direction at more than this angle."""
+
+
+def noise_stubs(segments: np.ndarray, sigma: float, r: float, kappa: float) -> np.ndarray:
+    """
+    Mark the short segments that are a neighbouring wall's noise tail, shape (K,) bool.
+
+    A segment is such a stub when it is shorter than 2r (one LSS square: too short for LSS to
+    test), at least 4x shorter than a wall, steeper than ``STUB_ANGLE`` to it, and lies with
+    both ends inside the wall's band (within ``STUB_BAND`` x kappa sigma of its line, between
+    its ends). Where beams meet a wall head-on, range noise spreads the points across the wall
+    by more than the fitted sigma (an average over all incidence angles); a handful of them on
+    one side can then line up and survive as a 5-point, 6 cm stub sticking out of the wall
+    (simulated corridors at 5 cm noise). A real object that small against a wall lies inside
+    the band the map cannot resolve anyway; one that stands out of the band is kept.
+    """
+    segments = np.asarray(segments, dtype=np.float64)
+    u, length = directions(segments)
+    short = length < 2.0 * r
+    out = np.zeros(len(segments), dtype=bool)
+    if not short.any() or len(segments) < 2:
+        return out
+    band = STUB_BAND * kappa * sigma
+    p = candidate_pairs(segments, band, short)
+    s = np.concatenate([p[:, 0], p[:, 1]])             # the stub candidate
+    w = np.concatenate([p[:, 1], p[:, 0]])             # the wall
+    ok = short[s] & (length[w] >= 4.0 * length[s])
+    s, w = s[ok], w[ok]
+    cos = np.abs(u[s, 0] * u[w, 0] + u[s, 1] * u[w, 1])
+    rel = segments[s] - segments[w, 0][:, None, :]     # (M, 2 ends, 2)
+    along = rel[:, :, 0] * u[w, 0][:, None] + rel[:, :, 1] * u[w, 1][:, None]
+    off = np.abs(rel[:, :, 1] * u[w, 0][:, None] - rel[:, :, 0] * u[w, 1][:, None])
+    hit = ((cos < np.cos(STUB_ANGLE)) & (off.max(axis=1) <= band)
+           & (along.min(axis=1) >= 0.0) & (along.max(axis=1) <= length[w]))
+    out[s[hit]] = True
+    return out
