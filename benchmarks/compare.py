@@ -325,7 +325,9 @@ def claims(data: dict) -> str:
                         + f'; best other {best_m} {others[best_m]:.2f} -> '
                         + ('holds' if ok else '**does not hold**'))
     out.append(f'\n2. **Highest wall F1 on simulated data** (main settings): ours-batch is '
-               f'highest (ties count) on {f1_held} of {len(f1_lines)} simulated datasets.\n')
+               f'highest (ties count) on {f1_held} of {len(f1_lines)} simulated datasets, on '
+               'this one drive per world; `drives.py` repeats it over several drives (table in '
+               '[README.md](README.md#wall-f1-over-several-drives-drivespy)).\n')
     out += [ln + '\n' for ln in f1_lines]
     t_lines, t_fast, t_equal, t_same, t_five = [], 0, 0, 0, 0
     for d in names:
