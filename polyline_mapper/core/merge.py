@@ -319,9 +319,9 @@ def noise_stubs(segments: np.ndarray, sigma: float, r: float, kappa: float) -> n
     ok = short[s] & (length[w] >= 4.0 * length[s])
     s, w = s[ok], w[ok]
     cos = np.abs(u[s, 0] * u[w, 0] + u[s, 1] * u[w, 1])
-    rel = segments[s] - segments[w, 0][:, None, :]     # (M, 2 ends, 2)
-    along = rel[:, :, 0] * u[w, 0][:, None] + rel[:, :, 1] * u[w, 1][:, None]
-    off = np.abs(rel[:, :, 1] * u[w, 0][:, None] - rel[:, :, 0] * u[w, 1][:, None])
+    # Both ends of each stub candidate on its wall's line: rows (M, 2 ends).
+    _, along, normal = project(segments[s].reshape(-1, 2), np.repeat(segments[w], 2, axis=0))
+    along, off = along.reshape(-1, 2), np.abs(normal).reshape(-1, 2)
     hit = ((cos < np.cos(STUB_ANGLE)) & (off.max(axis=1) <= band)
            & (along.min(axis=1) >= 0.0) & (along.max(axis=1) <= length[w]))
     out[s[hit]] = True
