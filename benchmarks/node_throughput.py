@@ -67,9 +67,9 @@ def run(seconds: float, rate: float, beams: int) -> dict:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import qos_profile_sensor_data
-    from polyline_mapper.ros.node import MAP_QOS
+    from polyline_mapper.ros.qos import MAP_QOS
     from polyline_mapper.ros.sim_player import DriveMessages
-    from polyline_mapper.ros.tf_listener import TF_QOS, TF_STATIC_QOS
+    from polyline_mapper.ros.qos import TF_QOS, TF_STATIC_QOS
     from polyline_mapper_msgs.msg import PolylineMap
     from sensor_msgs.msg import LaserScan
     from tf2_msgs.msg import TFMessage

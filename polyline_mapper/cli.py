@@ -354,10 +354,10 @@ def _mount(text: str) -> tuple:
 
 
 def _replay_options(args, every: int = 1):
-    from .replay import ReplayOptions
+    from .session import SessionOptions
     mount, flip = _mount(args.laser_mount)
-    return ReplayOptions(pose_source=args.pose_source, fixed_frame=args.fixed_frame,
-                         every=every, mount=mount, mount_upside_down=flip)
+    return SessionOptions(pose_source=args.pose_source, fixed_frame=args.fixed_frame,
+                          every=every, mount=mount, mount_upside_down=flip)
 
 
 def cmd_replay(args) -> int:
@@ -373,17 +373,16 @@ def cmd_replay(args) -> int:
         raise CliError(f'{args.input}: {res.nothing_mapped()}')
     for line in res.skip_lines():
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
-    segments, polylines, closed = res.mapper.polylines()
-    stats = res.stats()
-    stats['total_seconds'] = round(time.perf_counter() - t0, 3)
-    stats = _json_safe(stats)
-    data = map_to_dict(segments, polylines, closed, res.mapper.support, stats,
-                       incremental_config_dict(config), res.fixed_frame or 'map')
+    value = res.map_value
+    value.stats['total_seconds'] = round(time.perf_counter() - t0, 3)
+    value.stats = _json_safe(value.stats)
+    data = map_to_dict(value.segments, value.polylines, value.closed, value.support,
+                       value.stats, incremental_config_dict(config), value.frame_id)
     save_map(data, res.points, args.output, args.plot,
              title=f'{os.path.basename(os.path.normpath(args.input))} (replay): '
-                   f'{len(segments)} segments')
+                   f'{len(value.segments)} segments')
     if not args.quiet:
-        print(res.summary(args.output, stats))
+        print(res.summary(args.output))
     return 0
 
 

@@ -86,6 +86,29 @@ def quaternion_from_yaw(yaw: float) -> np.ndarray:
     return np.array([0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)])
 
 
+def se2_compose(a, b) -> np.ndarray:
+    """Compose planar poses row-wise: a then b, (..., 3) arrays of (x, y, yaw)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
+                     a[..., 1] + s * b[..., 0] + c * b[..., 1], a[..., 2] + b[..., 2]], axis=-1)
+
+
+def se2_inverse(a) -> np.ndarray:
+    """Invert planar poses row-wise, (..., 3) arrays of (x, y, yaw)."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
+                    axis=-1)
+
+
+def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
+    """Return the quaternion (x, y, z, w) of a mount: yaw about z, then rolled 180 deg if so."""
+    if not upside_down:
+        return quaternion_from_yaw(yaw)
+    return np.array([math.cos(0.5 * yaw), math.sin(0.5 * yaw), 0.0, 0.0])
+
+
 def quaternion_matrix(q) -> np.ndarray:
     """Return the (3, 3) rotation matrix of a unit quaternion (x, y, z, w)."""
     x, y, z, w = q

@@ -1,364 +1,179 @@
 """
-Offline replay: scans from a bag or a CARMEN log -> laser poses -> the incremental mapper.
+Offline replay: a bag, a CARMEN log or a simulated drive through the mapping session.
 
-The same steps as the live node, without ROS:
+``run_replay`` opens the recording (``recordings``), feeds its records in order to a
+``session.MappingSession`` on data time (a scan arrives at its stamp; a scan waits for pose data
+at or after its stamp, up to ``SessionOptions.wait`` seconds of newer data) and returns the map
+value with the points it was made from. The node maps through the same session, so a recording
+played into the live node gives the same map (``test_live_tools``).
 
-- poses come from ``poses.TransformBuffer2D``. ``pose_source='tf'``: the pose of the scan's
-  frame in the fixed frame at the scan's header stamp, from /tf and /tf_static. ``'odom'``: the
-  odometry pose (``nav_msgs/Odometry``, the child frame in the odometry frame, interpolated at
-  the scan stamp) composed with the laser mount: ``mount`` when given (like the node's
-  ``laser_*`` parameters), else the scan frame's transform from /tf_static; the map is then in
-  the odometry frame. A laser mounted upside down
-  has its beam angles mirrored (``PlanarPose.beam_angles``).
-- a scan waits, like a tf2 message filter, until pose data stamped at or after it has arrived
-  (or ``wait`` seconds of newer pose data, or the end of the input); a scan whose pose cannot be
-  given then is skipped and counted under ``no pose: <cause>`` (``too_new``, ``too_old``,
-  ``unknown_frame``, ``not_connected``, ``no_tf``, ``tilted``). Before that, every scan passes
-  the node's ``check_scan`` (ROS-free); one that fails is counted as ``bad scan: <cause>``
-  (``no_valid_ranges``, ``range_limits``, ``angle_increment``, ``empty_scan``).
-- ``scan_to_points`` (REP 117 filtering) and ``IncrementalMapper.update`` do the rest; the time
-  of both together is the update time.
-
-CARMEN logs are replayed as the messages the bag made of them by ``polyline-mapper convert``
-holds (``formats.convert.carmen_messages``): the corrected laser pose of each record reaches the
-mapper through the same TF lookups, and scans are used in LaserScan precision (float32 ranges and
-angles, see ``formats.records``). A log and its bag therefore give the same map.
+CARMEN logs are replayed as the messages ``polyline-mapper convert`` writes into a bag
+(``formats.convert.carmen_messages``): the corrected laser pose of each record reaches the
+mapper through the same TF lookups, in LaserScan precision (float32 ranges and angles), so a log
+and its bag give the same map.
 """
 
-from collections import Counter, deque
+from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-import math
 import os
 import time
-from typing import Iterable, Iterator, Optional
+from typing import Iterator, Optional
 
 import numpy as np
 
 from .core import map_metrics
-from .core.incremental import IncrementalConfig, IncrementalMapper
-from .formats.records import Odometry, Scan, Skipped, Transform
-from .poses import PlanarPose, quaternion_from_yaw, TransformBuffer2D, TransformLookupError
-from .scan import check_scan, scan_to_points, ScanError
+from .core.incremental import IncrementalConfig
+from .core.mapvalue import MapValue
+from .formats.records import Scan
+from .session import MappingSession, SessionError, SessionOptions
 
-POSE_SOURCES = ('tf', 'odom')
-MOUNT_FRAME = '_replay_laser'
-"""Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
-
-
-@dataclass
-class ReplayOptions:
-    """How scans get their poses (see the module docstring)."""
-
-    pose_source: str = 'tf'
-    fixed_frame: Optional[str] = None
-    """Map frame for ``tf``; default: 'map' when the scan frame's tree has it, else its root."""
-    every: int = 1
-    """Use every N-th scan."""
-    tolerance: float = 0.1
-    """Seconds a stamp may lie outside the stored transforms and still use the nearest."""
-    wait: float = 0.5
-    """Seconds of newer pose data after which a scan without pose is given up."""
-    mount: Optional[tuple] = None
-    """(x, y, yaw) metres / radians of the laser in the odometry child frame (odom mode). When
-    given it is used whatever the scan's frame and /tf_static say (as the node's laser_x,
-    laser_y, laser_yaw, laser_upside_down parameters); when not, the scan frame's mount comes
-    from /tf_static."""
-    mount_upside_down: bool = False
-    """The ``mount`` laser is rolled 180 degrees (its beams sweep clockwise seen from above)."""
-    cache_seconds: float = 30.0
-
-    def __post_init__(self):
-        """Reject values that cannot work, naming the field."""
-        if self.pose_source not in POSE_SOURCES:
-            raise ValueError(f'pose_source must be tf or odom, got {self.pose_source!r}')
-        if int(self.every) != self.every or self.every < 1:
-            raise ValueError(f'every must be an integer >= 1, got {self.every!r}')
-        for name in ('tolerance', 'wait'):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f'{name} must be a finite number >= 0, got {v!r}')
-        if self.mount is not None:
-            m = np.asarray(self.mount, dtype=float)
-            if m.shape != (3,) or not np.isfinite(m).all():
-                raise ValueError(f'mount must be 3 finite numbers (x, y, yaw), got {self.mount}')
-
-
-class ReplayError(ValueError):
-    """A problem that makes the whole replay meaningless (not one skipped record)."""
-
-
-def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
-    """Return the quaternion (x, y, z, w) of a mount: yaw about z, then rolled 180 deg if so."""
-    if not upside_down:
-        return quaternion_from_yaw(yaw)
-    return np.array([math.cos(0.5 * yaw), math.sin(0.5 * yaw), 0.0, 0.0])
-
-
-class PoseResolver:
-    """Keep the transforms (and odometry) seen so far; give the laser pose of a scan."""
-
-    def __init__(self, options: ReplayOptions):
-        self.options = options
-        self.buffer = TransformBuffer2D(options.cache_seconds)
-        self.fixed_frame = options.fixed_frame
-        self.latest = -math.inf
-        """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
-        self._parents = {}
-        self._mounted = False
-
-    def add(self, record) -> None:
-        """Take a Transform or an Odometry record (others are ignored); ValueError if bad."""
-        odom_mode = self.options.pose_source == 'odom'
-        if isinstance(record, Transform):
-            if odom_mode and not record.static:
-                return          # odom mode: the odometry topic is the only moving edge
-            self.buffer.set_transform(record.parent, record.child, record.stamp,
-                                      record.translation, record.rotation, record.static)
-            self._parents[record.child] = record.parent
-            if not record.static:
-                self.latest = max(self.latest, record.stamp)
-        elif isinstance(record, Odometry) and odom_mode:
-            if self.fixed_frame is None:
-                self.fixed_frame = record.frame_id
-            elif record.frame_id != self.fixed_frame:
-                raise ReplayError(f'odometry in frame {record.frame_id!r}, expected '
-                                  f'{self.fixed_frame!r} (with --pose-source odom the map is '
-                                  'in the odometry frame)')
-            self.buffer.set_transform(record.frame_id, record.child_frame_id, record.stamp,
-                                      record.translation, record.rotation)
-            self._parents[record.child_frame_id] = record.frame_id
-            self.latest = max(self.latest, record.stamp)
-            m = self.options.mount
-            if m is not None and not self._mounted:
-                self.buffer.set_transform(record.child_frame_id, MOUNT_FRAME, 0.0,
-                                          (m[0], m[1], 0.0),
-                                          mount_quaternion(m[2], self.options.mount_upside_down),
-                                          static=True)
-                self._mounted = True
-
-    def pose(self, scan: Scan) -> PlanarPose:
-        """Return the laser pose of ``scan``; TransformLookupError (with ``cause``) if none."""
-        if scan.pose is not None:
-            x, y, yaw = (float(v) for v in scan.pose)
-            return PlanarPose(x, y, yaw, False)
-        frame = scan.frame_id
-        if not frame:
-            raise TransformLookupError('unknown_frame', 'the scan has an empty frame_id')
-        if self.options.pose_source == 'odom':
-            if self.fixed_frame is None:
-                raise TransformLookupError('no_tf', 'no odometry received yet')
-            target = self.fixed_frame
-            if self.options.mount is not None:
-                frame = MOUNT_FRAME
-        else:
-            target = self.fixed_frame or self._default_fixed(frame)
-        pose = self.buffer.lookup_planar(target, frame, scan.stamp, self.options.tolerance)
-        self.fixed_frame = target
-        return pose
-
-    def _default_fixed(self, frame: str) -> str:
-        chain, seen = [frame], {frame}
-        while chain[-1] in self._parents and self._parents[chain[-1]] not in seen:
-            chain.append(self._parents[chain[-1]])
-            seen.add(chain[-1])
-        if len(chain) == 1:
-            raise TransformLookupError(
-                'unknown_frame' if self._parents else 'no_tf',
-                f'frame {frame!r} has no transform to any other frame yet')
-        return 'map' if 'map' in seen else chain[-1]
+ReplayError = SessionError
 
 
 @dataclass
 class ReplayResult:
-    """What a replay produced: the mapper, the points it was fed, counts and times."""
+    """What a replay produced: the session, its map value and the points it was fed."""
 
-    mapper: IncrementalMapper
+    session: MappingSession
+    map_value: MapValue
+    """The final map; its ``stats`` hold the quality over ``points``, counts and times."""
     points: np.ndarray
     """(N, 2) every point given to the mapper, fixed frame, metres."""
-    scans: int
-    """Scans read (before --every)."""
-    used: int
-    """Scans given to the mapper."""
-    skipped: Counter
-    """Scans (or messages) not used, by cause."""
-    examples: dict
-    """One example message per skip cause."""
-    update_ms: np.ndarray
-    """Time of each map update (point conversion included), milliseconds."""
-    fixed_frame: Optional[str]
     seconds: float = 0.0
-    extra: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
+    @property
+    def mapper(self):
+        """Return the incremental mapper of the session."""
+        return self.session.mapper
+
+    @property
+    def used(self) -> int:
+        """Return the number of scans given to the mapper."""
+        return self.session.used
+
+    @property
+    def scans(self) -> int:
+        """Return the number of scans read (before --every)."""
+        return self.session.received
+
+    @property
+    def skipped(self) -> Counter:
+        """Return the records not used, by 'category: cause'."""
+        return Counter(self.session.skipped)
+
+    @property
+    def fixed_frame(self) -> Optional[str]:
+        """Return the map frame."""
+        return self.session.fixed_frame
+
     def stats(self) -> dict:
-        """Map quality over the replayed points, counts and update times, for the map JSON."""
-        segments, polylines, _ = self.mapper.polylines()
-        stats = map_metrics(self.points, segments)
-        ms = self.update_ms
-        stats.update(
-            polylines=len(polylines), scans=int(self.scans), scans_used=int(self.used),
-            skipped=dict(sorted(self.skipped.items())),
-            update_ms_median=round(float(np.median(ms)), 3) if ms.size else None,
-            update_ms_p99=round(float(np.percentile(ms, 99)), 3) if ms.size else None,
-            updates=int(ms.size), sigma=self.mapper.sigma, seconds=round(self.seconds, 3),
-            fixed_frame=self.fixed_frame)
-        stats.update(self.extra)
-        return stats
+        """Return the map's statistics: quality, counts, update times."""
+        return self.map_value.stats
 
     def skips(self) -> str:
-        """Return the skipped counts as text, e.g. '3 no pose: too_new, 1 bad scan'."""
+        """Return the skipped counts as text, e.g. '3 no pose: too_new, 1 bad scan: ...'."""
         return ', '.join(f'{n} {cause}' for cause, n in sorted(self.skipped.items()))
 
     def skip_lines(self) -> list:
         """Return one warning line per skip cause, with an example."""
-        return [f'skipped {n} scan(s)/message(s): {cause}, e.g. {self.examples[cause]}'
+        ex = self.session.examples
+        return [f'skipped {n} scan(s)/message(s): {cause}, e.g. {ex[cause]}'
                 for cause, n in sorted(self.skipped.items())]
 
     def nothing_mapped(self) -> str:
         """Say why no scan reached the map (the main cause and an example)."""
-        announced = self.extra.get('scans_announced', self.scans)
+        announced = self.map_value.stats.get('scans_announced', self.scans)
         what = self.skips() or (f'read {self.scans} of {announced} scans, damaged?'
                                 if self.scans < announced else 'no scans')
-        cause = max(self.skipped, key=self.skipped.get) if self.skipped else None
+        skipped = self.skipped
+        cause = max(skipped, key=skipped.get) if skipped else None
         return (f'no scan could be mapped ({what})'
-                + (f'; e.g. {self.examples[cause]}' if cause else ''))
+                + (f'; e.g. {self.session.examples[cause]}' if cause else ''))
 
-    def summary(self, path: str, stats: dict) -> str:
-        """One line a person reads after a replay (``stats`` as written to the map JSON)."""
-        mean = stats['mean_distance']
+    def summary(self, path: str) -> str:
+        """One line a person reads after a replay."""
+        stats = self.map_value.stats
+        mean = stats.get('mean_distance')
         skips = self.skips()
+        ms = stats.get('update_ms') or {}
         return (f"wrote {path}: {stats['segments']} segments in {stats['polylines']} polylines "
                 f"from {stats['points']} points of {self.used} scans"
                 + (f' ({skips} skipped)' if skips else '')
                 + (f', mean distance {mean * 100:.2f} cm, p95 '
                    f"{stats['p95_distance'] * 100:.2f} cm, coverage "
                    f"{stats['coverage_0_10m'] * 100:.1f}%" if mean is not None else '')
-                + (f", update median {stats['update_ms_median']:.1f} ms, p99 "
-                   f"{stats['update_ms_p99']:.1f} ms" if stats['updates'] else '')
+                + (f", update median {ms['p50']:.1f} ms, p99 {ms['p99']:.1f} ms" if ms else '')
                 + f", {stats.get('total_seconds', self.seconds):.1f} s")
 
 
-class Replay:
+def replay_records(records, config: IncrementalConfig = None,
+                   options: SessionOptions = None, progress=None) -> MappingSession:
     """
-    Feed records one by one (``feed``), then ``finish()`` for the result.
+    Map records on data time: feed them to a new session, flush it at the end, return it.
 
-    Records: ``Scan`` (with or without ``pose``), ``Transform``, ``Odometry``, ``Skipped``.
+    ``progress(session)`` is called after each scan record.
     """
+    options = options or SessionOptions()
+    session = MappingSession(config, options)
+    for record in records:
+        session.add(record)
+        session.step()
+        if progress is not None and isinstance(record, Scan):
+            progress(session)
+    session.flush()
+    return session
 
-    def __init__(self, config: IncrementalConfig = None, options: ReplayOptions = None,
-                 max_pending: int = 200, mapping: bool = True):
-        self.options = options or ReplayOptions()
-        self.mapping = bool(mapping)
-        self.warnings = []
-        self.description = ''
-        self.mapper = IncrementalMapper(config)
-        self.poses = PoseResolver(self.options)
-        self.max_pending = int(max_pending)
-        self._pending = deque()
-        self._points = []
-        self._ms = []
-        self.scans = 0
-        self.used = 0
-        self.skipped = Counter()
-        self.examples = {}
-        self._t0 = time.perf_counter()
 
-    def feed(self, record) -> None:
-        """Take one record; scans are mapped as soon as their pose can be known."""
-        if isinstance(record, Scan):
-            self.scans += 1
-            if (self.scans - 1) % self.options.every:
-                return
-            try:                    # the node's check, before any pose lookup
-                with np.errstate(invalid='ignore', over='ignore'):
-                    check_scan(record.ranges, record.angle_min, record.angle_increment,
-                               record.range_min, record.range_max)
-            except ScanError as exc:
-                self._skip(f'bad scan: {exc.cause}', str(exc))
-                return
-            self._pending.append(record)
-        elif isinstance(record, Skipped):
-            self._skip(f'undecodable message on {record.topic}', record.reason)
-            return
-        else:
-            try:
-                with np.errstate(over='ignore', invalid='ignore'):
-                    self.poses.add(record)
-            except ReplayError:
-                raise
-            except ValueError as exc:
-                self._skip('bad transform or odometry', str(exc))
-                return
-        self._drain(final=False)
+def run_replay(path: str, config: IncrementalConfig = None, options: SessionOptions = None,
+               scan_topic: str = None, odom_topic: str = None, progress: bool = False,
+               mapping: bool = True) -> ReplayResult:
+    """
+    Replay a bag, CARMEN log or ``sim:`` drive through a mapping session; return the result.
 
-    def feed_all(self, records: Iterable, progress=None) -> 'ReplayResult':
-        """Feed every record, calling ``progress()`` after each scan; return ``finish()``."""
-        for rec in records:
-            self.feed(rec)
-            if progress is not None and isinstance(rec, Scan):
-                progress(self)
-        return self.finish()
+    ``progress`` shows a tqdm bar over the scans (on a terminal). With ``mapping=False`` the
+    scans are only registered (points and counts, empty map).
+    """
+    import dataclasses
+    t0 = time.perf_counter()
+    options = dataclasses.replace(options or SessionOptions(), keep_points=True,
+                                  mapping=mapping)
+    with open_input(path, scan_topic, odom_topic, options.pose_source) as source:
+        bar = None
+        if progress:
+            import sys
+            from tqdm import tqdm
+            bar = tqdm(total=source.scan_count, desc='replay', unit='scan', leave=False,
+                       disable=None, file=sys.stderr)
 
-    def finish(self) -> ReplayResult:
-        """Map the scans still waiting for a pose (or skip them) and return the result."""
-        self._drain(final=True)
-        pts = np.concatenate(self._points) if self._points else np.zeros((0, 2))
-        return ReplayResult(self.mapper, pts, self.scans, self.used, Counter(self.skipped),
-                            dict(self.examples), np.array(self._ms), self.poses.fixed_frame,
-                            time.perf_counter() - self._t0)
-
-    def _skip(self, cause: str, example: str) -> None:
-        self.skipped[cause] += 1
-        self.examples.setdefault(cause, example)
-
-    def _drain(self, final: bool) -> None:
-        while self._pending:
-            scan = self._pending[0]
-            give_up = (final or len(self._pending) > self.max_pending
-                       or self.poses.latest >= scan.stamp + self.options.wait)
-            if scan.pose is None and not give_up and self.poses.latest < scan.stamp:
-                return          # wait for pose data at or after the scan's stamp
-            try:
-                pose = self.poses.pose(scan)
-            except TransformLookupError as exc:
-                if exc.curable and not give_up:
-                    return
-                self._pending.popleft()
-                self._skip(f'no pose: {exc.cause}', str(exc))
-                continue
-            except ValueError as exc:
-                self._pending.popleft()
-                self._skip('bad scan', str(exc))
-                continue
-            self._pending.popleft()
-            self._map(scan, pose)
-
-    def _map(self, scan: Scan, pose: PlanarPose) -> None:
-        t0 = time.perf_counter()
+        def tick(session):
+            bar.update(1)
+            if session.received % 25 == 0:
+                bar.set_postfix(segments=len(session.mapper.segments))
         try:
-            with np.errstate(invalid='ignore', over='ignore'):
-                pts = scan_to_points(scan.ranges, pose.beam_angles(scan.angles()), pose.xyz,
-                                     scan.range_min, scan.range_max)
-        except ValueError as exc:
-            self._skip('bad scan', str(exc))
-            return
-        if not self.mapping:
-            if len(pts):
-                self.used += 1
-                self._points.append(pts)
-            else:
-                self._skip('no valid points', f'scan at {scan.stamp:.3f} s')
-            return
-        info = self.mapper.update(pts, ordered=True, origin=pose.xyz[:2])
-        dt = time.perf_counter() - t0
-        if info.skipped == 'no valid points':
-            self._skip('no valid points', f'scan at {scan.stamp:.3f} s')
-            return
-        self.used += 1
-        self._points.append(pts)
-        if info.skipped is None:
-            self._ms.append(1000.0 * dt)
+            session = replay_records(source.records, config, options,
+                                     tick if bar is not None else None)
+        finally:
+            if bar is not None:
+                bar.close()
+    value = session.map_value()
+    points = session.points()
+    value.stats.update(map_metrics(points, value.segments))
+    st = value.stats
+    ms = st.get('update_ms')
+    st.update(scans_announced=int(source.scan_count),
+              input=os.path.basename(os.path.normpath(path)),
+              input_type=source.description, pose_source=options.pose_source,
+              every=int(options.every), fixed_frame=session.fixed_frame,
+              update_ms_median=round(ms['p50'], 3) if ms else None,
+              update_ms_p99=round(ms['p99'], 3) if ms else None,
+              seconds=round(time.perf_counter() - t0, 3))
+    warnings = list(source.warnings)
+    if session.received < source.scan_count:
+        warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
+                        'the input announces (damaged?)')
+    return ReplayResult(session, value, points, time.perf_counter() - t0, warnings)
 
 
 @dataclass
@@ -402,43 +217,3 @@ def open_input(path: str, scan_topic: str = None, odom_topic: str = None,
             warnings.append(f'{path}: no /tf or /tf_static topic; scans cannot be placed '
                             '(try --pose-source odom)')
         yield Source(bag.records(), bag.scan_count, desc, warnings)
-
-
-def run_replay(path: str, config: IncrementalConfig = None, options: ReplayOptions = None,
-               scan_topic: str = None, odom_topic: str = None, progress: bool = False,
-               mapping: bool = True) -> ReplayResult:
-    """
-    Replay a bag or CARMEN log through the incremental mapper; return the result.
-
-    ``progress`` shows a tqdm bar over the scans (on a terminal). With ``mapping=False`` the
-    scans are only registered (points and counts, empty map).
-    """
-    options = options or ReplayOptions()
-    with open_input(path, scan_topic, odom_topic, options.pose_source) as source:
-        replay = Replay(config, options, mapping=mapping)
-        replay.warnings = list(source.warnings)
-        replay.description = source.description
-        bar = None
-        if progress:
-            import sys
-            from tqdm import tqdm
-            bar = tqdm(total=source.scan_count, desc='replay', unit='scan', leave=False,
-                       disable=None, file=sys.stderr)
-
-        def tick(rep):
-            bar.update(1)
-            if rep.scans % 25 == 0:
-                bar.set_postfix(segments=len(rep.mapper.segments))
-        try:
-            result = replay.feed_all(source.records, tick if bar is not None else None)
-        finally:
-            if bar is not None:
-                bar.close()
-    result.extra.update(input=os.path.basename(os.path.normpath(path)),
-                        input_type=source.description, pose_source=options.pose_source,
-                        every=int(options.every), scans_announced=int(source.scan_count))
-    if result.scans < source.scan_count:
-        replay.warnings.append(f'{path}: read {result.scans} of the {source.scan_count} scans '
-                               'the input announces (damaged?)')
-    result.warnings = replay.warnings
-    return result

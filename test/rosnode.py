@@ -77,8 +77,8 @@ class Peer:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from nav_msgs.msg import Odometry
-        from polyline_mapper.ros.node import MAP_QOS
-        from polyline_mapper.ros.tf_listener import TF_QOS, TF_STATIC_QOS
+        from polyline_mapper.ros.qos import MAP_QOS
+        from polyline_mapper.ros.qos import TF_QOS, TF_STATIC_QOS
         from polyline_mapper_msgs.msg import PolylineMap
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import LaserScan

@@ -10,7 +10,9 @@ from polyline_mapper.cli import main
 from polyline_mapper.core.geometry import nearest_distance
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.mapjson import read_map
-from polyline_mapper.replay import mount_quaternion, ReplayOptions, run_replay
+from polyline_mapper.poses import mount_quaternion
+from polyline_mapper.replay import run_replay
+from polyline_mapper.session import SessionOptions as ReplayOptions
 import pytest
 
 

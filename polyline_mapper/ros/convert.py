@@ -1,8 +1,9 @@
 """
-Messages <-> arrays, and plain records (``formats.records``) out as messages.
+Messages <-> plain records (``formats.records``) and the map value (``core.mapvalue``).
 
-LaserScan in, PolylineMap and MarkerArray out (and back, for record-map), transforms in;
-scans, odometry and transforms out for play; DiagnosticArray out.
+LaserScan, TFMessage and Odometry in as records (the node feeds them to the mapping session);
+the same records out as messages (play); the MapValue out as PolylineMap and MarkerArray (and
+back, for record-map); DiagnosticArray out.
 
 No logic beyond the conversion: checks live in ``scan.check_scan``, the numbers come from
 the core. Coordinates are metres in the map's frame; z is 0.
@@ -18,9 +19,8 @@ from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .pipeline import MapSnapshot
+from ..core.mapvalue import MapValue
 from ..formats import records
-from ..scan import check_scan, ScanArrays
 
 MARKER_NAMESPACE = 'polyline_map'
 
@@ -76,25 +76,41 @@ def transform_msg(tr: records.Transform, stamp: float = None) -> TransformStampe
     return ts
 
 
-def scan_from_msg(msg) -> ScanArrays:
-    """Check a sensor_msgs/LaserScan and return its arrays (raises scan.ScanError)."""
-    return check_scan(msg.ranges, msg.angle_min, msg.angle_increment, msg.range_min,
-                      msg.range_max, len(msg.intensities), stamp_seconds(msg.header.stamp),
-                      msg.header.frame_id, msg.header)
+# -- messages -> plain records, for the node ---------------------------------------------------
+def scan_from_msg(msg) -> records.Scan:
+    """Return a sensor_msgs/LaserScan as a records.Scan (float32 fields, as the message has)."""
+    return records.Scan(stamp_seconds(msg.header.stamp), records.clean_frame(msg.header.frame_id),
+                        float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
+                        float(msg.range_max), np.asarray(msg.ranges, dtype=np.float32))
 
 
-def transform_from_msg(ts) -> tuple:
-    """Return (parent, child, stamp s, translation (3,), quaternion xyzw) of a TransformStamped."""
-    t, q = ts.transform.translation, ts.transform.rotation
-    return (ts.header.frame_id, ts.child_frame_id, stamp_seconds(ts.header.stamp),
-            (t.x, t.y, t.z), (q.x, q.y, q.z, q.w))
+def transforms_from_msg(msg, static: bool) -> list:
+    """Return the transforms of a tf2_msgs/TFMessage as records.Transform (frames cleaned)."""
+    out = []
+    for ts in msg.transforms:
+        t, q = ts.transform.translation, ts.transform.rotation
+        out.append(records.Transform(stamp_seconds(ts.header.stamp),
+                                     records.clean_frame(ts.header.frame_id),
+                                     records.clean_frame(ts.child_frame_id),
+                                     np.array([t.x, t.y, t.z]), np.array([q.x, q.y, q.z, q.w]),
+                                     static))
+    return out
+
+
+def odometry_from_msg(msg) -> records.Odometry:
+    """Return a nav_msgs/Odometry's pose as a records.Odometry (frames cleaned)."""
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    return records.Odometry(stamp_seconds(msg.header.stamp),
+                            records.clean_frame(msg.header.frame_id),
+                            records.clean_frame(msg.child_frame_id), np.array([p.x, p.y, p.z]),
+                            np.array([q.x, q.y, q.z, q.w]))
 
 
 def _points(xy: np.ndarray) -> list:
     return [Point(x=x, y=y) for x, y in np.asarray(xy, dtype=np.float64).reshape(-1, 2).tolist()]
 
 
-def map_to_msg(snap: MapSnapshot, frame_id: str, stamp) -> PolylineMap:
+def map_to_msg(snap: MapValue, frame_id: str, stamp) -> PolylineMap:
     """
     Build a polyline_mapper_msgs/PolylineMap: segments (ends joined) with support, polylines.
 
@@ -112,7 +128,7 @@ def map_to_msg(snap: MapSnapshot, frame_id: str, stamp) -> PolylineMap:
     return msg
 
 
-def map_to_markers(snap: MapSnapshot, frame_id: str, stamp, color, width: float) -> MarkerArray:
+def map_to_markers(snap: MapValue, frame_id: str, stamp, color, width: float) -> MarkerArray:
     """
     Build a visualization_msgs/MarkerArray: DELETEALL, then one LINE_STRIP per polyline.
 

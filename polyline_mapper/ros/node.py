@@ -18,12 +18,14 @@ when scans came in since the last report but none could be used, or some were dr
 
 Services: ``~/reset`` and ``~/save_map`` (std_srvs/Trigger). Parameters: see ``params``.
 
-The subscription callback only checks and queues a scan; a worker thread poses the queued scans,
-runs the incremental updates and publishes (see ``pipeline``), so no callback waits for an
-update, and services answer while an update runs (they wait at most for the one in progress).
+The node only converts: messages to records (``convert``), fed to one
+``session.MappingSession`` on wall time, and the session's map value back to messages. The
+subscription callbacks only queue records; a worker thread runs one update at a time and
+publishes between updates at most every ``map_publish_period`` s, so a slow update never
+starves the map or /diagnostics, and when updates fall behind the oldest queued scans are shed.
+Services answer while an update runs (they wait at most for the one in progress).
 """
 
-import dataclasses
 import math
 import signal
 import sys
@@ -31,6 +33,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
 from polyline_mapper_msgs.msg import PolylineMap
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -39,26 +42,24 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
-                       ReliabilityPolicy)
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import LaserScan
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from .convert import diagnostics_msg, map_to_markers, map_to_msg, scan_from_msg
+from .convert import (diagnostics_msg, map_to_markers, map_to_msg, odometry_from_msg,
+                      scan_from_msg, time_msg, transforms_from_msg)
 from .params import all_params, settings_from
-from .pipeline import ScanPipeline, WarningThrottle
-from .tf_listener import make_tf_source, OdomSource
-from ..core.incremental import IncrementalMapper
+from .qos import MAP_QOS, TF_QOS, TF_STATIC_QOS
+from ..core.mapvalue import MapValue
 from ..formats.mapjson import map_to_dict, write_json_atomic
-from ..scan import ScanError
+from ..session import MappingSession, SessionOptions, WarningThrottle
 
 NODE_NAME = 'polyline_mapper_node'
-MAP_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+GROUP_IDLE = 1.0
+"""Seconds without a new scan after which a partial update group is mapped."""
 
 
 class ConfigError(Exception):
@@ -93,8 +94,9 @@ class PolylineMapperNode(Node):
             raise ConfigError(' '.join(str(exc).split())) from None
         log = self.get_logger()
         self.warnings = WarningThrottle(log.warning, self.settings.warning_period)
-        self.pipeline = ScanPipeline(IncrementalMapper(self.config), self._lookup, self.settings,
-                                     self.warnings, info=log.info)
+        self.session = MappingSession(self.config, session_options(self.settings),
+                                      clock=time.monotonic, warn=self.warnings.warn,
+                                      info=log.info)
         self.map_pub = self.create_publisher(PolylineMap, 'polyline_map', MAP_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -102,12 +104,15 @@ class PolylineMapperNode(Node):
         self.create_service(Trigger, '~/save_map', self._on_save_map)
         if self.settings.pose_source == 'tf':
             try:
-                self.poses = make_tf_source(self, self.settings.transform_cache,
-                                            self.warnings.warn)
-            except RuntimeError as exc:
-                raise ConfigError(str(exc)) from None
+                from tf2_msgs.msg import TFMessage
+            except ImportError as exc:
+                raise ConfigError(f'tf2_msgs is not importable ({exc}); install it or run '
+                                  'tools/dev.sh setup') from None
+            self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
+            self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
+                                     TF_STATIC_QOS)
         else:
-            self.poses = OdomSource(self, self.settings, self.warnings.warn)
+            self.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
         overrides = QoSOverridingOptions.with_default_policies()   # reliability, depth, history
         self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data,
                                  qos_overriding_options=overrides)
@@ -126,10 +131,8 @@ class PolylineMapperNode(Node):
                                         daemon=True)
         self._worker.start()
         s = self.settings
-        source = type(self.poses).__name__
         log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
-                 f'poses from {s.pose_source} ({source}), update every '
-                 f'{s.update_every_n_scans} scan(s)')
+                 f'poses from {s.pose_source}, update every {s.update_every_n_scans} scan(s)')
 
     # -- parameters ----------------------------------------------------------------------------
     def _values(self, changes=()) -> dict:
@@ -147,7 +150,10 @@ class PolylineMapperNode(Node):
     def _apply_parameters(self, params) -> None:
         old = self.settings
         self.settings, _ = settings_from(self._values())
-        self.pipeline.settings = self.settings
+        opts = self.session.options
+        opts.tolerance = self.settings.transform_tolerance
+        opts.wait = self.settings.transform_timeout
+        opts.update_every_n_scans = self.settings.update_every_n_scans
         self.warnings.period = self.settings.warning_period
         style = ('publish_markers', 'marker_color', 'marker_width')
         if any(getattr(old, k) != getattr(self.settings, k) for k in style):
@@ -155,18 +161,23 @@ class PolylineMapperNode(Node):
 
     # -- callbacks -----------------------------------------------------------------------------
     def _on_scan(self, msg: LaserScan) -> None:
-        try:
-            scan = scan_from_msg(msg)
-        except ScanError as exc:
-            self.pipeline.skip(exc.cause, str(exc))
+        if len(msg.intensities) not in (0, len(msg.ranges)):
+            self.session.skip('bad scan', 'intensities', f'scan has {len(msg.ranges)} ranges '
+                              f'but {len(msg.intensities)} intensities')
             return
-        self.pipeline.add(scan)
+        self.session.add(scan_from_msg(msg))
 
-    def _lookup(self, frame_id: str, stamp: float, tolerance: float):
-        return self.poses.lookup(self.settings.fixed_frame, frame_id, stamp, tolerance)
+    def _on_tf(self, msg) -> None:
+        self.session.add_many(transforms_from_msg(msg, False))
+
+    def _on_tf_static(self, msg) -> None:
+        self.session.add_many(transforms_from_msg(msg, True))
+
+    def _on_odom(self, msg) -> None:
+        self.session.add(odometry_from_msg(msg))
 
     def _on_reset(self, request, response):
-        dropped = self.pipeline.reset()
+        dropped = self.session.reset()
         self._publish()
         response.success = True
         response.message = f'map cleared ({dropped} segments dropped)'
@@ -175,15 +186,12 @@ class PolylineMapperNode(Node):
 
     def _on_save_map(self, request, response):
         path = self.settings.output_path
-        snap = self.pipeline.snapshot()
+        value = self.session.map_value()
         config = self.config.smemsf.to_dict()
         config.update({k: getattr(self.config, k) for k in self.config.__dataclass_fields__
                        if k != 'smemsf'})
-        stats = {'segments': len(snap.segments), 'polylines': len(snap.polylines),
-                 'sigma': snap.sigma, 'updates': snap.updates,
-                 'scans_used': self.pipeline.used}
-        data = map_to_dict(snap.segments, snap.polylines, snap.closed, snap.support, stats,
-                           config, self.settings.fixed_frame)
+        data = map_to_dict(value.segments, value.polylines, value.closed, value.support,
+                           value.stats, config, value.frame_id)
         try:
             write_json_atomic(path, data)
         except OSError as exc:
@@ -192,22 +200,25 @@ class PolylineMapperNode(Node):
             self.get_logger().error(response.message)
             return response
         response.success = True
-        response.message = (f'wrote {path}: {len(snap.segments)} segments in '
-                            f'{len(snap.polylines)} polylines')
+        response.message = (f'wrote {path}: {len(value.segments)} segments in '
+                            f'{len(value.polylines)} polylines')
         self.get_logger().info(response.message)
         return response
 
     # -- worker --------------------------------------------------------------------------------
     def _work(self) -> None:
-        log = self.get_logger()
+        session = self.session
+        busy = False
         while not self._stop.is_set():
-            self.pipeline.wait(0.05)
+            if not busy:
+                session.wait(0.05)
             try:
-                before = len(self.pipeline.update_seconds)
-                if self.pipeline.step():
+                busy = session.step(max_updates=1) > 0
+                if busy:
                     self._dirty = True
-                    times = list(self.pipeline.update_seconds)[before:]
-                    log.debug(f'{len(times)} update(s): {1e3 * sum(times):.1f} ms')
+                elif session.has_partial_group() and session.idle_seconds() >= GROUP_IDLE:
+                    if session.flush():         # the scans stopped: map the partial group
+                        self._dirty = True
                 now = time.monotonic()
                 if self._dirty and now - self._last_publish >= self.settings.map_publish_period:
                     self._publish()
@@ -223,25 +234,24 @@ class PolylineMapperNode(Node):
     def _publish(self) -> None:
         with self._publish_lock:
             self._dirty = False
-            snap = self.pipeline.snapshot()
+            value = self.session.map_value()
             frame = self.settings.fixed_frame
-            stamp = (snap.header.stamp if snap.header is not None
+            stamp = (time_msg(value.stamp) if value.stamp is not None
                      else self.get_clock().now().to_msg())
-            self.map_pub.publish(map_to_msg(snap, frame, stamp))
+            self.map_pub.publish(map_to_msg(value, frame, stamp))
             if self.settings.publish_markers:
-                self.marker_pub.publish(map_to_markers(snap, frame, stamp,
+                self.marker_pub.publish(map_to_markers(value, frame, stamp,
                                                        self.settings.marker_color,
                                                        self.settings.marker_width))
                 self._markers_shown = True
             elif self._markers_shown:         # switched off: leave no stale strips behind
-                empty = dataclasses.replace(snap, polylines=[], closed=[])
-                self.marker_pub.publish(map_to_markers(empty, frame, stamp,
+                self.marker_pub.publish(map_to_markers(MapValue.empty(frame), frame, stamp,
                                                        self.settings.marker_color, 0.0))
                 self._markers_shown = False
             self._last_publish = time.monotonic()
 
     def _log_stats(self, now: float) -> None:
-        p = self.pipeline
+        p = self.session
         received, used, updates = p.received - self._stats_mark[0], p.used - \
             self._stats_mark[1], p.updates - self._stats_mark[2]
         self._stats_mark = (p.received, p.used, p.updates)
@@ -255,26 +265,27 @@ class PolylineMapperNode(Node):
             f'updates{timing}')
 
     def _publish_diagnostics(self, now: float) -> None:
-        p = self.pipeline
+        p = self.session
         st = p.stats()
-        received, used, dropped = (p.received - self._diag_mark[0], p.used - self._diag_mark[1],
-                                   p.dropped - self._diag_mark[2])
-        self._diag_mark = (p.received, p.used, p.dropped)
+        received, used, dropped = (st['scans'] - self._diag_mark[0],
+                                   st['scans_used'] - self._diag_mark[1],
+                                   st['dropped'] - self._diag_mark[2])
+        self._diag_mark = (st['scans'], st['scans_used'], st['dropped'])
         self._last_diag = now
         level, message = 0, 'mapping'
         if received and not used:
             level, message = 1, f'{received} scans received, none used (see the warnings)'
         elif dropped:
             level, message = 1, f'{dropped} scans dropped: updates fall behind'
-        elif not p.received:
+        elif not st['scans']:
             message = f'waiting for scans on {self.resolve_topic_name("scan")}'
         values = {'segments': len(p.mapper.segments), 'sigma_m': p.mapper.sigma or 0.0,
-                  'scans_received': st['received'], 'scans_used': st['used'],
+                  'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}
         for key in ('update_ms', 'latency_ms'):
             for q, v in st.get(key, {}).items():
                 values[f'{key}_{q}'] = v
-        for cause, n in sorted(st['warnings'].items()):
+        for cause, n in sorted(self.warnings.counts.items()):
             values[f'skipped_{cause}'] = n
         self.diag_pub.publish(diagnostics_msg(f'{self.get_name()}: mapping', level, message,
                                               values, self.get_clock().now().to_msg()))
@@ -283,17 +294,29 @@ class PolylineMapperNode(Node):
         """Stop the worker thread and log a summary of the run."""
         self._stop.set()
         self._worker.join(timeout=5.0)
-        st = self.pipeline.stats()
-        warned = ', '.join(f'{k} {v}' for k, v in sorted(st['warnings'].items())) or 'none'
-        line = (f"summary: {st['received']} scans received, {st['used']} used in "
+        st = self.session.stats()
+        warned = ', '.join(f'{k} {v}' for k, v in sorted(self.warnings.counts.items())) or 'none'
+        line = (f"summary: {st['scans']} scans received, {st['scans_used']} used in "
                 f"{st['updates']} updates, {st['dropped']} dropped; warnings: {warned}")
         for key in ('update_ms', 'latency_ms'):
             if key in st:
                 v = st[key]
                 line += (f"; {key} p50 {v['p50']:.1f} p95 {v['p95']:.1f} p99 {v['p99']:.1f} "
                          f"max {v['max']:.1f}")
-        line += f'; map {len(self.pipeline.mapper.segments)} segments'
+        line += f'; map {len(self.session.mapper.segments)} segments'
         self.get_logger().info(line)
+
+
+def session_options(settings) -> SessionOptions:
+    """Return the mapping session's options for the node's settings (live, wall time)."""
+    odom = settings.pose_source == 'odom'
+    return SessionOptions(
+        pose_source=settings.pose_source, fixed_frame=settings.fixed_frame,
+        tolerance=settings.transform_tolerance, wait=settings.transform_timeout,
+        mount=(settings.laser_x, settings.laser_y, settings.laser_yaw) if odom else None,
+        mount_upside_down=settings.laser_upside_down, cache_seconds=settings.transform_cache,
+        update_every_n_scans=settings.update_every_n_scans,
+        max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size)
 
 
 def _cm(sigma) -> str:

@@ -28,7 +28,7 @@ from typing import Callable, Optional
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .convert import odometry_msg, scan_msg, time_msg, transform_msg
-from .tf_listener import TF_QOS
+from .qos import TF_QOS
 from ..formats.records import Odometry, Scan, Skipped
 
 STREAM_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,

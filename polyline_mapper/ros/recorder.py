@@ -14,7 +14,7 @@ from typing import Optional
 from polyline_mapper_msgs.msg import PolylineMap
 
 from .convert import map_from_msg
-from .node import MAP_QOS
+from .qos import MAP_QOS
 from ..formats.mapjson import map_to_dict
 
 

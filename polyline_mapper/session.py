@@ -1,0 +1,579 @@
+"""
+One mapping session: timed records in, the map out (ROS-free).
+
+The live node, ``polyline-mapper replay``, the live demo and the benchmarks all map through
+this class, so the live map equals the offline map of the same recording by construction.
+
+Records (``formats.records``): ``Scan``, ``Transform``, ``Odometry`` and ``Skipped``. The node
+converts messages to records and the map value back to messages; the offline tools read records
+from ``recordings``. The session does, in this order:
+
+1. **Check** each scan (``scan.check_scan``: REP 117 ranges, geometry); a bad one is counted
+   under ``bad scan: <cause>``.
+2. **Pose** it (``PoseSource``): ``pose_source='tf'`` looks the scan's frame up in the fixed
+   frame through the transform tree (``poses.TransformBuffer2D`` fed by /tf and /tf_static);
+   ``'odom'`` uses the odometry pose composed with the laser mount (``mount``, or the scan
+   frame's /tf_static mount when none is given), the map being in the odometry frame. Like a tf2
+   message filter, a scan waits, in order, until pose data stamped at or after it has come (so
+   its pose is interpolated, not held), or until its pose is known to be impossible; it gives up
+   after ``wait`` seconds and is counted under ``no pose: <cause>``.
+3. **Convert** it to fixed-frame points (``scan_to_points``; ranges beyond
+   ``IncrementalConfig.max_mapping_range`` are dropped with the invalid readings).
+4. **Update** the incremental mapper once per ``update_every_n_scans`` posed scans (their
+   points in one update); ``update_ms`` is the time of steps 3 and 4 together.
+5. **Publish**: ``map_value()`` returns the one ``MapValue`` (segments, support, polylines, closed,
+   frame, stamp, stats).
+
+Time comes from an injected clock. Offline (``clock=None``) it is *data time*: a scan arrives at
+its own stamp and "now" is the newest pose data's stamp, so a replay gives the same map however
+fast it runs. Live, the clock is wall time (``time.monotonic``): a scan waits at most ``wait``
+seconds of real time for its pose.
+
+Live, the worker runs one update per ``step(max_updates=1)`` and publishes in between, so a
+slow update never starves the map or the diagnostics; when updates fall behind, the oldest
+queued scans are shed (``max_queue``; counted under ``dropped: queue_full``) and the newest map
+is always the one published.
+"""
+
+from collections import Counter, deque
+from dataclasses import dataclass
+import math
+import threading
+import time
+from typing import Callable, Iterable, Optional
+
+import numpy as np
+
+from .core.incremental import IncrementalConfig, IncrementalMapper
+from .core.mapvalue import MapValue
+from .formats.records import Odometry, Scan, Skipped, Transform
+from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
+from .scan import check_scan, scan_to_points, ScanError
+
+POSE_SOURCES = ('tf', 'odom')
+MOUNT_FRAME = '_laser_mount'
+"""Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
+
+
+class SessionError(ValueError):
+    """A problem that makes the whole session meaningless (not one skipped record)."""
+
+
+@dataclass
+class SessionOptions:
+    """How scans get their poses and are grouped into updates."""
+
+    pose_source: str = 'tf'
+    fixed_frame: Optional[str] = None
+    """Map frame. tf: default 'map' when the scan frame's tree has it, else its root; odom: the
+    odometry frame (odometry in another frame is skipped and counted)."""
+    tolerance: float = 0.1
+    """Seconds a stamp may lie outside the stored transforms and still use the nearest."""
+    wait: float = 0.5
+    """Seconds (of the session's clock) a scan waits for a pose that may still come."""
+    mount: Optional[tuple] = None
+    """(x, y, yaw) metres / radians of the laser in the odometry child frame (odom mode). When
+    given it is used whatever the scan's frame and /tf_static say; when not, the scan frame's
+    mount comes from /tf_static."""
+    mount_upside_down: bool = False
+    """The ``mount`` laser is rolled 180 degrees (its beams sweep clockwise seen from above)."""
+    cache_seconds: float = 30.0
+    """Seconds of transform (or odometry) history kept per frame."""
+    every: int = 1
+    """Use every N-th scan (counted over all scans received)."""
+    update_every_n_scans: int = 1
+    """Posed scans whose points go into one update."""
+    max_waiting: int = 200
+    """Scans that may wait for their pose; beyond, the oldest gives up waiting."""
+    max_queue: Optional[int] = None
+    """Live load shedding: posed scans that may wait for an update; beyond, the oldest are
+    dropped (counted). None: never shed (offline)."""
+    keep_points: bool = False
+    """Keep every mapped point (offline: for map metrics and plots). Memory grows with them."""
+    mapping: bool = True
+    """False: only register the scans (points and counts), leave the map empty."""
+
+    def __post_init__(self):
+        """Reject values that cannot work, naming the field."""
+        if self.pose_source not in POSE_SOURCES:
+            raise ValueError(f'pose_source must be tf or odom, got {self.pose_source!r}')
+        for name in ('every', 'update_every_n_scans', 'max_waiting'):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise ValueError(f'{name} must be an integer >= 1, got {v!r}')
+        if self.max_queue is not None and (int(self.max_queue) != self.max_queue
+                                           or self.max_queue < self.update_every_n_scans):
+            raise ValueError(f'max_queue must be an integer >= update_every_n_scans, got '
+                             f'{self.max_queue!r}')
+        for name in ('tolerance', 'wait', 'cache_seconds'):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f'{name} must be a finite number >= 0, got {v!r}')
+        if self.fixed_frame is not None and not str(self.fixed_frame).strip():
+            raise ValueError('fixed_frame must be a frame name, got an empty string')
+        if self.mount is not None:
+            m = np.asarray(self.mount, dtype=float)
+            if m.shape != (3,) or not np.isfinite(m).all():
+                raise ValueError(f'mount must be 3 finite numbers (x, y, yaw), got {self.mount}')
+
+
+class RecordSkipped(ValueError):
+    """A record that cannot be used; ``cause`` names the reason in one word."""
+
+    def __init__(self, cause: str, reason: str):
+        super().__init__(reason)
+        self.cause = cause
+
+
+class PoseSource:
+    """
+    The transforms (and odometry) seen so far; the laser pose of a scan at its stamp.
+
+    Not thread-safe by itself: the session holds its lock around ``add`` and ``pose``.
+    """
+
+    def __init__(self, options: SessionOptions):
+        self.options = options
+        self.buffer = TransformBuffer2D(options.cache_seconds)
+        self.fixed_frame = options.fixed_frame
+        self.latest = -math.inf
+        """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
+        self._parents = {}
+        self._mounted = False
+
+    def add(self, record) -> Optional[tuple]:
+        """
+        Take a Transform or an Odometry record (others are ignored).
+
+        Returns (cause, text) of a warning to log (the clock jumped back), else None. Raises
+        RecordSkipped for a record that cannot be used (bad numbers, odometry in another frame).
+        """
+        odom_mode = self.options.pose_source == 'odom'
+        note = None
+        if isinstance(record, Transform):
+            if odom_mode and not record.static:
+                return None         # odom mode: the odometry topic is the only moving edge
+            if not record.static:
+                note = self._time_jump(record.stamp)
+            self._set(record.parent, record.child, record.stamp, record.translation,
+                      record.rotation, record.static)
+        elif isinstance(record, Odometry) and odom_mode:
+            if self.fixed_frame is None:
+                self.fixed_frame = record.frame_id
+            elif record.frame_id != self.fixed_frame:
+                raise RecordSkipped('odom_frame', f'odometry in frame {record.frame_id!r}, '
+                                    f'expected {self.fixed_frame!r} (with pose source odom the '
+                                    'map is in the odometry frame)')
+            note = self._time_jump(record.stamp)
+            self._set(record.frame_id, record.child_frame_id, record.stamp, record.translation,
+                      record.rotation, False)
+            m = self.options.mount
+            if m is not None and not self._mounted:
+                self._set(record.child_frame_id, MOUNT_FRAME, 0.0, (m[0], m[1], 0.0),
+                          mount_quaternion(m[2], self.options.mount_upside_down), True)
+                self._mounted = True
+        return note
+
+    def _set(self, parent, child, stamp, translation, rotation, static) -> None:
+        try:
+            self.buffer.set_transform(parent, child, stamp, translation, rotation, static)
+        except ValueError as exc:
+            raise RecordSkipped('bad_transform', f'ignored transform {parent} -> {child}: '
+                                f'{exc}') from None
+        self._parents[child] = parent
+        if not static:
+            self.latest = max(self.latest, stamp)
+
+    def _time_jump(self, stamp: float) -> Optional[tuple]:
+        if stamp >= self.latest - self.buffer.cache_seconds:
+            return None
+        # The clock jumped back (a bag restarted, a simulation reset): what is stored is from
+        # another time line; as tf2_ros does, forget it.
+        gap = self.latest - stamp
+        self.buffer.clear(keep_static=True)
+        self.latest = -math.inf
+        return ('time_jump', f'pose data stamped {stamp:.3f}, {gap:.1f} s before the newest: '
+                'the clock jumped back, dropping the stored dynamic transforms')
+
+    def pose(self, scan: Scan) -> PlanarPose:
+        """Return the laser pose of ``scan``; TransformLookupError (with ``cause``) if none."""
+        if scan.pose is not None:
+            x, y, yaw = (float(v) for v in scan.pose)
+            return PlanarPose(x, y, yaw, False)
+        frame = scan.frame_id
+        if not frame:
+            raise TransformLookupError('unknown_frame', 'the scan has an empty frame_id')
+        if self.options.pose_source == 'odom':
+            if self.fixed_frame is None or not self._parents:
+                raise TransformLookupError('no_tf', 'no odometry received yet')
+            target = self.fixed_frame
+            if self.options.mount is not None:
+                if not self._mounted:
+                    raise TransformLookupError('no_tf', 'no odometry received yet in frame '
+                                               f'{self.fixed_frame!r}')
+                frame = MOUNT_FRAME
+        else:
+            target = self.fixed_frame or self._default_fixed(frame)
+        pose = self.buffer.lookup_planar(target, frame, scan.stamp, self.options.tolerance)
+        self.fixed_frame = target
+        return pose
+
+    def _default_fixed(self, frame: str) -> str:
+        chain, seen = [frame], {frame}
+        while chain[-1] in self._parents and self._parents[chain[-1]] not in seen:
+            chain.append(self._parents[chain[-1]])
+            seen.add(chain[-1])
+        if len(chain) == 1:
+            raise TransformLookupError(
+                'unknown_frame' if self._parents else 'no_tf',
+                f'frame {frame!r} has no transform to any other frame yet')
+        return 'map' if 'map' in seen else chain[-1]
+
+
+class WarningThrottle:
+    """Log each cause at most once per ``period`` seconds; count every occurrence."""
+
+    def __init__(self, log: Callable[[str], None], period: float = 10.0,
+                 clock: Callable[[], float] = time.monotonic):
+        self.log = log
+        self.period = float(period)
+        self.clock = clock
+        self.counts = Counter()
+        self._last = {}
+        self._since = {}
+        self._lock = threading.Lock()
+
+    def warn(self, cause: str, text: str) -> bool:
+        """Count one occurrence of ``cause``; log ``text`` unless logged within the period."""
+        now = self.clock()
+        with self._lock:
+            self.counts[cause] += 1
+            last = self._last.get(cause)
+            if last is not None and now - last < self.period:
+                self._since[cause] = self._since.get(cause, 0) + 1
+                return False
+            more = self._since.pop(cause, 0)
+            self._last[cause] = now
+        suffix = f' ({more} more since the last warning of this cause)' if more else ''
+        self.log(f'{text} [{cause}]{suffix}')
+        return True
+
+
+def _geometry(mapper):
+    """TEMPORARY until the core's MapGeometry lands: polylines() with aligned support."""
+    from types import SimpleNamespace
+    out = mapper.polylines()
+    if hasattr(out, 'support'):
+        return out
+    segs, polys, closed = out
+    sup = mapper.support if len(mapper.support) == len(segs) else np.zeros(len(segs))
+    return SimpleNamespace(segments=segs, support=sup,
+                           polylines=polys, closed=closed)
+
+
+def _percentiles(values) -> dict:
+    v = 1e3 * np.asarray(values, dtype=float)
+    return {'p50': float(np.percentile(v, 50)), 'p95': float(np.percentile(v, 95)),
+            'p99': float(np.percentile(v, 99)), 'max': float(v.max())}
+
+
+class MappingSession:
+    """
+    Records in, one map out: pose resolution, queue and give-up, grouping, timing, shedding.
+
+    Thread-safe between producers (``add``; the node's subscription callbacks), one worker
+    (``step``, ``flush``) and readers (``map``, ``stats``, ``reset``).
+
+    ``clock``: None for data time (offline), or a function returning seconds (live: wall
+    time). ``warn(cause, text)`` is called for every skipped record and other problems (the
+    node passes a WarningThrottle); ``info(text)`` for notes.
+
+    >>> from polyline_mapper.formats.records import Scan
+    >>> session = MappingSession()
+    >>> ranges = np.full(181, 2.0, dtype=np.float32)
+    >>> scan = Scan(1.0, 'laser', -1.5708, 0.0174533, 0.1, 30.0, ranges, pose=(0.0, 0.0, 0.0))
+    >>> session.add(scan)
+    >>> session.step()
+    0
+    >>> session.stats()['skipped']          # the first updates estimate the noise scale
+    {}
+    """
+
+    def __init__(self, config: IncrementalConfig = None, options: SessionOptions = None,
+                 clock: Optional[Callable[[], float]] = None,
+                 warn: Optional[Callable[[str, str], object]] = None,
+                 info: Optional[Callable[[str], object]] = None):
+        self.options = options or SessionOptions()
+        self.mapper = IncrementalMapper(config)
+        self.poses = PoseSource(self.options)
+        self.clock = clock
+        self._warn = warn
+        self._info = info
+        self._lock = threading.Lock()           # queue, counters, pose source
+        self._map_lock = threading.Lock()       # the mapper
+        self._cv = threading.Condition(self._lock)
+        self._waiting = deque()                 # (scan, arrival): checked, waiting for a pose
+        self._ready = deque()                   # (scan, points, origin, seconds): posed
+        self._generation = 0
+        self._points = []
+        self.received = 0
+        self.used = 0
+        self.updates = 0
+        self.skipped = Counter()
+        self.examples = {}
+        self.stamp = None
+        """Stamp (s) of the newest scan in the map."""
+        self.last_scan = None
+        """The newest Scan record in the map (the node reads its message header)."""
+        self.update_seconds = deque(maxlen=100000)
+        self.latency_seconds = deque(maxlen=100000)
+        self._last_add = None
+        self._news = False
+        self._estimating_noted = False
+
+    # -- producers -----------------------------------------------------------------------------
+    def add(self, record) -> None:
+        """Take one record; scans are checked and queued, pose data stored."""
+        self.add_many((record,))
+
+    def add_many(self, records: Iterable) -> None:
+        """Take several records at once (one TFMessage: one lock)."""
+        notes = []
+        with self._cv:
+            for record in records:
+                note = self._add(record)
+                if note is not None:
+                    notes.append(note)
+            self._news = True
+            self._cv.notify()
+        for cause, text in notes:
+            if self._warn is not None:
+                self._warn(cause, text)
+
+    def _add(self, record) -> Optional[tuple]:
+        if isinstance(record, Scan):
+            self.received += 1
+            if (self.received - 1) % self.options.every:
+                return None
+            try:
+                with np.errstate(invalid='ignore', over='ignore'):
+                    check_scan(record.ranges, record.angle_min, record.angle_increment,
+                               record.range_min, record.range_max)
+            except ScanError as exc:
+                return self._skip('bad scan', exc.cause, str(exc))
+            now = self._now()
+            self._last_add = now
+            self._waiting.append((record, record.stamp if self.clock is None else now))
+            return None
+        if isinstance(record, Skipped):
+            return self._skip(f'undecodable message on {record.topic}', None, record.reason,
+                              'undecodable')
+        try:
+            with np.errstate(over='ignore', invalid='ignore'):
+                return self.poses.add(record)
+        except RecordSkipped as exc:
+            return self._skip('pose data', exc.cause, str(exc))
+
+    def skip(self, category: str, cause: str, text: str) -> None:
+        """Count a record that is not used (e.g. a message the node could not convert)."""
+        with self._lock:
+            note = self._skip(category, cause, text)
+        if self._warn is not None:
+            self._warn(*note)
+
+    def _skip(self, category: str, cause: Optional[str], text: str,
+              warn_cause: str = None) -> tuple:
+        key = category if cause is None else f'{category}: {cause}'
+        self.skipped[key] += 1
+        self.examples.setdefault(key, text)
+        return warn_cause or cause, f'skipped {category}: {text}'
+
+    # -- worker --------------------------------------------------------------------------------
+    def wait(self, timeout: float) -> None:
+        """Block until a record comes or ``timeout`` seconds pass (for a live worker)."""
+        with self._cv:
+            if not self._news:
+                self._cv.wait(timeout)
+
+    def _now(self) -> float:
+        return self.poses.latest if self.clock is None else self.clock()
+
+    def step(self, max_updates: Optional[int] = None) -> int:
+        """Pose the queued scans and run the updates they complete (at most ``max_updates``)."""
+        with self._lock:
+            self._news = False
+        notes = self._pose_waiting(final=False)
+        done = self._run(max_updates, partial=False)
+        self._emit(notes)
+        return done
+
+    def flush(self) -> int:
+        """
+        End of input (or a live pause): give up waiting, map the last, partial group.
+
+        Returns the number of updates run.
+        """
+        notes = self._pose_waiting(final=True)
+        done = self._run(None, partial=True)
+        self._emit(notes)
+        return done
+
+    def idle_seconds(self) -> float:
+        """Seconds (of the clock) since the last scan came; inf before any."""
+        with self._lock:
+            return math.inf if self._last_add is None else self._now() - self._last_add
+
+    def has_partial_group(self) -> bool:
+        """Whether posed scans wait for the rest of their group."""
+        with self._lock:
+            return 0 < len(self._ready) < self.options.update_every_n_scans
+
+    def _emit(self, notes) -> None:
+        if self._warn is not None:
+            for cause, text in notes:
+                self._warn(cause, text)
+
+    def _pose_waiting(self, final: bool) -> list:
+        notes = []
+        opts = self.options
+        with self._lock:
+            now = self._now()
+            while self._waiting:
+                scan, arrived = self._waiting[0]
+                give_up = (final or len(self._waiting) > opts.max_waiting
+                           or now - arrived >= opts.wait)
+                latest = self.poses.latest
+                if (scan.pose is None and not give_up and math.isfinite(latest)
+                        and latest < scan.stamp):
+                    break           # pose data at or after the scan's stamp may still come
+                try:
+                    pose = self.poses.pose(scan)
+                except TransformLookupError as exc:
+                    if exc.curable and not give_up:
+                        break       # keep the order: later scans wait behind this one
+                    self._waiting.popleft()
+                    notes.append(self._skip('no pose', exc.cause,
+                                            f'frame {scan.frame_id!r} at {scan.stamp:.3f}: '
+                                            f'{exc}'))
+                    continue
+                self._waiting.popleft()
+                notes.extend(self._convert(scan, pose, arrived))
+            if opts.max_queue is not None:
+                while len(self._ready) > opts.max_queue:
+                    self._ready.popleft()
+                    notes.append(self._skip(
+                        'dropped', 'queue_full', 'the oldest queued scan: updates fall behind '
+                        f'the scan rate (queue of {opts.max_queue} scans)'))
+        return notes
+
+    def _convert(self, scan: Scan, pose: PlanarPose, arrived: float) -> list:
+        t0 = time.perf_counter()
+        limit = min(float(scan.range_max),
+                    getattr(self.mapper.config, 'max_mapping_range', math.inf))
+        try:
+            with np.errstate(invalid='ignore', over='ignore'):
+                pts = scan_to_points(scan.ranges, pose.beam_angles(scan.angles()), pose.xyz,
+                                     scan.range_min, limit)
+        except ValueError as exc:
+            return [self._skip('bad scan', 'bad_geometry', str(exc))]
+        if len(pts) == 0:
+            return [self._skip('bad scan', 'no_valid_points',
+                               f'no reading within the mapping range at {scan.stamp:.3f} s')]
+        self._ready.append((scan, pts, pose.xyz[:2], time.perf_counter() - t0, arrived))
+        return []
+
+    def _run(self, max_updates: Optional[int], partial: bool) -> int:
+        n = self.options.update_every_n_scans
+        done = 0
+        while max_updates is None or done < max_updates:
+            with self._lock:
+                if len(self._ready) < n and not (partial and self._ready):
+                    break
+                group = [self._ready.popleft() for _ in range(min(n, len(self._ready)))]
+                gen = self._generation
+            if self._update(group, gen):
+                done += 1
+        return done
+
+    def _update(self, group: list, gen: int) -> bool:
+        points = np.concatenate([g[1] for g in group])
+        with self._map_lock:
+            if gen != self._generation:
+                return False                # a reset came in between: these scans are gone
+            ran = False
+            t0 = time.perf_counter()
+            if self.options.mapping:
+                origin = (group[0][2] if len(group) == 1 else
+                          np.repeat(np.array([g[2] for g in group]),
+                                    [len(g[1]) for g in group], axis=0))
+                info = self.mapper.update(points, ordered=True, origin=origin)
+                ran = info.skipped is None
+                estimating = info.skipped == 'estimating noise'
+            else:
+                estimating = False
+            seconds = time.perf_counter() - t0 + sum(g[3] for g in group)
+            with self._lock:
+                self.used += len(group)
+                self.stamp = group[-1][0].stamp
+                self.last_scan = group[-1][0]
+                if self.options.keep_points:
+                    self._points.append(points)
+                if ran:
+                    self.updates += 1
+                    self.update_seconds.append(seconds)
+                    if self.clock is not None:
+                        self.latency_seconds.append(self.clock() - group[-1][4])
+        if estimating and not self._estimating_noted and self._info is not None:
+            self._estimating_noted = True
+            self._info(f'estimating the noise scale from the first '
+                       f'{self.mapper.config.noise_updates} updates; the map starts after them')
+        return ran
+
+    # -- readers -------------------------------------------------------------------------------
+    @property
+    def fixed_frame(self) -> Optional[str]:
+        """Return the map frame (known once the first scan is posed, unless given)."""
+        return self.poses.fixed_frame
+
+    def points(self) -> np.ndarray:
+        """Return every mapped point, (N, 2) fixed frame (``keep_points`` only)."""
+        with self._lock:
+            return np.concatenate(self._points) if self._points else np.zeros((0, 2))
+
+    def map_value(self) -> MapValue:
+        """Return the current map: segments, aligned support, polylines, frame, stamp, stats."""
+        with self._map_lock:
+            geo = _geometry(self.mapper)
+            sigma, r = self.mapper.sigma, (self.mapper.r if self.mapper.sigma else None)
+        stats = self.stats()
+        stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,
+                     r=r)
+        return MapValue(geo.segments, geo.support, geo.polylines, geo.closed,
+                        self.fixed_frame or 'map', self.stamp, stats)
+
+    def stats(self) -> dict:
+        """Counters, skips by cause, update-time (and live latency) percentiles in ms."""
+        with self._lock:
+            out = {'scans': self.received, 'scans_used': self.used, 'updates': self.updates,
+                   'skipped': dict(sorted(self.skipped.items())),
+                   'dropped': sum(v for k, v in self.skipped.items()
+                                  if k.startswith('dropped:'))}
+            for key, values in (('update_ms', self.update_seconds),
+                                ('latency_ms', self.latency_seconds)):
+                if values:
+                    out[key] = _percentiles(values)
+        return out
+
+    def reset(self) -> int:
+        """Forget the map and every queued scan; return the number of segments dropped."""
+        with self._cv:
+            self._generation += 1
+            self._waiting.clear()
+            self._ready.clear()
+            self._points.clear()
+        with self._map_lock:
+            dropped = len(self.mapper.segments)
+            self.mapper.reset()
+            self.stamp = None
+            self.last_scan = None
+        return dropped

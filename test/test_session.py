@@ -1,0 +1,252 @@
+"""The mapping session: checks, poses from records, queue and give-up, grouping, shedding."""
+
+import math
+
+import numpy as np
+from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
+from polyline_mapper.formats.records import Odometry, Scan, Transform
+from polyline_mapper.poses import quaternion_from_yaw, se2_compose
+from polyline_mapper.replay import replay_records
+from polyline_mapper.scan import check_scan, ScanError
+from polyline_mapper.session import MappingSession, SessionOptions, WarningThrottle
+import pytest
+
+
+class FakeClock:
+    """A settable monotonic clock."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def tf(stamp, parent, child, pose, static=False, quat=None):
+    q = quaternion_from_yaw(pose[2]) if quat is None else np.asarray(quat, dtype=float)
+    return Transform(float(stamp), parent, child, np.array([pose[0], pose[1], 0.0]), q, static)
+
+
+def scan_of(drive, i, stamp, frame='laser'):
+    spec = drive.spec
+    return Scan(float(stamp), frame, spec.angle_min, spec.angle_increment, spec.range_min,
+                spec.range_max, drive.ranges[i].astype(np.float32))
+
+
+def live(clock, config=None, **options):
+    warned = []
+    session = MappingSession(config, SessionOptions(**options), clock=clock,
+                             warn=lambda cause, text: warned.append((cause, text)))
+    return session, warned
+
+
+def causes(warned):
+    return [c for c, _ in warned]
+
+
+@pytest.mark.parametrize('kwargs, cause', [
+    ({'ranges': []}, 'empty_scan'),
+    ({'ranges': [np.nan] * 5}, 'no_valid_ranges'),
+    ({'ranges': [np.inf, -np.inf, np.nan, 0.01, 50.0]}, 'no_valid_ranges'),
+    ({'angle_increment': 0.0}, 'angle_increment'),
+    ({'angle_min': np.nan}, 'angle_increment'),
+    ({'intensities': 4}, 'intensities'),
+    ({'range_min': 5.0, 'range_max': 1.0}, 'range_limits'),
+    ({'range_max': np.nan}, 'range_limits'),
+])
+def test_check_scan_names_the_cause(kwargs, cause):
+    args = {'ranges': [1.0, 2.0, np.nan, 3.0, 4.0], 'angle_min': -0.2, 'angle_increment': 0.1,
+            'range_min': 0.1, 'range_max': 30.0}
+    args.update(kwargs)
+    with pytest.raises(ScanError) as err:
+        check_scan(**args)
+    assert err.value.cause == cause and isinstance(err.value, ValueError)
+
+
+def test_check_scan_gives_arrays():
+    scan = check_scan([1.0, np.nan, 3.0], -0.1, 0.1, 0.1, 30.0, 3, 12.5, 'laser')
+    assert np.allclose(scan.angles, [-0.1, 0.0, 0.1]) and scan.ranges.dtype == np.float64
+    assert scan.stamp == 12.5 and scan.frame_id == 'laser'
+    assert check_scan([2.0], 0.3, 0.0, 0.1, 30.0).angles.tolist() == [0.3]   # one beam
+
+
+def test_warning_throttle_logs_each_cause_once_per_period_and_counts():
+    clock, lines = FakeClock(), []
+    w = WarningThrottle(lines.append, 10.0, clock)
+    assert w.warn('a', 'first a') and not w.warn('a', 'again a')
+    assert w.warn('b', 'first b')            # another cause has its own throttle
+    clock.t = 5.0
+    assert not w.warn('a', 'still a')
+    clock.t = 10.5
+    assert w.warn('a', 'later a')
+    assert lines == ['first a [a]', 'first b [b]',
+                     'later a [a] (2 more since the last warning of this cause)']
+    assert w.counts == {'a': 4, 'b': 1}
+
+
+def test_transforms_pose_scans_through_the_tree_and_bad_ones_are_counted():
+    session, warned = live(FakeClock(), fixed_frame='odom', cache_seconds=2.0)
+    session.add_many([tf(0.0, 'base_link', 'laser', (0.2, 0.0, 0.0), static=True)])
+    session.add_many([tf(5.0, 'odom', 'base_link', (1.0, 0.0, math.pi / 2)),
+                      tf(6.0, 'odom', 'base_link', (2.0, 0.0, math.pi / 2)),
+                      tf(6.0, 'odom', 'x', (0.0, 0.0, 0.0), quat=(0.0, 0.0, 0.0, 0.0))])
+    assert causes(warned) == ['bad_transform']
+    pose = session.poses.pose(Scan(5.5, 'laser', 0.0, 0.1, 0.0, 10.0, np.ones(3)))
+    assert np.allclose(pose.xyz, [1.5, 0.2, math.pi / 2]) and not pose.flip
+    # The clock jumps back (a bag loops): the old time line is dropped, the mount kept.
+    session.add(tf(1.0, 'odom', 'base_link', (7.0, 0.0, 0.0)))
+    assert causes(warned) == ['bad_transform', 'time_jump']
+    pose = session.poses.pose(Scan(1.0, 'laser', 0.0, 0.1, 0.0, 10.0, np.ones(3)))
+    assert np.allclose(pose.xyz, [7.2, 0.0, 0.0])
+
+
+def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():
+    session, warned = live(FakeClock(), pose_source='odom', fixed_frame='odom',
+                           mount=(0.3, -0.1, 0.5), mount_upside_down=True)
+    for stamp, x in ((1.0, 2.0), (2.0, 3.0)):
+        session.add(Odometry(stamp, 'odom', 'base_link', np.array([x, 0.0, 0.0]),
+                             quaternion_from_yaw(1.0)))
+    session.add(Odometry(2.5, 'map', 'base_link', np.zeros(3), quaternion_from_yaw(0.0)))
+    assert causes(warned) == ['odom_frame']
+    pose = session.poses.pose(Scan(1.5, 'whatever_frame', 0.0, 0.1, 0.0, 10.0, np.ones(3)))
+    want = se2_compose(np.array([2.5, 0.0, 1.0]), np.array([0.3, -0.1, 0.5]))
+    assert np.allclose(pose.xyz, want) and pose.flip
+
+
+def test_a_live_session_equals_an_offline_replay_of_the_same_records(office_drive):
+    records = []
+    for i in range(60):
+        records.append(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        records.append(scan_of(office_drive, i, float(i)))
+    for n in (1, 3):
+        clock = FakeClock()
+        session, warned = live(clock, update_every_n_scans=n)
+        for k, rec in enumerate(records):
+            session.add(rec)
+            if k % 7 == 0:                   # the worker runs at its own pace
+                session.step(max_updates=1)
+        while session.step(max_updates=1):
+            pass
+        session.flush()
+        offline = replay_records(records, options=SessionOptions(update_every_n_scans=n))
+        a, b = session.map_value(), offline.map_value()
+        assert session.used == offline.used == 60 and not warned
+        assert len(a) > 5 and np.array_equal(a.segments, b.segments)
+        assert np.array_equal(a.support, b.support) and a.stamp == b.stamp == 59.0
+    # n = 1 is the plain mapper fed scan by scan
+    mapper = IncrementalMapper()
+    spec = office_drive.spec
+    for i in range(60):
+        mapper.update_scan(office_drive.ranges[i].astype(np.float32), spec.angles(),
+                           office_drive.poses[i], spec.range_min, spec.range_max)
+    one = replay_records(records)
+    assert np.allclose(one.mapper.segments, mapper.segments, atol=1e-9)
+
+
+def test_update_every_n_scans_groups_their_points_and_flush_maps_the_rest(office_drive):
+    session, _ = live(FakeClock(), IncrementalConfig(noise_updates=1), update_every_n_scans=3)
+    for i in range(10):
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        session.add(scan_of(office_drive, i, float(i)))
+    session.step()
+    assert session.used == 9 and session.mapper.updates == session.updates == 3
+    assert session.has_partial_group()                    # the tenth waits for two more
+    assert session.flush() == 1 and session.used == 10 and not session.has_partial_group()
+
+
+def test_a_scan_waits_for_pose_data_at_its_stamp_then_is_used_or_skipped(office_drive):
+    clock = FakeClock()
+    session, warned = live(clock, wait=0.5, tolerance=0.01)
+    session.add(tf(0.0, 'map', 'laser', office_drive.poses[0]))
+    session.add(scan_of(office_drive, 1, 1.0))               # its pose is not there yet
+    session.add(scan_of(office_drive, 0, 0.0))
+    session.step()
+    assert session.used == 0 and not warned                  # waiting, and holding the order
+    session.add(tf(1.0, 'map', 'laser', office_drive.poses[1]))
+    session.step()
+    assert session.used == 2
+    session.add(scan_of(office_drive, 2, 2.0))
+    session.step()
+    clock.t = 0.6                                            # its pose never comes
+    session.step()
+    assert session.used == 2 and causes(warned) == ['too_new']
+    assert session.stats()['skipped'] == {'no pose: too_new': 1}
+
+
+def test_a_scan_is_interpolated_not_held_when_newer_pose_data_comes(office_drive):
+    clock = FakeClock()
+    session, warned = live(clock, wait=0.5, tolerance=0.1)
+    session.add(tf(0.0, 'map', 'laser', (0.0, 0.0, 0.0)))
+    session.add(Scan(0.05, 'laser', 0.0, 0.01, 0.1, 30.0, np.full(5, 2.0, np.float32)))
+    session.step()
+    assert session.used == 0                 # within the tolerance, but newer data may come
+    session.add(tf(0.1, 'map', 'laser', (1.0, 0.0, 0.0)))
+    session.step()
+    assert session.used == 1 and not warned
+
+
+def test_unknown_frames_wait_then_are_skipped_and_known_frames_go_on(office_drive):
+    clock = FakeClock()
+    session, warned = live(clock, wait=0.2)
+    session.add(tf(0.0, 'map', 'laser', office_drive.poses[0]))
+    session.add(scan_of(office_drive, 0, 0.0, frame='other_laser'))
+    session.add(scan_of(office_drive, 0, 0.0))
+    session.step()
+    assert session.used == 0
+    clock.t = 0.3
+    session.step()
+    assert session.used == 1 and causes(warned) == ['unknown_frame']
+
+
+def test_updates_falling_behind_shed_the_oldest_scans(office_drive):
+    session, warned = live(FakeClock(), max_queue=5)
+    for i in range(8):
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        session.add(scan_of(office_drive, i, float(i)))
+    assert session.step(max_updates=1) in (0, 1)      # one update at a time, then publish
+    assert session.stats()['dropped'] == 3 and session.received == 8
+    while session.step(max_updates=1) or session.has_partial_group():
+        pass
+    assert session.used == 5 and causes(warned) == ['queue_full'] * 3
+    assert session.stamp == 7.0                       # the newest scan made it
+
+
+def test_reset_forgets_the_map_and_the_queue(office_drive):
+    session, _ = live(FakeClock())
+    for i in range(30):
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        session.add(scan_of(office_drive, i, float(i)))
+    session.step()
+    assert len(session.map_value()) > 0 and session.map_value().stamp == 29.0
+    session.add(scan_of(office_drive, 29, 29.5))
+    assert session.reset() > 0
+    session.step()
+    value = session.map_value()
+    assert len(value) == 0 and value.polylines == [] and value.stamp is None
+    assert session.used == 30
+
+
+def test_far_returns_beyond_the_mapping_range_are_dropped_like_invalid_readings(office_drive):
+    config = IncrementalConfig()
+    limit = getattr(config, 'max_mapping_range', None)
+    if limit is None:
+        pytest.skip('IncrementalConfig.max_mapping_range not available')
+    far, invalid = [], []
+    rng = np.random.default_rng(0)
+    for i in range(40):
+        far.append(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        s = scan_of(office_drive, i, float(i))
+        s.range_max = math.inf
+        pick = rng.random(len(s.ranges)) < 0.3
+        bad = s.ranges.copy()
+        bad[pick] = 1e4
+        far.append(Scan(s.stamp, s.frame_id, s.angle_min, s.angle_increment, s.range_min,
+                        math.inf, bad))
+        nan = s.ranges.copy()
+        nan[pick] = np.nan
+        invalid.append(far[-2])
+        invalid.append(Scan(s.stamp, s.frame_id, s.angle_min, s.angle_increment, s.range_min,
+                            math.inf, nan))
+    a = replay_records(far).map_value()
+    b = replay_records(invalid).map_value()
+    assert len(a) > 5 and np.array_equal(a.segments, b.segments)
