@@ -88,6 +88,10 @@ class SessionOptions:
     max_queue: Optional[int] = None
     """Live load shedding: posed scans that may wait for an update; beyond, the oldest are
     dropped (counted). None: never shed (offline)."""
+    max_latency: Optional[float] = None
+    """Live load shedding: seconds (of the clock) a posed scan may wait for its update; older
+    ones are dropped (counted), keeping the newest group, so the map stays current when
+    updates are slower than the scans. None: never (offline)."""
     keep_points: bool = False
     """Keep every mapped point (offline: for map metrics and plots). Memory grows with them."""
     mapping: bool = True
@@ -105,6 +109,10 @@ class SessionOptions:
                                            or self.max_queue < self.update_every_n_scans):
             raise ValueError(f'max_queue must be an integer >= update_every_n_scans, got '
                              f'{self.max_queue!r}')
+        if self.max_latency is not None and not (math.isfinite(self.max_latency)
+                                                 and self.max_latency > 0):
+            raise ValueError(f'max_latency must be a finite number > 0 or None, got '
+                             f'{self.max_latency!r}')
         for name in ('tolerance', 'wait', 'cache_seconds'):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -293,10 +301,10 @@ class MappingSession:
     >>> ranges = np.full(181, 2.0, dtype=np.float32)
     >>> scan = Scan(1.0, 'laser', -1.5708, 0.0174533, 0.1, 30.0, ranges, pose=(0.0, 0.0, 0.0))
     >>> session.add(scan)
-    >>> session.step()
-    0
-    >>> session.stats()['skipped']          # the first updates estimate the noise scale
-    {}
+    >>> session.step()                      # one group processed
+    1
+    >>> session.used, session.updates       # the first updates estimate the noise scale
+    (1, 0)
     """
 
     def __init__(self, config: IncrementalConfig = None, options: SessionOptions = None,
@@ -399,7 +407,7 @@ class MappingSession:
         return self.poses.latest if self.clock is None else self.clock()
 
     def step(self, max_updates: Optional[int] = None) -> int:
-        """Pose the queued scans and run the updates they complete (at most ``max_updates``)."""
+        """Pose the queued scans, run the updates they complete (at most ``max_updates``)."""
         with self._lock:
             self._news = False
         notes = self._pose_waiting(final=False)
@@ -411,7 +419,7 @@ class MappingSession:
         """
         End of input (or a live pause): give up waiting, map the last, partial group.
 
-        Returns the number of updates run.
+        Returns the number of update groups processed.
         """
         notes = self._pose_waiting(final=True)
         done = self._run(None, partial=True)
@@ -485,15 +493,31 @@ class MappingSession:
     def _run(self, max_updates: Optional[int], partial: bool) -> int:
         n = self.options.update_every_n_scans
         done = 0
+        notes = []
         while max_updates is None or done < max_updates:
             with self._lock:
+                notes.extend(self._shed_late(n))
                 if len(self._ready) < n and not (partial and self._ready):
                     break
                 group = [self._ready.popleft() for _ in range(min(n, len(self._ready)))]
                 gen = self._generation
-            if self._update(group, gen):
-                done += 1
+            self._update(group, gen)
+            done += 1
+        self._emit(notes)
         return done
+
+    def _shed_late(self, n: int) -> list:
+        limit = self.options.max_latency
+        if limit is None or self.clock is None:
+            return []
+        now = self.clock()
+        notes = []
+        while len(self._ready) > n and now - self._ready[0][4] > limit:
+            self._ready.popleft()
+            notes.append(self._skip('dropped', 'too_late', 'a scan that waited more than '
+                                    f'{limit:g} s for its update: updates are slower than the '
+                                    'scans'))
+        return notes
 
     def _update(self, group: list, gen: int) -> bool:
         points = np.concatenate([g[1] for g in group])

@@ -250,3 +250,20 @@ def test_far_returns_beyond_the_mapping_range_are_dropped_like_invalid_readings(
     a = replay_records(far).map_value()
     b = replay_records(invalid).map_value()
     assert len(a) > 5 and np.array_equal(a.segments, b.segments)
+
+
+def test_slow_updates_shed_scans_older_than_the_latency_bound_and_keep_the_newest(office_drive):
+    clock = FakeClock()
+    session, warned = live(clock, max_queue=100, max_latency=1.0)
+    for i in range(12):
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+    for i in range(12):                      # 12 scans arrive over 1.2 s ...
+        clock.t = 0.1 * i
+        session.add(scan_of(office_drive, i, float(i)))
+    clock.t = 2.0                            # ... and the worker gets to them 0.8 s later
+    session.step(max_updates=1)
+    # Everything that waited more than 1 s is shed; one update ran with the newest left.
+    assert session.used == 1 and session.stats()['skipped'] == {'dropped: too_late': 10}
+    assert session.stamp == 10.0 and set(causes(warned)) == {'too_late'}
+    session.step(max_updates=1)
+    assert session.used == 2 and session.stamp == 11.0

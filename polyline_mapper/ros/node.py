@@ -154,6 +154,7 @@ class PolylineMapperNode(Node):
         opts.tolerance = self.settings.transform_tolerance
         opts.wait = self.settings.transform_timeout
         opts.update_every_n_scans = self.settings.update_every_n_scans
+        opts.max_latency = self.settings.max_scan_latency or None
         self.warnings.period = self.settings.warning_period
         style = ('publish_markers', 'marker_color', 'marker_width')
         if any(getattr(old, k) != getattr(self.settings, k) for k in style):
@@ -316,7 +317,8 @@ def session_options(settings) -> SessionOptions:
         mount=(settings.laser_x, settings.laser_y, settings.laser_yaw) if odom else None,
         mount_upside_down=settings.laser_upside_down, cache_seconds=settings.transform_cache,
         update_every_n_scans=settings.update_every_n_scans,
-        max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size)
+        max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
+        max_latency=settings.max_scan_latency or None)
 
 
 def _cm(sigma) -> str:

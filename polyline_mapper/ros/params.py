@@ -79,6 +79,10 @@ NODE_PARAMS = (
     ParamSpec('scan_buffer_size', 50,
               'Scans that may wait for their pose and the next update; when updates fall '
               'behind, the oldest are dropped (and counted).', 1, 10000),
+    ParamSpec('max_scan_latency', 1.0,
+              'Seconds a posed scan may wait for its update; when updates are slower than the '
+              'scans, older ones are dropped (and counted) so the map stays current. 0 turns '
+              'this off (only scan_buffer_size bounds the queue).', 0.0, 3600.0, True),
     ParamSpec('update_every_n_scans', 1,
               'Run an incremental update once this many scans have their pose; their points '
               'go into one update. At most scan_buffer_size.', 1, 1000, True),
@@ -203,6 +207,7 @@ class NodeSettings:
     laser_yaw: float
     laser_upside_down: bool
     scan_buffer_size: int
+    max_scan_latency: float
     update_every_n_scans: int
     map_output_path: str
     map_publish_period: float
@@ -272,7 +277,8 @@ def settings_from(values: dict) -> tuple:
     if node['update_every_n_scans'] > node['scan_buffer_size']:
         raise ValueError(f"update_every_n_scans ({node['update_every_n_scans']}) must be at most "
                          f"scan_buffer_size ({node['scan_buffer_size']})")
-    for name in ('transform_tolerance', 'transform_timeout', 'transform_cache', 'laser_x',
+    for name in ('transform_tolerance', 'transform_timeout', 'transform_cache', 'max_scan_latency',
+                 'laser_x',
                  'laser_y', 'laser_yaw', 'map_publish_period', 'marker_width', 'warning_period',
                  'stats_period'):
         node[name] = float(node[name])
