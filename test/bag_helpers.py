@@ -80,8 +80,13 @@ def write_bag(path, messages, storage='sqlite3') -> str:
     return str(path)
 
 
-def write_ros1_bag(path, messages, frame_prefix='/') -> str:
-    """Write the same messages to a ROS 1 bag (frames with a leading slash, as ROS 1 had)."""
+def write_ros1_bag(path, messages, frame_prefix='/', chunk_bytes=None, compression=None) -> str:
+    """
+    Write the same messages to a ROS 1 bag (frames with a leading slash, as ROS 1 had).
+
+    ``chunk_bytes``: start a new chunk once one holds that many bytes (rosbags: 1 MiB);
+    ``compression``: None, 'bz2' or 'lz4' for the chunks.
+    """
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import get_types_from_msg, get_typestore, Stores
     store = get_typestore(Stores.ROS1_NOETIC)
@@ -95,7 +100,12 @@ def write_ros1_bag(path, messages, frame_prefix='/') -> str:
             sec, int(round((stamp - sec) * 1e9))), frame_prefix + frame)
 
     conns = {}
-    with Writer(str(path)) as out:
+    out = Writer(str(path))
+    if compression is not None:
+        out.set_compression(Writer.CompressionFormat[compression.upper()])
+    if chunk_bytes is not None:
+        out.chunk_threshold = int(chunk_bytes)
+    with out:
         for topic, rec, stamp in messages:
             if isinstance(rec, Scan):
                 typ = 'sensor_msgs/msg/LaserScan'
