@@ -22,15 +22,28 @@ maps child coordinates to parent coordinates, p_parent = R(q) p_child + t. Chain
 Dynamic edges are interpolated between the two stored stamps around t: linearly in translation
 and along the shortest arc in rotation (slerp; for planar motion, the shortest arc in yaw).
 A stamp outside an edge's stored range is served by the nearest stored transform when it is
-within ``tolerance`` seconds of it (held, never extrapolated), and refused otherwise. Memory is
-bounded: entries more than ``cache_seconds`` older than an edge's newest are dropped.
+within ``tolerance`` seconds of it (held, never extrapolated), and refused otherwise.
+
+Memory and time are bounded whatever /tf carries: an edge keeps the entries of the last
+``cache_seconds`` before its newest and at most ``max_entries`` of them (the newest); the tree
+holds at most ``max_frames`` frames, and a transform that would add more is refused with
+``FrameLimitError`` (a ValueError) while the known frames keep working. Storing the newest
+transform of an edge is O(1) amortised, an out-of-order one O(log n) plus a shift bounded by
+``max_entries``; a lookup is O(log n) per edge of the chain.
+
+The planar helpers used to build transforms (``se2_compose``, ``se2_inverse``,
+``mount_quaternion``, ``planar_transform``) live here too, so every producer of poses and
+transforms (CARMEN conversion, simulated drives, odometry mode, tests) shares one version.
 """
 
-from bisect import bisect_left, insort
+from bisect import bisect_left
+import heapq
 import math
 from typing import NamedTuple
 
 import numpy as np
+
+from .formats.records import Transform
 
 
 CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
@@ -86,8 +99,25 @@ def quaternion_from_yaw(yaw: float) -> np.ndarray:
     return np.array([0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)])
 
 
+def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
+    """
+    Return the quaternion (x, y, z, w) of a laser mount turned ``yaw`` rad about z.
+
+    When ``upside_down``, the mount is then rolled 180 deg about the laser's x axis:
+    q_yaw * (1, 0, 0, 0).
+    """
+    if not upside_down:
+        return quaternion_from_yaw(yaw)
+    return np.array([math.cos(0.5 * yaw), math.sin(0.5 * yaw), 0.0, 0.0])
+
+
 def se2_compose(a, b) -> np.ndarray:
-    """Compose planar poses row-wise: a then b, (..., 3) arrays of (x, y, yaw)."""
+    """
+    Compose planar poses: ``b`` given in frame ``a``, ``a`` in the world -> ``b`` in the world.
+
+    a, b : (..., 3) float arrays of (x, y, yaw), metres and radians, broadcast row-wise
+    ((N, 3) with (N, 3), (1, 3) or (3,)). The yaw is not wrapped.
+    """
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
@@ -95,18 +125,24 @@ def se2_compose(a, b) -> np.ndarray:
 
 
 def se2_inverse(a) -> np.ndarray:
-    """Invert planar poses row-wise, (..., 3) arrays of (x, y, yaw)."""
+    """Invert planar poses, (..., 3) float arrays of (x, y, yaw): se2_compose(a, inv) = 0."""
     a = np.asarray(a, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
                     axis=-1)
 
 
-def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
-    """Return the quaternion (x, y, z, w) of a mount: yaw about z, then rolled 180 deg if so."""
-    if not upside_down:
-        return quaternion_from_yaw(yaw)
-    return np.array([math.cos(0.5 * yaw), math.sin(0.5 * yaw), 0.0, 0.0])
+def planar_transform(stamp: float, parent: str, child: str, pose, static: bool = False,
+                     quaternion=None) -> Transform:
+    """
+    Return the Transform record placing ``child`` at planar ``pose`` (x, y, yaw) in ``parent``.
+
+    The translation is (x, y, 0); the rotation is the yaw about z, or ``quaternion`` (x, y, z, w)
+    when given (e.g. ``mount_quaternion(yaw, upside_down=True)``); ``pose[2]`` is then unused.
+    """
+    q = (quaternion_from_yaw(float(pose[2])) if quaternion is None
+         else np.asarray(quaternion, dtype=float))
+    return Transform(float(stamp), parent, child, np.array([pose[0], pose[1], 0.0]), q, static)
 
 
 def quaternion_matrix(q) -> np.ndarray:
@@ -144,57 +180,81 @@ def _check_transform(translation, quaternion) -> tuple:
     return t, q / math.sqrt(n2)
 
 
-class _Edge:
-    """Transforms parent -> child: one static entry, or stamped entries in time order."""
+class FrameLimitError(ValueError):
+    """A transform refused because it would add frames beyond the buffer's ``max_frames``."""
 
-    __slots__ = ('parent', 'static', 'stamps', 'data')
+
+class _Edge:
+    """
+    Transforms parent -> child: one static entry, or stamped entries in time order.
+
+    ``stamps[start:]`` and ``data[start:]`` are the live entries; dropping the oldest only
+    moves ``start``, and the dead head is cut off once it is as long as the live part, so
+    appending the newest entry and dropping the oldest are O(1) amortised.
+    """
+
+    __slots__ = ('parent', 'static', 'stamps', 'data', 'start')
 
     def __init__(self, parent: str, static: bool):
         self.parent = parent
         self.static = static
         self.stamps = []
         self.data = []            # (translation (3,), quaternion (4,)) per stamp
+        self.start = 0
 
-    def insert(self, stamp: float, t: np.ndarray, q: np.ndarray, cache: float) -> None:
+    def __len__(self) -> int:
+        return len(self.stamps) - self.start
+
+    def insert(self, stamp: float, t: np.ndarray, q: np.ndarray, cache: float,
+               cap: int) -> None:
         if self.static:
             self.stamps, self.data = [stamp], [(t, q)]
             return
-        i = bisect_left(self.stamps, stamp)
-        if i < len(self.stamps) and self.stamps[i] == stamp:
-            self.data[i] = (t, q)            # same stamp again: the newer message wins
+        s, lo = self.stamps, self.start
+        if len(s) == lo or stamp > s[-1]:
+            s.append(stamp)                  # the common case: the newest so far
+            self.data.append((t, q))
         else:
-            insort(self.stamps, stamp)
+            i = bisect_left(s, stamp, lo)
+            if s[i] == stamp:
+                self.data[i] = (t, q)        # same stamp again: the newer message wins
+                return
+            s.insert(i, stamp)               # late: shift at most ``cap`` entries
             self.data.insert(i, (t, q))
-        cut = bisect_left(self.stamps, self.stamps[-1] - cache)
-        if cut:
-            del self.stamps[:cut]
-            del self.data[:cut]
+        lo = max(bisect_left(s, s[-1] - cache, lo), len(s) - cap)
+        if lo > self.start:
+            self.start = lo
+            if 2 * lo >= len(s):
+                del s[:lo]
+                del self.data[:lo]
+                self.start = 0
 
     def at(self, stamp: float, tolerance: float, child: str) -> tuple:
         """Return translation and rotation matrix at ``stamp`` (or TransformLookupError)."""
         if self.static:
             t, q = self.data[0]
             return t, quaternion_matrix(q)
-        s = self.stamps
-        i = bisect_left(s, stamp)
-        if i < len(s) and s[i] == stamp:
+        s, lo = self.stamps, self.start
+        n = len(s)
+        i = bisect_left(s, stamp, lo)
+        if i < n and s[i] == stamp:
             t, q = self.data[i]
-        elif 0 < i < len(s):
+        elif lo < i < n:
             (t0, q0), (t1, q1) = self.data[i - 1], self.data[i]
             u = (stamp - s[i - 1]) / (s[i] - s[i - 1])
             t, q = t0 + u * (t1 - t0), slerp(q0, q1, u)
-        elif i == 0 and s[0] - stamp <= tolerance:
-            t, q = self.data[0]
-        elif i == len(s) and stamp - s[-1] <= tolerance:
+        elif i == lo and s[lo] - stamp <= tolerance:
+            t, q = self.data[lo]
+        elif i == n and stamp - s[-1] <= tolerance:
             t, q = self.data[-1]
         else:
-            old = i == 0
-            gap = s[0] - stamp if old else stamp - s[-1]
+            old = i == lo
+            gap = s[lo] - stamp if old else stamp - s[-1]
             raise TransformLookupError(
                 'too_old' if old else 'too_new',
                 f'transform {self.parent} -> {child}: stamp {stamp:.3f} is {gap:.3f} s '
                 f'{"before the oldest" if old else "after the newest"} stored '
-                f'({s[0] if old else s[-1]:.3f}), more than the tolerance {tolerance:g} s')
+                f'({s[lo] if old else s[-1]:.3f}), more than the tolerance {tolerance:g} s')
         return t, quaternion_matrix(q)
 
 
@@ -208,11 +268,34 @@ class TransformBuffer2D:
     >>> buf.lookup('odom', 'laser', 1.0)          # (x, y, yaw) of the laser in odom
     """
 
-    def __init__(self, cache_seconds: float = 30.0):
+    def __init__(self, cache_seconds: float = 30.0, max_entries: int = 10000,
+                 max_frames: int = 10000):
+        """
+        Make an empty buffer.
+
+        Parameters
+        ----------
+        cache_seconds : float
+            Seconds of history kept per dynamic edge, before its newest transform.
+        max_entries : int
+            Most transforms kept per dynamic edge (the newest), whatever their rate: 10000
+            holds 30 s at 333 Hz. Bounds memory and the cost of a late insert.
+        max_frames : int
+            Most frames in the tree. A transform that would add a frame beyond it is refused
+            with FrameLimitError (a ValueError): junk frame names cannot grow memory without
+            bound, and the frames already known keep working.
+
+        """
         if not (math.isfinite(cache_seconds) and cache_seconds > 0):
             raise ValueError(f'cache_seconds must be a finite number > 0, got {cache_seconds!r}')
+        for name, value in (('max_entries', max_entries), ('max_frames', max_frames)):
+            if isinstance(value, bool) or int(value) != value or value < 2:
+                raise ValueError(f'{name} must be an integer >= 2, got {value!r}')
         self.cache_seconds = float(cache_seconds)
+        self.max_entries = int(max_entries)
+        self.max_frames = int(max_frames)
         self._edges = {}          # child -> _Edge
+        self._frames = {}         # frame -> number of edges naming it (as child or parent)
 
     # -- filling -------------------------------------------------------------------------------
     def set_transform(self, parent: str, child: str, stamp: float, translation, quaternion,
@@ -223,7 +306,9 @@ class TransformBuffer2D:
         A frame has one parent. A transform naming a new parent for a known child replaces the
         child's history (the tree is re-hung), as does switching an edge between static and
         dynamic. Raises ValueError on empty or equal frame names, a loop in the tree, a
-        non-finite stamp or translation, or a quaternion whose norm is not 1 (+-1 %).
+        non-finite stamp or translation, or a quaternion whose norm is not 1 (+-1 %), and
+        FrameLimitError (a ValueError) when the transform would add a frame beyond
+        ``max_frames``.
         """
         parent, child = _frame(parent), _frame(child)
         if not parent or not child:
@@ -235,25 +320,47 @@ class TransformBuffer2D:
         t, q = _check_transform(translation, quaternion)
         edge = self._edges.get(child)
         if edge is None or edge.parent != parent or edge.static != bool(static):
+            new = (child not in self._frames) + (parent not in self._frames)
+            if new and len(self._frames) + new > self.max_frames:
+                raise FrameLimitError(
+                    f'transform {parent} -> {child} refused: the tree already holds '
+                    f'{len(self._frames)} frames, the limit (max_frames)')
             if child in self._ancestors(parent):
                 raise ValueError(f'transform {parent} -> {child} would close a loop in the tree')
+            if edge is not None:
+                self._unlink(edge.parent, child)
             edge = self._edges[child] = _Edge(parent, bool(static))
-        edge.insert(float(stamp), t, q, self.cache_seconds)
+            for name in (parent, child):
+                self._frames[name] = self._frames.get(name, 0) + 1
+        edge.insert(float(stamp), t, q, self.cache_seconds, self.max_entries)
+
+    def _unlink(self, parent: str, child: str) -> None:
+        """Drop the references of edge parent -> child from the frame counts."""
+        for name in (parent, child):
+            left = self._frames[name] - 1
+            if left:
+                self._frames[name] = left
+            else:
+                del self._frames[name]
 
     def clear(self, keep_static: bool = False) -> None:
         """Forget every transform (or every dynamic one, e.g. after the clock jumped back)."""
         if keep_static:
-            self._edges = {c: e for c, e in self._edges.items() if e.static}
+            for child, edge in list(self._edges.items()):
+                if not edge.static:
+                    del self._edges[child]
+                    self._unlink(edge.parent, child)
         else:
             self._edges.clear()
+            self._frames.clear()
 
     def frames(self) -> set:
         """Return the names of every known frame."""
-        return set(self._edges) | {e.parent for e in self._edges.values()}
+        return set(self._frames)
 
     def entries(self) -> int:
         """Return the number of stored transforms (over all edges)."""
-        return sum(len(e.stamps) for e in self._edges.values())
+        return sum(len(e) for e in self._edges.values())
 
     # -- queries -------------------------------------------------------------------------------
     def lookup(self, target: str, source: str, stamp: float, tolerance: float = 0.1,
@@ -294,12 +401,13 @@ class TransformBuffer2D:
             raise ValueError(f'stamp must be finite, got {stamp!r}')
         if not self._edges:
             raise TransformLookupError('no_tf', 'no transforms received yet')
-        frames = self.frames()
+        frames = self._frames
         for name in (target, source):
             if name not in frames:
                 raise TransformLookupError(
                     'unknown_frame', f'frame {name!r} is unknown (known: '
-                    f'{", ".join(sorted(frames)[:12])}{" ..." if len(frames) > 12 else ""})')
+                    f'{", ".join(heapq.nsmallest(12, frames))}'
+                    f'{" ..." if len(frames) > 12 else ""})')
         if target == source:
             return np.eye(3), np.zeros(3)
         up_s, up_t = self._ancestors(source), self._ancestors(target)

@@ -5,9 +5,8 @@ import gzip
 
 import numpy as np
 from polyline_mapper.formats.bag import BagWriter
-from polyline_mapper.formats.convert import se2_compose
-from polyline_mapper.formats.records import f32, Odometry, Scan, Transform
-from polyline_mapper.poses import quaternion_from_yaw
+from polyline_mapper.formats.records import f32, Odometry, Scan
+from polyline_mapper.poses import planar_transform, quaternion_from_yaw, se2_compose
 from polyline_mapper.sim import LaserSpec, World
 from polyline_mapper.sim.laser import simulate_scan
 from polyline_mapper.sim.world import path_poses
@@ -52,11 +51,6 @@ def room_drive(mount=(0.0, 0.0, 0.0), step=0.3, rng=3, beams=271, fov=270.0,
     return Drive(world, spec, base, laser, ranges, stamps, mount)
 
 
-def _tf(stamp, parent, child, pose, static=False, quaternion=None) -> Transform:
-    q = quaternion_from_yaw(pose[2]) if quaternion is None else np.asarray(quaternion, float)
-    return Transform(float(stamp), parent, child, np.array([pose[0], pose[1], 0.0]), q, static)
-
-
 def drive_messages(drive: Drive, mount=None, mount_quaternion=None, tf=True, static=True,
                    odom=True, scan_topic='/scan', tf_until=None, laser_frame='laser'):
     """
@@ -67,11 +61,11 @@ def drive_messages(drive: Drive, mount=None, mount_quaternion=None, tf=True, sta
     """
     m = drive.mount if mount is None else np.asarray(mount, dtype=float)
     if static:
-        yield '/tf_static', [_tf(drive.stamps[0], 'base_link', laser_frame, m, True,
-                                 mount_quaternion)], drive.stamps[0]
+        yield '/tf_static', [planar_transform(drive.stamps[0], 'base_link', laser_frame, m,
+                                              True, mount_quaternion)], drive.stamps[0]
     for t, b, scan in zip(drive.stamps, drive.base, drive.scans(laser_frame)):
         if tf and (tf_until is None or t <= tf_until):
-            yield '/tf', [_tf(t, 'odom', 'base_link', b)], t
+            yield '/tf', [planar_transform(t, 'odom', 'base_link', b)], t
         if odom:
             yield '/odom', Odometry(float(t), 'odom', 'base_link', np.array([b[0], b[1], 0.0]),
                                     quaternion_from_yaw(b[2])), t
@@ -86,8 +80,13 @@ def write_bag(path, messages, storage='sqlite3') -> str:
     return str(path)
 
 
-def write_ros1_bag(path, messages, frame_prefix='/') -> str:
-    """Write the same messages to a ROS 1 bag (frames with a leading slash, as ROS 1 had)."""
+def write_ros1_bag(path, messages, frame_prefix='/', chunk_bytes=None, compression=None) -> str:
+    """
+    Write the same messages to a ROS 1 bag (frames with a leading slash, as ROS 1 had).
+
+    ``chunk_bytes``: start a new chunk once one holds that many bytes (rosbags: 1 MiB);
+    ``compression``: None, 'bz2' or 'lz4' for the chunks.
+    """
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import get_types_from_msg, get_typestore, Stores
     store = get_typestore(Stores.ROS1_NOETIC)
@@ -101,7 +100,12 @@ def write_ros1_bag(path, messages, frame_prefix='/') -> str:
             sec, int(round((stamp - sec) * 1e9))), frame_prefix + frame)
 
     conns = {}
-    with Writer(str(path)) as out:
+    out = Writer(str(path))
+    if compression is not None:
+        out.set_compression(Writer.CompressionFormat[compression.upper()])
+    if chunk_bytes is not None:
+        out.chunk_threshold = int(chunk_bytes)
+    with out:
         for topic, rec, stamp in messages:
             if isinstance(rec, Scan):
                 typ = 'sensor_msgs/msg/LaserScan'

@@ -9,11 +9,17 @@ in the bag), ``Odometry`` from one ``nav_msgs/Odometry`` topic when asked for, a
 are the messages' header stamps. A message that does not decode is yielded as ``Skipped``; a bag
 that cannot be opened or read on (truncated, not a bag) raises ``BagError`` with one line.
 
+A ROS 1 bag whose index is missing or damaged (a recording cut off by a crash, a damaged end of
+file) is read without it, as ``rosbag reindex`` would (``ros1_reindex``): the index is rebuilt
+in memory from the chunks, the records are those of the intact bag up to the damage, and
+``BagReader.warnings`` says so in one line (messages, chunks, what was lost).
+
 Writing: ``BagWriter`` writes rosbag2 (sqlite3 or mcap) from the same records.
 """
 
 import os
 import pathlib
+import re
 import sqlite3
 import struct
 from typing import Iterator, Optional
@@ -102,6 +108,10 @@ class BagReader:
         self.scan_count = 0
         self.odom_topic = None
         self.tf_topics = []
+        self.warnings = []
+        """One-line warnings about the bag (e.g. a ROS 1 index rebuilt in memory)."""
+        self.reindexed = None
+        """ScanReport when a ROS 1 bag was read without its index, else None."""
 
     # -- opening -------------------------------------------------------------------------------
     def __enter__(self) -> 'BagReader':
@@ -132,7 +142,9 @@ class BagReader:
             reader = AnyReader([p], default_typestore=store)
             reader.open()
         except _read_errors() as exc:
-            raise BagError(f'{self.path}: cannot open the bag ({_why(exc)})') from None
+            if p.suffix.lower() != '.bag' or not p.is_file():
+                raise BagError(f'{self.path}: cannot open the bag ({_why(exc)})') from None
+            reader = self._open_reindexed(p, store, exc)
         self._reader = reader
         try:
             self.topics = {name: info.msgtype for name, info in reader.topics.items()}
@@ -140,6 +152,30 @@ class BagReader:
         except BaseException:
             self.close()
             raise
+
+    def _open_reindexed(self, p: pathlib.Path, store, exc: BaseException):
+        """Open a ROS 1 bag whose index rosbags rejects by scanning its chunks; BagError."""
+        from rosbags.highlevel import AnyReader
+        from .ros1_reindex import NotABagError, ReindexedReader, ReindexError
+        why = _index_why(exc)
+        reader = AnyReader([p], default_typestore=store)
+        scan = ReindexedReader(p)
+        reader.readers = [scan]            # rosbags' AnyReader over a reader opened by a scan
+        try:
+            reader.open()
+        except NotABagError:
+            raise BagError(f'{self.path}: cannot open the bag ({_why(exc)})') from None
+        except ReindexError as err:
+            raise BagError(f'{self.path}: ROS 1 bag index is missing or damaged ({why}) and '
+                           f'the file cannot be read without it: {err}') from None
+        except _read_errors() as err:
+            raise BagError(f'{self.path}: ROS 1 bag index is missing or damaged ({why}) and '
+                           f'the file cannot be read without it ({_why(err)})') from None
+        self.reindexed = scan.report
+        self.warnings.append(f'{self.path}: ROS 1 bag index is missing or damaged ({why}); '
+                             'index rebuilt in memory from the chunks, as rosbag reindex would: '
+                             f'{scan.report.describe()}')
+        return reader
 
     def close(self) -> None:
         """Close the bag (safe to call twice)."""
@@ -220,8 +256,11 @@ class BagReader:
             except StopIteration:
                 return
             except errors as exc:
-                raise BagError(f'{self.path}: unreadable after {seen} message(s), truncated or '
-                               f'corrupt? ({_why(exc)})') from None
+                what = ('ROS 1 bag index does not match its chunks'
+                        if self.path.lower().endswith('.bag') and self.reindexed is None
+                        else 'truncated or corrupt?')
+                raise BagError(f'{self.path}: unreadable after {seen} message(s), {what} '
+                               f'({_why(exc)})') from None
             seen += 1
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -248,10 +287,28 @@ class BagReader:
 
 def _why(exc: BaseException) -> str:
     """Return a short, single-line description of an exception."""
-    text = ' '.join(str(exc).split()) or exc.__class__.__name__
+    text = ' '.join(str(exc).split())
+    if not text:
+        text = ('a consistency check failed' if isinstance(exc, AssertionError)
+                else 'no details')
     if len(text) > 160:
         text = text[:157] + '...'
     return f'{exc.__class__.__name__}: {text}'
+
+
+def _index_why(exc: BaseException) -> str:
+    """Say in a few words why rosbags rejected a ROS 1 bag (its index, mostly)."""
+    text = ' '.join(str(exc).split())
+    if isinstance(exc, AssertionError) or not text:
+        return 'malformed index records'
+    if 'not indexed' in text:
+        return 'no index: the recording was not closed'
+    damaged = re.fullmatch(r'Bag index looks damaged: \((.*),\)', text)
+    if damaged:                               # rosbags puts the reason's repr in parentheses
+        text = 'index records unreadable: ' + damaged.group(1).strip('\'"')
+    if len(text) > 120:
+        text = text[:117] + '...'
+    return text
 
 
 class BagWriter:

@@ -24,31 +24,10 @@ import numpy as np
 
 from .bag import BagWriter
 from .carmen import CarmenLog, read_carmen
-from .records import Odometry, Transform
-from ..poses import quaternion_from_yaw
+from .records import Odometry
+from ..poses import planar_transform, se2_compose, se2_inverse
 
 CARMEN_SUFFIXES = ('.log', '.log.gz', '.clf', '.clf.gz', '.carmen', '.carmen.gz')
-
-
-def se2_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Compose planar poses row-wise: a then b, (..., 3) arrays of (x, y, yaw)."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
-                     a[..., 1] + s * b[..., 0] + c * b[..., 1], a[..., 2] + b[..., 2]], axis=-1)
-
-
-def se2_inverse(a: np.ndarray) -> np.ndarray:
-    """Invert planar poses row-wise, (..., 3) arrays of (x, y, yaw)."""
-    a = np.asarray(a, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
-                    axis=-1)
-
-
-def _transform(stamp, parent, child, pose, static=False) -> Transform:
-    return Transform(float(stamp), parent, child, np.array([pose[0], pose[1], 0.0]),
-                     quaternion_from_yaw(float(pose[2])), static)
 
 
 def carmen_messages(log: CarmenLog, stamps: np.ndarray) -> Iterator[tuple]:
@@ -62,11 +41,12 @@ def carmen_messages(log: CarmenLog, stamps: np.ndarray) -> Iterator[tuple]:
     laser = np.array([r.pose for r in log.records])
     odom = np.array([r.odom for r in log.records])
     map_odom = se2_compose(se2_compose(laser, se2_inverse(mount)), se2_inverse(odom))
-    yield '/tf_static', [_transform(stamps[0], 'base_link', 'laser', mount, True)], stamps[0]
+    static = planar_transform(stamps[0], 'base_link', 'laser', mount, True)
+    yield '/tf_static', [static], stamps[0]
     for i, scan in enumerate(log.scans(stamps, frame_id='laser', with_pose=False)):
         t = float(stamps[i])
-        base = _transform(t, 'odom', 'base_link', odom[i])
-        yield '/tf', [_transform(t, 'map', 'odom', map_odom[i]), base], t
+        base = planar_transform(t, 'odom', 'base_link', odom[i])
+        yield '/tf', [planar_transform(t, 'map', 'odom', map_odom[i]), base], t
         yield '/odom', Odometry(t, 'odom', 'base_link', base.translation, base.rotation), t
         yield '/scan', scan, t
 

@@ -1,0 +1,147 @@
+"""Hostile /tf: junk frame names and stamp floods stay bounded; the SE(2) helpers in poses."""
+
+import math
+import time
+
+import numpy as np
+from polyline_mapper.formats.records import Transform
+from polyline_mapper.poses import (FrameLimitError, mount_quaternion, planar_transform,
+                                   quaternion_from_yaw, quaternion_matrix, se2_compose,
+                                   se2_inverse, TransformBuffer2D)
+import pytest
+
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+
+def real_tree(buf, stamps):
+    """Fill map -> odom -> base_link -> laser at ``stamps``; return the laser pose lookups."""
+    buf.set_transform('base_link', 'laser', 0.0, (0.2, 0.0, 0.3), quaternion_from_yaw(0.1),
+                      static=True)
+    for t in stamps:
+        buf.set_transform('map', 'odom', t, (1.0, -2.0, 0.0), quaternion_from_yaw(0.4))
+        buf.set_transform('odom', 'base_link', t, (t, 0.5 * t, 0.0), quaternion_from_yaw(t))
+    return [buf.lookup('map', 'laser', t + 0.05) for t in stamps[:-1]]
+
+
+@pytest.mark.parametrize('per_message', [1, 100_000])
+def test_100k_junk_frames_are_refused_beyond_the_limit_and_real_frames_keep_working(
+        per_message):
+    rng = np.random.default_rng(5)
+    buf = TransformBuffer2D()
+    stamps = np.arange(0.0, 2.0, 0.1)
+    before = real_tree(buf, stamps)
+    names = [f'junk_{i}_{v}' for i, v in enumerate(rng.integers(0, 1 << 30, 100_000))]
+    refused, limit_errors = 0, 0
+    for start in range(0, len(names), per_message):     # one TFMessage of `per_message`
+        for name in names[start:start + per_message]:
+            try:
+                buf.set_transform('map', name, 1.0, (0.0, 0.0, 0.0), IDENTITY)
+            except ValueError as exc:
+                refused += 1
+                limit_errors += isinstance(exc, FrameLimitError)
+    frames = buf.frames()
+    assert len(frames) == buf.max_frames == 10000
+    assert refused == limit_errors == 100_000 - (10000 - 4)
+    assert buf.entries() <= 10000 + 2 * len(stamps)
+    assert {'map', 'odom', 'base_link', 'laser'} <= frames
+    after = [buf.lookup('map', 'laser', t + 0.05) for t in stamps[:-1]]
+    np.testing.assert_array_equal(after, before)
+    # Known frames keep taking transforms; a frame dropped by re-hanging makes room again.
+    buf.set_transform('odom', 'base_link', 2.0, (2.0, 1.0, 0.0), IDENTITY)
+    with pytest.raises(FrameLimitError, match='max_frames'):
+        buf.set_transform('map', 'one_more', 1.0, (0.0, 0.0, 0.0), IDENTITY)
+    buf.set_transform('odom', names[0], 1.0, (0.0, 0.0, 0.0), IDENTITY)      # re-hung
+    buf.clear(keep_static=True)
+    assert buf.frames() == {'base_link', 'laser'}
+    buf.set_transform('map', 'one_more', 1.0, (0.0, 0.0, 0.0), IDENTITY)
+
+
+def test_300k_stamps_on_one_edge_stay_bounded_and_each_insert_costs_the_same():
+    buf = TransformBuffer2D()                   # 30 s cache: 300k stamps 0.1 ms apart all fit
+    buf.set_transform('base_link', 'laser', 0.0, (0.2, 0.0, 0.0), IDENTITY, static=True)
+    n, block = 300_000, 10_000
+    q = quaternion_from_yaw(0.3)
+    seconds = []
+    start = time.perf_counter()
+    for b in range(n // block):
+        t0 = time.perf_counter()
+        for i in range(b * block, (b + 1) * block):
+            buf.set_transform('odom', 'base_link', i * 1e-4, (i * 1e-5, 0.0, 0.0), q)
+        seconds.append(time.perf_counter() - t0)
+    total = time.perf_counter() - start
+    assert buf.entries() == 1 + buf.max_entries == 1 + 10000
+    assert total < 30.0, seconds                # a few seconds alone on a slow 2-core VM
+    # Linear: the last blocks (buffer full, dropping the oldest) cost about what the first did.
+    assert min(seconds[-3:]) < 3.0 * min(seconds[:3]), seconds
+    newest = (n - 1) * 1e-4
+    pose = buf.lookup('odom', 'laser', newest - 0.5e-4)
+    assert pose[0] == pytest.approx((n - 1.5) * 1e-5 + 0.2 * math.cos(0.3), abs=1e-9)
+    with pytest.raises(LookupError) as err:      # older than the 10000 kept: refused
+        buf.lookup('odom', 'laser', newest - 2.0)
+    assert err.value.cause == 'too_old'
+
+
+def test_late_and_repeated_stamps_keep_the_newest_entries_within_cache_and_cap():
+    rng = np.random.default_rng(11)
+    cache, cap = 2.0, 50
+    buf = TransformBuffer2D(cache_seconds=cache, max_entries=cap)
+    kept = {}                                   # reference: stamp -> x of the kept transforms
+    newest = 0.0
+    for k in range(5000):
+        r = rng.random()
+        t = newest + rng.exponential(0.02) if r < 0.6 or not kept else (
+            rng.choice(list(kept)) if r < 0.7 else newest - rng.uniform(0.0, 3.0))
+        t = float(t)
+        buf.set_transform('odom', 'base_link', t, (float(k), 0.0, 0.0), IDENTITY)
+        kept[t] = float(k)
+        newest = max(newest, t)
+        live = sorted(s for s in kept if s >= newest - cache)[-cap:]
+        kept = {s: kept[s] for s in live}
+        assert buf.entries() == len(kept)
+        if k % 50 == 0:
+            for s, x in kept.items():
+                assert buf.lookup('odom', 'base_link', s)[0] == x
+
+
+@pytest.mark.parametrize('kwargs', [{'max_entries': 1}, {'max_frames': 0}, {'max_entries': 2.5},
+                                    {'max_frames': True}])
+def test_bad_limits_are_refused(kwargs):
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        TransformBuffer2D(**kwargs)
+
+
+def test_se2_compose_and_inverse_vectorised_and_single():
+    rng = np.random.default_rng(3)
+    a, b = rng.uniform(-4, 4, (50, 3)), rng.uniform(-4, 4, (50, 3))
+    ab = se2_compose(a, b)
+    assert ab.shape == (50, 3)
+    for i in range(50):
+        np.testing.assert_array_equal(se2_compose(a[i], b[i]), ab[i])
+        c, s = math.cos(a[i, 2]), math.sin(a[i, 2])
+        want = [a[i, 0] + c * b[i, 0] - s * b[i, 1], a[i, 1] + s * b[i, 0] + c * b[i, 1],
+                a[i, 2] + b[i, 2]]
+        np.testing.assert_allclose(ab[i], want, atol=1e-12)
+    np.testing.assert_allclose(se2_compose(a, se2_inverse(a)), 0.0, atol=1e-12)
+    np.testing.assert_allclose(se2_compose(se2_inverse(a), a), 0.0, atol=1e-12)
+    np.testing.assert_array_equal(se2_compose(a, b[0][None]), se2_compose(a, b[0]))
+    assert se2_inverse(a[0]).shape == (3,)
+
+
+def test_planar_transform_and_mount_quaternion_place_the_child_like_the_buffer():
+    rng = np.random.default_rng(4)
+    for yaw, upside_down in zip(rng.uniform(-3, 3, 8), [False, True] * 4):
+        pose = rng.uniform(-2, 2, 3)
+        tr = planar_transform(1.5, 'base_link', 'laser', pose, static=True,
+                              quaternion=mount_quaternion(yaw, upside_down))
+        assert isinstance(tr, Transform) and tr.static and tr.stamp == 1.5
+        np.testing.assert_array_equal(tr.translation, [pose[0], pose[1], 0.0])
+        rot = quaternion_matrix(tr.rotation)
+        assert math.atan2(rot[1, 0], rot[0, 0]) == pytest.approx(yaw, abs=1e-12)
+        assert rot[2, 2] == pytest.approx(-1.0 if upside_down else 1.0, abs=1e-12)
+        buf = TransformBuffer2D()
+        buf.set_transform(tr.parent, tr.child, tr.stamp, tr.translation, tr.rotation, tr.static)
+        got = buf.lookup_planar('base_link', 'laser', 0.0)
+        assert got.flip == upside_down and got.yaw == pytest.approx(yaw, abs=1e-12)
+    tr = planar_transform(2, 'odom', 'base_link', (1, 2, 0.5))
+    np.testing.assert_array_equal(tr.rotation, quaternion_from_yaw(0.5))
+    assert not tr.static and tr.parent == 'odom' and tr.child == 'base_link'
