@@ -29,7 +29,9 @@ Memory and time are bounded whatever /tf carries: an edge keeps the entries of t
 holds at most ``max_frames`` frames, and a transform that would add more is refused with
 ``FrameLimitError`` (a ValueError) while the known frames keep working. Storing the newest
 transform of an edge is O(1) amortised, an out-of-order one O(log n) plus a shift bounded by
-``max_entries``; a lookup is O(log n) per edge of the chain.
+``max_entries``; a lookup is O(log n) per edge of the chain. Walks up the tree (lookups, the
+loop check when a known frame is re-hung) stop after ``MAX_DEPTH`` frames: a deeper chain, only
+junk /tf can build one, is refused instead of walked.
 
 The planar helpers used to build transforms (``se2_compose``, ``se2_inverse``,
 ``mount_quaternion``, ``planar_transform``) live here too, so every producer of poses and
@@ -46,6 +48,9 @@ import numpy as np
 from .formats.records import Transform
 
 
+MAX_DEPTH = 1000
+"""Most frames on a chain from a frame to its root that a lookup walks (tf2's limit too)."""
+
 CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
 """Lookup failures that newer transforms can cure: the node and replay let such a scan wait."""
 
@@ -57,7 +62,8 @@ class TransformLookupError(LookupError):
     Causes: ``no_tf`` (no transform received at all), ``unknown_frame``, ``not_connected``
     (both frames known, in different trees), ``too_old`` / ``too_new`` (the stamp lies before /
     after the stored transforms of an edge by more than the tolerance), ``tilted`` (the source
-    frame is not level), ``flipped`` (``lookup`` on an upside-down frame; use ``lookup_planar``).
+    frame is not level), ``flipped`` (``lookup`` on an upside-down frame; use ``lookup_planar``),
+    ``too_deep`` (more than MAX_DEPTH frames between a frame and its root).
     """
 
     def __init__(self, cause: str, reason: str):
@@ -325,7 +331,8 @@ class TransformBuffer2D:
                 raise FrameLimitError(
                     f'transform {parent} -> {child} refused: the tree already holds '
                     f'{len(self._frames)} frames, the limit (max_frames)')
-            if child in self._ancestors(parent):
+            # Only a known frame can close a loop: a new one has no descendants.
+            if child in self._frames and child in self._ancestors(parent, FrameLimitError):
                 raise ValueError(f'transform {parent} -> {child} would close a loop in the tree')
             if edge is not None:
                 self._unlink(edge.parent, child)
@@ -410,7 +417,7 @@ class TransformBuffer2D:
                     f'{" ..." if len(frames) > 12 else ""})')
         if target == source:
             return np.eye(3), np.zeros(3)
-        up_s, up_t = self._ancestors(source), self._ancestors(target)
+        up_s, up_t = self._ancestors(source), self._ancestors(target)     # at most MAX_DEPTH
         common = set(up_t)
         lca = next((f for f in up_s if f in common), None)
         if lca is None:
@@ -422,12 +429,23 @@ class TransformBuffer2D:
         return r_t.T @ r_s, r_t.T @ (t_s - t_t)
 
     # -- internals -----------------------------------------------------------------------------
-    def _ancestors(self, frame: str) -> list:
-        """Return [frame, parent, grandparent, ..., root]."""
+    def _ancestors(self, frame: str, error=None) -> list:
+        """
+        Return [frame, parent, grandparent, ..., root].
+
+        A chain longer than MAX_DEPTH raises ``error`` (a ValueError class) when given, else
+        TransformLookupError('too_deep'): whatever /tf holds, a walk costs at most MAX_DEPTH.
+        """
         out = [frame]
         edge = self._edges.get(frame)
         while edge is not None:
             out.append(edge.parent)
+            if len(out) > MAX_DEPTH:
+                text = (f'frame {frame!r} has more than {MAX_DEPTH} frames above it (junk '
+                        'transforms on /tf?)')
+                if error is not None:
+                    raise error(text)
+                raise TransformLookupError('too_deep', text)
             edge = self._edges.get(edge.parent)
         return out
 

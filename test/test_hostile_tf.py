@@ -56,6 +56,30 @@ def test_100k_junk_frames_are_refused_beyond_the_limit_and_real_frames_keep_work
     buf.set_transform('map', 'one_more', 1.0, (0.0, 0.0, 0.0), IDENTITY)
 
 
+def test_a_junk_chain_deeper_than_max_depth_costs_bounded_time_and_spares_the_real_tree():
+    buf = TransformBuffer2D()
+    stamps = np.arange(0.0, 2.0, 0.1)
+    before = real_tree(buf, stamps)
+    start = time.perf_counter()
+    for i in range(5000):                         # map <- j0 <- j1 <- ... <- j4999
+        buf.set_transform('map' if i == 0 else f'j{i - 1}', f'j{i}', 0.0, (0, 0, 0), IDENTITY)
+    rehang = 0
+    for k in range(2000):                         # re-hang a deep known frame, back and forth
+        try:
+            buf.set_transform(f'j{4996 + k % 2}', 'j4999', 0.0, (0, 0, 0), IDENTITY)
+        except FrameLimitError as exc:
+            rehang += 1
+            assert 'more than 1000 frames above it' in str(exc)
+    seconds = time.perf_counter() - start
+    assert rehang == 2000 and seconds < 10.0, seconds      # 5000 x 2000 steps before the cap
+    with pytest.raises(LookupError) as err:
+        buf.lookup('map', 'j4000', 0.0)
+    assert err.value.cause == 'too_deep' and not err.value.curable
+    assert buf.lookup('map', 'j500', 0.0)[0] == 0.0
+    after = [buf.lookup('map', 'laser', t + 0.05) for t in stamps[:-1]]
+    np.testing.assert_array_equal(after, before)
+
+
 def test_300k_stamps_on_one_edge_stay_bounded_and_each_insert_costs_the_same():
     buf = TransformBuffer2D()                   # 30 s cache: 300k stamps 0.1 ms apart all fit
     buf.set_transform('base_link', 'laser', 0.0, (0.2, 0.0, 0.0), IDENTITY, static=True)

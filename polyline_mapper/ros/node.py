@@ -49,6 +49,7 @@ from sensor_msgs.msg import LaserScan
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from . import startup
 from .convert import (diagnostics_msg, map_to_markers, map_to_msg, odometry_from_msg,
                       scan_from_msg, time_msg, transforms_from_msg)
 from .params import all_params, settings_from
@@ -333,11 +334,18 @@ def main(args=None) -> int:
     """
     Run the node until SIGINT / SIGTERM; exit code 1 with one line on bad parameters.
 
+    Bad ROS arguments (a missing, broken or binary ``--params-file``, ``-p name:=`` without a
+    value) are refused the same way, before rclpy starts (``startup``).
+
     rclpy's own signal handlers are off: a signal raises KeyboardInterrupt in the spin loop
     (within its 0.1 s wait), so the worker is stopped and the summary logged while the context
     is still valid, before the node is destroyed and rclpy shut down.
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        startup.init(args, signal_handler_options=SignalHandlerOptions.NO)
+    except startup.StartupError as exc:         # bad ROS arguments or parameter file
+        get_logger(NODE_NAME).fatal(f'cannot start: {exc}')
+        return 1
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     try:

@@ -265,9 +265,10 @@ def settings_from(values: dict) -> tuple:
     for name, value in values.items():
         check_value(specs[name], value)
     node = {p.name: values[p.name] for p in NODE_PARAMS}
-    for name in ('fixed_frame', 'map_output_path'):
-        if not node[name].strip():
-            raise ValueError(f'{name} must not be empty')
+    if not node['fixed_frame'].strip():
+        raise ValueError('fixed_frame must not be empty: it must be a frame name (e.g. map)')
+    if not node['map_output_path'].strip():
+        raise ValueError('map_output_path must not be empty')
     if node['fixed_frame'].lstrip('/') != node['fixed_frame']:
         raise ValueError(f"fixed_frame must not start with '/', got {node['fixed_frame']!r}")
     color = tuple(float(c) for c in node['marker_color'])

@@ -1,0 +1,181 @@
+"""
+Start-up of a node process: ROS arguments and parameter files checked, rclpy started, one line.
+
+rcl refuses bad command-line ROS arguments inside ``rclpy.init`` with an RCLError (after logging
+its own "Failed to parse global arguments" line), so a missing, broken or binary
+``--params-file`` or an empty ``-p name:=`` ends in a 13-line traceback. ``check_ros_args``
+finds these before rcl does and says what is wrong in our words (the choices of a parameter
+given no value, the line of a YAML error); ``init`` starts rclpy and turns whatever rcl still
+refuses into one line, without rcl's own log line. Callers log ``cannot start: <reason>`` and
+exit with code 1, as for a bad parameter value.
+"""
+
+import os
+import re
+import sys
+import tempfile
+from typing import Optional, Sequence
+
+from .params import all_params
+
+MAX_PARAMS_FILE = 16 << 20
+"""Largest parameter file read for checking (bytes); rcl reads larger ones itself."""
+
+
+class StartupError(Exception):
+    """A reason the node cannot start, in one line."""
+
+
+def ros_arg_sections(argv: Sequence[str]) -> list:
+    """Return the ROS arguments of ``argv``: those after each ``--ros-args`` up to ``--``."""
+    out, inside = [], False
+    for arg in argv:
+        if arg == '--ros-args':
+            inside = True
+        elif arg == '--':
+            inside = False
+        elif inside:
+            out.append(arg)
+    return out
+
+
+def check_ros_args(argv: Sequence[str]) -> None:
+    """
+    Raise StartupError with one line when a ROS argument of ``argv`` cannot work.
+
+    Checked: ``-p`` / ``--param`` rules with an empty value (rcl refuses them; a parameter
+    with choices names them, fixed_frame asks for a frame name), and each ``--params-file``:
+    it exists, is a readable regular file, is text and parses as YAML. What passes here is
+    still checked by rcl and by the node's parameter validation.
+    """
+    args = ros_arg_sections(argv)
+    specs = {p.name: p for p in all_params()}
+    for flag, value in zip(args, args[1:] + ['']):
+        if flag in ('-p', '--param'):
+            _check_rule(value, specs)
+        elif flag == '--params-file':
+            check_params_file(value)
+
+
+def _check_rule(rule: str, specs: dict) -> None:
+    name, sep, value = rule.partition(':=')
+    if not sep or value:
+        return                                  # rcl's checks (and the node's) apply
+    name = name.rpartition(':')[2]              # '-p node_name:param:=' names a node
+    spec = specs.get(name)
+    if spec is not None and spec.choices:
+        raise StartupError(f'{name} must be one of {", ".join(spec.choices)}, got an empty '
+                           f'value (-p {rule})')
+    if name == 'fixed_frame':
+        raise StartupError(f'fixed_frame must be a frame name (e.g. map), got an empty value '
+                           f'(-p {rule})')
+    if spec is not None and isinstance(spec.default, str):
+        raise StartupError(f'{name} must not be empty (-p {rule})')
+    kind = f' ({name} takes a {type(spec.default).__name__})' if spec is not None else ''
+    raise StartupError(f'-p {rule}: no value after ":="{kind}')
+
+
+def check_params_file(path: str) -> None:
+    """Raise StartupError when ``path`` is not a readable YAML text file."""
+    if not path:
+        raise StartupError('--params-file needs a file name')
+    what = f'params file {path}'
+    if not os.path.exists(path):
+        raise StartupError(f'{what}: no such file')
+    if os.path.isdir(path):
+        raise StartupError(f'{what}: is a directory, not a YAML file')
+    if not os.path.isfile(path):
+        raise StartupError(f'{what}: not a regular file')
+    try:
+        with open(path, 'rb') as fh:
+            data = fh.read(MAX_PARAMS_FILE + 1)
+    except OSError as exc:
+        raise StartupError(f'{what}: cannot be read ({exc.strerror or exc})') from None
+    if len(data) > MAX_PARAMS_FILE:
+        return                                  # too big to check here: rcl reads it
+    if b'\0' in data:
+        raise StartupError(f'{what}: binary data (a NUL byte at byte {data.index(0)}), not '
+                           'a YAML text file')
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise StartupError(f'{what}: not UTF-8 text (byte {exc.start}), not a YAML text '
+                           'file') from None
+    try:
+        import yaml
+    except ImportError:                         # pragma: no cover - rclpy depends on PyYAML
+        return
+    try:
+        yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
+        problem = getattr(exc, 'problem', None) or 'cannot be parsed'
+        raise StartupError(f'{what}: not valid YAML ({problem}{where})') from None
+    except RecursionError:
+        raise StartupError(f'{what}: not valid YAML (nested too deep)') from None
+
+
+def init(args: Optional[Sequence[str]] = None, **kwargs) -> None:
+    """
+    Check the ROS arguments, then start rclpy with them (and kwargs); StartupError if not.
+
+    rcl's own log line about arguments it refuses is held back (standard error is captured
+    while rcl parses them) and its error becomes the StartupError's one line.
+    """
+    import rclpy
+    argv = list(sys.argv if args is None else args)
+    check_ros_args(argv)
+    try:
+        with _stderr_held() as held:
+            rclpy.init(args=args, **kwargs)
+    except Exception as exc:                    # noqa: B902 - RCLError and friends
+        raise StartupError(rcl_reason(exc)) from None
+    if held.text:
+        sys.stderr.write(held.text)
+
+
+def rcl_reason(exc: BaseException) -> str:
+    """Return a one-line reason from an exception of ``rclpy.init`` (RCLError and others)."""
+    name = type(exc).__name__
+    text = ' '.join(str(exc).split())
+    if name == 'UnknownROSArgsError':
+        found = re.findall(r"'([^']*)'", text)
+        return f'unknown ROS argument(s): {" ".join(found) or text}'
+    text = re.sub(r', at [^,]*?\.\w+:\d+', '', text)      # rcl's source locations
+    text = text.replace('failed to initialize rcl: ', '')
+    text = re.sub(r'\.? ?Error: error not set', '', text)
+    params = re.match(r"Couldn't parse params file: '--params-file (.*?)'\. Error: (.*)", text)
+    if params:
+        return f'params file {params.group(1)}: {params.group(2)}'
+    return text or name
+
+
+class _Held:
+    text = ''
+
+
+class _stderr_held:
+    """Capture file descriptor 2 (where rcl logs) while rcl parses the arguments."""
+
+    def __enter__(self) -> _Held:
+        self.held = _Held()
+        try:
+            sys.stderr.flush()
+            self.saved = os.dup(2)
+        except (OSError, ValueError):
+            self.saved = None                   # no usable fd 2: nothing to hold
+            return self.held
+        self.tmp = tempfile.TemporaryFile()
+        os.dup2(self.tmp.fileno(), 2)
+        return self.held
+
+    def __exit__(self, *exc) -> bool:
+        if self.saved is None:
+            return False
+        os.dup2(self.saved, 2)
+        os.close(self.saved)
+        self.tmp.seek(0)
+        self.held.text = self.tmp.read().decode(errors='replace')
+        self.tmp.close()
+        return False

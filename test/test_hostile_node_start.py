@@ -1,0 +1,80 @@
+"""The node refuses bad ROS arguments and parameter files with one line and exit code 1."""
+
+from concurrent.futures import ThreadPoolExecutor
+import os
+import subprocess
+
+from conftest import REPO
+import pytest
+from rosnode import NODE_EXE
+
+pytestmark = pytest.mark.slow
+TIMEOUT = 60.0
+
+BROKEN_YAML = 'polyline_mapper_node:\n  ros__parameters:\n    foo: [1, 2\n'
+NOT_ROS_LAYOUT = 'foo: 1\n'
+EMPTY_FRAME = 'polyline_mapper_node:\n  ros__parameters:\n    fixed_frame: ""\n'
+
+# argv after --ros-args ('{dir}' is a scratch folder) -> what the one line must say.
+CASES = [
+    (['--params-file', '{dir}/missing.yaml'], ['params file', 'missing.yaml: no such file']),
+    (['--params-file', '{dir}/broken.yaml'], ['broken.yaml: not valid YAML', 'line 4']),
+    (['--params-file', '{dir}/binary.yaml'], ['binary.yaml: binary data']),
+    (['--params-file', '{dir}'], ['is a directory']),
+    (['--params-file', '{dir}/layout.yaml'],
+     ['layout.yaml: Cannot have a value before ros__parameters']),
+    (['--params-file', '{dir}/empty_frame.yaml'],
+     ['fixed_frame must not be empty: it must be a frame name']),
+    (['-p', 'pose_source:='], ['pose_source must be one of tf, odom, got an empty value']),
+    (['-p', 'fixed_frame:='], ['fixed_frame must be a frame name']),
+    (['-p', 'smemsf.init:='], ['smemsf.init must be one of diagonals, single, random']),
+    (['-p', 'map_output_path:='], ['map_output_path must not be empty']),
+    (['-p', 'laser_x:='], ['laser_x:=: no value', 'float']),
+    (['-p'], ['trailing -p flag']),
+    (['--bogus'], ['unknown ROS argument(s): --bogus']),
+    (['--log-level', 'nonsense'], ['log level']),
+]
+
+
+def run_node(argv):
+    proc = subprocess.run([str(NODE_EXE), '--ros-args'] + argv, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, timeout=TIMEOUT,
+                          env=dict(os.environ, RCUTILS_COLORIZED_OUTPUT='0'))
+    return proc.returncode, proc.stdout.decode(errors='replace')
+
+
+@pytest.fixture(scope='module')
+def outcomes(tmp_path_factory):
+    """Start the node once per case (four at a time); return (argv, rc, output) per case."""
+    folder = tmp_path_factory.mktemp('start')
+    (folder / 'broken.yaml').write_text(BROKEN_YAML)
+    (folder / 'binary.yaml').write_bytes(bytes(range(256)) * 4)
+    (folder / 'layout.yaml').write_text(NOT_ROS_LAYOUT)
+    (folder / 'empty_frame.yaml').write_text(EMPTY_FRAME)
+    argvs = [[a.format(dir=folder) for a in argv] for argv, _ in CASES]
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(run_node, argvs))
+    return {i: (argv, rc, out) for i, (argv, (rc, out)) in enumerate(zip(argvs, results))}
+
+
+@pytest.mark.parametrize('case', range(len(CASES)), ids=[' '.join(a) for a, _ in CASES])
+def test_bad_start_arguments_exit_1_with_one_line(outcomes, case):
+    argv, rc, out = outcomes[case]
+    lines = out.strip().splitlines()
+    assert rc == 1 and len(lines) == 1, (argv, out)
+    assert 'Traceback' not in out and '[rcl]' not in out
+    assert 'cannot start: ' in lines[0], lines[0]
+    for fragment in CASES[case][1]:
+        assert fragment in lines[0], (fragment, lines[0])
+
+
+def test_the_shipped_parameter_file_passes_the_start_checks():
+    from polyline_mapper.ros.startup import check_ros_args, StartupError
+    shipped = sorted((REPO / 'config').glob('*.yaml'))
+    assert shipped
+    check_ros_args(['node', '--ros-args'] + [a for p in shipped for a in ('--params-file', str(p))]
+                   + ['-p', 'fixed_frame:=odom', '-p', 'polyline_mapper_node:pose_source:=odom'])
+    with pytest.raises(StartupError, match='pose_source must be one of'):
+        check_ros_args(['node', '--ros-args', '-p', 'polyline_mapper_node:pose_source:='])
+    # Arguments outside --ros-args ... -- are not ROS arguments.
+    check_ros_args(['node', '-p', 'pose_source:=', '--ros-args', '--', '-p', 'pose_source:='])
