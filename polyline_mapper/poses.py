@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .formats.records import Transform
 
 CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
 """Lookup failures that newer transforms can cure: the node and replay let such a scan wait."""
@@ -84,6 +85,58 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
 def quaternion_from_yaw(yaw: float) -> np.ndarray:
     """Return the unit quaternion (x, y, z, w) of a rotation by ``yaw`` rad about z."""
     return np.array([0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)])
+
+
+def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
+    """
+    Return the quaternion (x, y, z, w) of a laser mount: yaw about z, then rolled if so.
+
+    ``yaw`` rad about z; when ``upside_down``, then rolled 180 degrees about x (the laser's
+    z axis points down, its beams sweep clockwise seen from above).
+
+    >>> mount_quaternion(0.0, upside_down=True).tolist()
+    [1.0, 0.0, 0.0, 0.0]
+    """
+    if not upside_down:
+        return quaternion_from_yaw(yaw)
+    return np.array([math.cos(0.5 * yaw), math.sin(0.5 * yaw), 0.0, 0.0])
+
+
+def se2_compose(a, b) -> np.ndarray:
+    """
+    Compose planar poses: ``b`` (given in ``a``'s frame) seen from ``a``'s parent frame.
+
+    ``a``, ``b``: (..., 3) arrays of (x, y, yaw), metres and radians, broadcast against each
+    other. Returns (..., 3); the yaw is not wrapped.
+
+    >>> se2_compose((1.0, 0.0, math.pi / 2), (1.0, 0.0, 0.0)).round(12).tolist()
+    [1.0, 1.0, 1.570796326795]
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
+                     a[..., 1] + s * b[..., 0] + c * b[..., 1], a[..., 2] + b[..., 2]], axis=-1)
+
+
+def se2_inverse(a) -> np.ndarray:
+    """Invert planar poses: (..., 3) arrays of (x, y, yaw) -> (..., 3), se2_compose(a, inv) = 0."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
+                    axis=-1)
+
+
+def planar_transform(stamp: float, parent: str, child: str, pose, static: bool = False,
+                     quaternion=None) -> Transform:
+    """
+    Return the Transform record parent -> child of a planar ``pose`` (x, y, yaw) at ``stamp``.
+
+    z is 0; the rotation is ``quaternion`` (x, y, z, w) when given (e.g. ``mount_quaternion``
+    of an upside-down laser), else the yaw about z.
+    """
+    q = (quaternion_from_yaw(float(pose[2])) if quaternion is None
+         else np.asarray(quaternion, dtype=np.float64))
+    return Transform(float(stamp), parent, child, np.array([pose[0], pose[1], 0.0]), q, static)
 
 
 def quaternion_matrix(q) -> np.ndarray:
