@@ -6,9 +6,9 @@ import types
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from polyline_mapper.poses import quaternion_from_yaw, TransformLookupError
+from polyline_mapper.poses import quaternion_from_yaw, se2_compose, TransformLookupError
+from polyline_mapper.ros.convert import time_msg
 from polyline_mapper.ros.params import defaults, settings_from
-from polyline_mapper.ros.sim_player import compose, to_time
 from polyline_mapper.ros.tf_listener import OdomSource, Tf2RosSource, TfTopicSource
 import pytest
 
@@ -26,7 +26,7 @@ class StubNode:
 def transform(parent, child, stamp, x, y, yaw, quat=None):
     ts = TransformStamped()
     ts.header.frame_id, ts.child_frame_id = parent, child
-    ts.header.stamp = to_time(stamp)
+    ts.header.stamp = time_msg(stamp)
     ts.transform.translation.x, ts.transform.translation.y = x, y
     q = ts.transform.rotation
     q.x, q.y, q.z, q.w = (float(v) for v in (quaternion_from_yaw(yaw) if quat is None else quat))
@@ -71,7 +71,7 @@ def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():
     for stamp, x in ((1.0, 2.0), (2.0, 3.0)):
         msg = Odometry()
         msg.header.frame_id, msg.child_frame_id = 'odom', 'base_link'
-        msg.header.stamp = to_time(stamp)
+        msg.header.stamp = time_msg(stamp)
         msg.pose.pose.position.x = x
         q = msg.pose.pose.orientation
         q.x, q.y, q.z, q.w = (float(v) for v in quaternion_from_yaw(1.0))
@@ -81,7 +81,7 @@ def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():
     node.callbacks['odom'](wrong)
     assert warned == ['odom_frame']
     pose = src.lookup('odom', 'whatever_frame', 1.5, 0.1)
-    want = compose((2.5, 0.0, 1.0), (0.3, -0.1, 0.5))
+    want = se2_compose((2.5, 0.0, 1.0), (0.3, -0.1, 0.5))
     assert np.allclose(pose.xyz, want) and pose.flip
 
 
