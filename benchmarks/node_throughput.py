@@ -68,7 +68,8 @@ def run(seconds: float, rate: float, beams: int) -> dict:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import qos_profile_sensor_data
     from polyline_mapper.ros.qos import MAP_QOS
-    from polyline_mapper.ros.sim_player import DriveMessages
+    from polyline_mapper.recordings import drive_messages
+    from polyline_mapper.ros.convert import scan_msg, transform_msg
     from polyline_mapper.ros.qos import TF_QOS, TF_STATIC_QOS
     from polyline_mapper_msgs.msg import PolylineMap
     from sensor_msgs.msg import LaserScan
@@ -78,8 +79,11 @@ def run(seconds: float, rate: float, beams: int) -> dict:
     t_sim = time.perf_counter()
     drive, _ = make_drive(count, beams)
     drive_seconds = time.perf_counter() - t_sim
-    msgs = DriveMessages(drive, mount=(0.2, 0.0, 0.0), map_to_odom=(0.5, -0.3, 0.1))
-    count = min(count, len(msgs))
+    msgs = list(drive_messages(drive, mount=(0.2, 0.0, 0.0), map_to_odom=(0.5, -0.3, 0.1)))
+    static = next(r for _, topic, r in msgs if topic == '/tf_static')
+    transforms = [r for _, topic, r in msgs if topic == '/tf']
+    scans = [r for _, topic, r in msgs if topic == '/scan']
+    count = min(count, len(scans))
 
     exe = os.path.join(os.path.dirname(sys.executable), 'polyline_mapper_node')
     err = tempfile.NamedTemporaryFile('w+', suffix='.stderr', delete=False)
@@ -111,7 +115,7 @@ def run(seconds: float, rate: float, beams: int) -> dict:
                           and tf_pub.get_subscription_count() > 0, 60.0):
             raise RuntimeError('the node did not come up: ' + open(err.name).read())
         spin_until(lambda: False, 1.0)          # let the node's readers match ours too
-        static_pub.publish(TFMessage(transforms=[msgs.static_mount()]))
+        static_pub.publish(TFMessage(transforms=[transform_msg(tr) for tr in static]))
         sent = {}
         t0_stamp = time.time()
         cpu0, _ = proc_times(node.pid)
@@ -121,8 +125,8 @@ def run(seconds: float, rate: float, beams: int) -> dict:
         peak_rss = 0
         for i in range(count):
             st = t0_stamp + i / rate
-            scan = msgs.scan(i, st)
-            tf_pub.publish(TFMessage(transforms=msgs.transforms(i, st)))
+            scan = scan_msg(scans[i], st)
+            tf_pub.publish(TFMessage(transforms=[transform_msg(tr, st) for tr in transforms[i]]))
             scan_pub.publish(scan)
             sent[(scan.header.stamp.sec, scan.header.stamp.nanosec)] = time.monotonic()
             tick += 1.0 / rate

@@ -107,10 +107,13 @@ def quaternion_from_yaw(yaw: float) -> np.ndarray:
 
 def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
     """
-    Return the quaternion (x, y, z, w) of a laser mount turned ``yaw`` rad about z.
+    Return the quaternion (x, y, z, w) of a laser mount: yaw about z, then rolled if so.
 
-    When ``upside_down``, the mount is then rolled 180 deg about the laser's x axis:
-    q_yaw * (1, 0, 0, 0).
+    ``yaw`` rad about z; when ``upside_down``, then rolled 180 degrees about x (the laser's
+    z axis points down, its beams sweep clockwise seen from above).
+
+    >>> mount_quaternion(0.0, upside_down=True).tolist()
+    [1.0, 0.0, 0.0, 0.0]
     """
     if not upside_down:
         return quaternion_from_yaw(yaw)
@@ -119,10 +122,13 @@ def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
 
 def se2_compose(a, b) -> np.ndarray:
     """
-    Compose planar poses: ``b`` given in frame ``a``, ``a`` in the world -> ``b`` in the world.
+    Compose planar poses: ``b`` (given in ``a``'s frame) seen from ``a``'s parent frame.
 
-    a, b : (..., 3) float arrays of (x, y, yaw), metres and radians, broadcast row-wise
-    ((N, 3) with (N, 3), (1, 3) or (3,)). The yaw is not wrapped.
+    ``a``, ``b``: (..., 3) arrays of (x, y, yaw), metres and radians, broadcast against each
+    other. Returns (..., 3); the yaw is not wrapped.
+
+    >>> se2_compose((1.0, 0.0, math.pi / 2), (1.0, 0.0, 0.0)).round(12).tolist()
+    [1.0, 1.0, 1.570796326795]
     """
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -131,7 +137,7 @@ def se2_compose(a, b) -> np.ndarray:
 
 
 def se2_inverse(a) -> np.ndarray:
-    """Invert planar poses, (..., 3) float arrays of (x, y, yaw): se2_compose(a, inv) = 0."""
+    """Invert planar poses: (..., 3) arrays of (x, y, yaw) -> (..., 3), se2_compose(a, inv) = 0."""
     a = np.asarray(a, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
@@ -141,13 +147,13 @@ def se2_inverse(a) -> np.ndarray:
 def planar_transform(stamp: float, parent: str, child: str, pose, static: bool = False,
                      quaternion=None) -> Transform:
     """
-    Return the Transform record placing ``child`` at planar ``pose`` (x, y, yaw) in ``parent``.
+    Return the Transform record parent -> child of a planar ``pose`` (x, y, yaw) at ``stamp``.
 
-    The translation is (x, y, 0); the rotation is the yaw about z, or ``quaternion`` (x, y, z, w)
-    when given (e.g. ``mount_quaternion(yaw, upside_down=True)``); ``pose[2]`` is then unused.
+    z is 0; the rotation is ``quaternion`` (x, y, z, w) when given (e.g. ``mount_quaternion``
+    of an upside-down laser), else the yaw about z.
     """
     q = (quaternion_from_yaw(float(pose[2])) if quaternion is None
-         else np.asarray(quaternion, dtype=float))
+         else np.asarray(quaternion, dtype=np.float64))
     return Transform(float(stamp), parent, child, np.array([pose[0], pose[1], 0.0]), q, static)
 
 

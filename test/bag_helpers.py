@@ -6,7 +6,8 @@ import gzip
 import numpy as np
 from polyline_mapper.formats.bag import BagWriter
 from polyline_mapper.formats.records import f32, Odometry, Scan
-from polyline_mapper.poses import planar_transform, quaternion_from_yaw, se2_compose
+from polyline_mapper.poses import planar_transform, se2_compose
+from polyline_mapper.recordings import robot_messages
 from polyline_mapper.sim import LaserSpec, World
 from polyline_mapper.sim.laser import simulate_scan
 from polyline_mapper.sim.world import path_poses
@@ -56,20 +57,21 @@ def drive_messages(drive: Drive, mount=None, mount_quaternion=None, tf=True, sta
     """
     Yield (topic, record, log time) for a drive: /tf_static, /tf odom -> base_link, /odom, scans.
 
-    ``mount`` overrides the static transform written (default: the true one); ``tf_until``
-    stops /tf after that stamp.
+    The messages of ``recordings.robot_messages`` without a map frame, scans logged 1 ms after
+    their stamp. ``mount`` (x, y, yaw) and ``mount_quaternion`` override the static transform
+    written (default: the true mount), as a misconfigured robot would; ``tf_until`` stops /tf
+    after that stamp.
     """
-    m = drive.mount if mount is None else np.asarray(mount, dtype=float)
-    if static:
-        yield '/tf_static', [planar_transform(drive.stamps[0], 'base_link', laser_frame, m,
-                                              True, mount_quaternion)], drive.stamps[0]
-    for t, b, scan in zip(drive.stamps, drive.base, drive.scans(laser_frame)):
-        if tf and (tf_until is None or t <= tf_until):
-            yield '/tf', [planar_transform(t, 'odom', 'base_link', b)], t
-        if odom:
-            yield '/odom', Odometry(float(t), 'odom', 'base_link', np.array([b[0], b[1], 0.0]),
-                                    quaternion_from_yaw(b[2])), t
-        yield scan_topic, scan, t + 0.001
+    frames = ('map', 'odom', 'base_link', laser_frame)
+    for t, topic, record in robot_messages(
+            drive.stamps, drive.laser, drive.scans(laser_frame), drive.mount, frames=frames,
+            tf=tf, static=static, odom=odom, tf_until=tf_until):
+        if topic == '/tf_static' and (mount is not None or mount_quaternion is not None):
+            m = drive.mount if mount is None else mount
+            record = [planar_transform(t, 'base_link', laser_frame, m, True, mount_quaternion)]
+        if topic == '/scan':
+            topic, t = scan_topic, t + 0.001
+        yield topic, record, t
 
 
 def write_bag(path, messages, storage='sqlite3') -> str:

@@ -139,25 +139,35 @@ class Peer:
         self.spin_for(0.5)
         return found
 
-    def play(self, messages, rate: float, mode: str = 'tf', t0: float = None,
-             indices=None) -> float:
-        """Publish scans (with their transforms or odometry) at ``rate`` Hz; return last stamp."""
+    def play(self, messages, rate: float, mode: str = 'tf', t0: float = None) -> float:
+        """
+        Publish a drive's records at ``rate`` scans a second; return the last scan's stamp.
+
+        ``messages``: ``(log_time, topic, record)`` of ``recordings.drive_messages``. Scan k and
+        the /tf (``mode`` 'tf') or /odom (``mode`` 'odom') before it are stamped t0 + k / rate
+        (t0: now by default); /tf_static is published once, in tf mode.
+        """
+        from polyline_mapper.ros.convert import odometry_msg, scan_msg, transform_msg
         t0 = time.time() if t0 is None else t0
-        if mode == 'tf':
-            self.static_pub.publish(self.TFMessage(transforms=[messages.static_mount()]))
         period = 1.0 / rate
         tick = time.monotonic()
-        stamp = t0
-        for k, i in enumerate(range(len(messages)) if indices is None else indices):
+        k = 0
+        for _, topic, record in messages:
             stamp = t0 + k * period
-            if mode == 'tf':
-                self.tf_pub.publish(self.TFMessage(transforms=messages.transforms(i, stamp)))
-            else:
-                self.odom_pub.publish(messages.odometry(i, stamp))
-            self.scan_pub.publish(messages.scan(i, stamp))
-            tick += period
-            self.spin_for(max(0.0, tick - time.monotonic()))
-        return stamp
+            if topic == '/tf_static' and mode == 'tf':
+                self.static_pub.publish(self.TFMessage(
+                    transforms=[transform_msg(tr) for tr in record]))
+            elif topic == '/tf' and mode == 'tf':
+                self.tf_pub.publish(self.TFMessage(
+                    transforms=[transform_msg(tr, stamp) for tr in record]))
+            elif topic == '/odom' and mode == 'odom':
+                self.odom_pub.publish(odometry_msg(record, stamp))
+            elif topic == '/scan':
+                self.scan_pub.publish(scan_msg(record, stamp))
+                k += 1
+                tick += period
+                self.spin_for(max(0.0, tick - time.monotonic()))
+        return t0 + (k - 1) * period
 
     def call(self, name: str, srv_type, request=None, timeout: float = 10.0):
         """Call a service; return the response (None if it did not answer in time)."""
@@ -186,6 +196,11 @@ class Peer:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+def scans_of(messages) -> list:
+    """Return the Scan records of ``(log_time, topic, record)`` messages, in order."""
+    return [record for _, topic, record in messages if topic == '/scan']
 
 
 def stamp_of(msg) -> float:

@@ -11,7 +11,7 @@ import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.formats.bag import BagWriter
 from polyline_mapper.formats.mapjson import read_map
-from polyline_mapper.playback import drive_messages, make_drive, open_recording
+from polyline_mapper.recordings import drive_messages, make_drive, open_recording
 from polyline_mapper.replay import run_replay
 from polyline_mapper.session import SessionOptions
 import pytest

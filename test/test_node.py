@@ -1,11 +1,13 @@
 """The real node over DDS: a simulated drive in, the office's walls out, bad input survived."""
 
+from dataclasses import replace
 import json
 
 import numpy as np
-from polyline_mapper.ros.sim_player import DriveMessages
+from polyline_mapper.recordings import drive_messages
+from polyline_mapper.ros.convert import scan_msg
 import pytest
-from rosnode import map_segments, NodeProcess, Peer, stamp_of, wall_errors
+from rosnode import map_segments, NodeProcess, Peer, scans_of, stamp_of, wall_errors
 from std_srvs.srv import Trigger
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
@@ -27,7 +29,8 @@ def tf_run(office_drive, tmp_path_factory):
     peer = Peer('test_peer_tf')
     try:
         assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
-        msgs = DriveMessages(office_drive, mount=(0.2, -0.05, 0.3), map_to_odom=(1.0, -2.0, 0.4))
+        msgs = list(drive_messages(office_drive, mount=(0.2, -0.05, 0.3),
+                                   map_to_odom=(1.0, -2.0, 0.4)))
         last = peer.play(msgs, RATE)
         got = peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
             last, abs=1e-6) and len(peer.maps[-1].segments) > 0, TIMEOUT)
@@ -130,29 +133,29 @@ def test_save_map_to_an_unwritable_path_fails_with_a_reason(tf_run):
 def bad_scans(msgs, last):
     """Return scans bad in one way each, three of each, stamped within the stored transforms."""
     out = []
+    scan = scans_of(msgs)[-1]
     for k in range(3):
         stamp = last - 0.5 + 0.01 * k
-        i = len(msgs) - 1
-        m = msgs.scan(i, stamp)
+        m = scan_msg(scan, stamp)
         m.ranges = np.full(len(m.ranges), np.nan, dtype=np.float32)
         out.append(m)
-        m = msgs.scan(i, stamp)
+        m = scan_msg(scan, stamp)
         m.ranges = np.full(len(m.ranges), np.inf, dtype=np.float32)
         out.append(m)
-        m = msgs.scan(i, stamp)
+        m = scan_msg(scan, stamp)
         m.ranges = np.zeros(0, dtype=np.float32)
         out.append(m)
-        m = msgs.scan(i, stamp)
+        m = scan_msg(scan, stamp)
         m.intensities = np.ones(len(m.ranges) - 10, dtype=np.float32)
         out.append(m)
-        m = msgs.scan(i, stamp)
+        m = scan_msg(scan, stamp)
         m.angle_increment = 0.0
         out.append(m)
-        m = msgs.scan(i, stamp)
+        m = scan_msg(scan, stamp)
         m.range_min, m.range_max = 5.0, 1.0
         out.append(m)
-        out.append(msgs.scan(i, stamp, frame_id='no_such_laser'))
-        out.append(msgs.scan(i, stamp - 1000.0))            # long before any transform kept
+        out.append(scan_msg(replace(scan, frame_id='no_such_laser'), stamp))
+        out.append(scan_msg(scan, stamp - 1000.0))            # long before any transform kept
     return out
 
 

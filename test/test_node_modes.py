@@ -4,9 +4,10 @@ import math
 import re
 
 from conftest import REPO
-from polyline_mapper.ros.sim_player import DriveMessages
+from polyline_mapper.recordings import drive_messages
+from polyline_mapper.ros.convert import scan_msg
 import pytest
-from rosnode import map_segments, NodeProcess, Peer, stamp_of, wall_errors
+from rosnode import map_segments, NodeProcess, Peer, scans_of, stamp_of, wall_errors
 from std_srvs.srv import Trigger
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
@@ -23,8 +24,8 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
     peer = Peer('test_peer_odom')
     try:
         assert peer.wait_for_node(TIMEOUT, odom=True), node.stderr()
-        msgs = DriveMessages(office_drive, mount=(0.15, 0.05, math.pi / 2), upside_down=True,
-                             map_to_odom=(0.0, 0.0, 0.0))
+        msgs = list(drive_messages(office_drive, mount=(0.15, 0.05, math.pi / 2),
+                                   upside_down=True, map_to_odom=(0.0, 0.0, 0.0)))
         last = peer.play(msgs, RATE, mode='odom')
         assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
             last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
@@ -39,7 +40,8 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
     # Every scan that arrived was used (best-effort delivery may lose one at the very start).
     summary = node.lines('summary:')
     got = re.search(r'(\d+) scans received, (\d+) used', summary[0])
-    assert len(msgs) - 2 <= int(got[1]) == int(got[2]) <= len(msgs), summary
+    scans = len(scans_of(msgs))
+    assert scans - 2 <= int(got[1]) == int(got[2]) <= scans, summary
 
 
 def test_without_any_transform_scans_are_skipped_once_warned(office_drive, tmp_path):
@@ -50,15 +52,15 @@ def test_without_any_transform_scans_are_skipped_once_warned(office_drive, tmp_p
     try:
         assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
                                and peer.maps, TIMEOUT), node.stderr()
-        msgs = DriveMessages(office_drive)
+        scans = scans_of(drive_messages(office_drive))
         # Scans until the first warning, then three more: all must be skipped, one warned.
         sent = 0
         while not node.lines('[no_tf]') and sent < 100:
-            peer.scan_pub.publish(msgs.scan(sent, 100.0 + 0.1 * sent))
+            peer.scan_pub.publish(scan_msg(scans[sent], 100.0 + 0.1 * sent))
             sent += 1
             peer.spin_for(0.1)
         for _ in range(3):
-            peer.scan_pub.publish(msgs.scan(sent, 100.0 + 0.1 * sent))
+            peer.scan_pub.publish(scan_msg(scans[sent], 100.0 + 0.1 * sent))
             sent += 1
             peer.spin_for(0.1)
         assert node.lines('[no_tf]'), node.stderr()

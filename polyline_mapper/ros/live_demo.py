@@ -69,7 +69,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
     from diagnostic_msgs.msg import DiagnosticArray
     from .player import first_scan_of, Player
     from .recorder import MapRecorder
-    from ..playback import open_recording
+    from ..recordings import open_recording
 
     if domain_id is None:
         domain_id = random.SystemRandom().randrange(1, 102)

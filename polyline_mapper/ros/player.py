@@ -3,7 +3,7 @@
 
 Like ``ros2 bag play --clock``.
 
-Each message of a ``playback.Recording`` is published when its receive time comes, the
+Each message of a ``recordings.Recording`` is published when its receive time comes, the
 recording's time running at ``rate`` x wall time, on the topic it was recorded on:
 sensor_msgs/LaserScan, nav_msgs/Odometry and tf2_msgs/TFMessage on /tf, with /tf_static
 published as tf2's static broadcaster does (transient local, every static transform seen so far
@@ -83,7 +83,7 @@ class Player:
     Publish timed records on ``node``: call ``play(messages_factory)``.
 
     ``messages_factory()`` returns an iterator of (log_time, topic, record), as
-    ``playback.Recording.messages``. ``stop`` (a threading.Event, for other threads) or
+    ``recordings.Recording.messages``. ``stop`` (a threading.Event, for other threads) or
     ``request_stop`` (safe in a signal handler, see ``stop_on_signals``) ends playing early.
     """
 
@@ -324,7 +324,7 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
     """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
-    from ..playback import open_recording
+    from ..recordings import open_recording
     with open_recording(path, scan_topic, odom_topic, period=period, seed=seed,
                         noise=noise) as rec:
         for w in rec.warnings:

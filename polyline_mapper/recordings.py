@@ -1,0 +1,390 @@
+"""
+Every input the tools read, opened in one place: point files, CARMEN logs, bags, simulated drives.
+
+``kind_of(path)`` names an input's kind from one suffix table (``SUFFIXES``):
+
+- ``points``: an (N, 2) point file, .npy / .csv / .txt / .xy (for ``fit`` and ``plot --points``);
+- ``carmen``: a CARMEN log, .log / .clf / .carmen, gzipped or not;
+- ``bag``: a rosbag2 folder (with metadata.yaml), a .db3 or .mcap storage file, a ROS 1 .bag;
+- ``sim``: a built-in simulated drive, ``sim:office`` (the office floor with its curved wall),
+  ``sim:hall`` or ``sim:corridors``, made at run time from a seed.
+
+``read_points`` reads the points of a point file or a CARMEN log (each scan at its corrected
+pose). ``open_recording`` opens a log, a bag or a drive as a ``Recording``: timed messages
+``(log_time, topic, record)``, ``record`` being a ``Scan``, an ``Odometry``, a list of
+``Transform`` (one TFMessage) or, for a bag message that does not decode, a ``Skipped``
+(``formats.records``). Only what the mapper uses is kept: other topics of a bag, and the
+LaserScan fields the records do not hold (intensities, scan and time increments) and Odometry's
+twist and covariances, are not.
+
+One message order for every kind, the one a robot records and ``polyline-mapper convert``
+writes: /tf_static with the laser mount first, then per scan /tf (map -> odom, odom ->
+base_link), /odom and /scan, all logged at the scan's stamp. A bag keeps its recording order.
+CARMEN logs and simulated drives become messages through one builder, ``robot_messages``
+(laser poses + mount -> transforms and odometry), which the tests use too.
+"""
+
+from contextlib import contextmanager
+from dataclasses import replace
+import math
+import os
+from typing import Callable, Iterator, Optional
+
+import numpy as np
+
+from .formats.bag import BAG_SUFFIXES
+from .formats.records import Odometry, Scan
+from .poses import mount_quaternion, planar_transform, se2_compose, se2_inverse
+
+KINDS = ('points', 'carmen', 'bag', 'sim')
+SUFFIXES = {
+    'points': ('.npy', '.csv', '.txt', '.xy'),
+    'carmen': ('.log', '.log.gz', '.clf', '.clf.gz', '.carmen', '.carmen.gz'),
+    'bag': BAG_SUFFIXES,
+}
+"""File name endings (lower case) of each kind; a rosbag2 folder is known by its metadata.yaml."""
+SIM_PREFIX = 'sim:'
+SIM_WORLDS = ('office', 'hall', 'corridors')
+SIM_START = 1000.0
+"""Stamp of a simulated drive's first scan, seconds (non-zero: ROS reads time 0 as unset)."""
+SIM_MOUNT = (0.2, 0.0, 0.0)
+"""Laser pose on base_link in the simulated drives: 0.2 m ahead of the base's centre."""
+SIM_MAP_TO_ODOM = (0.5, -0.3, 0.05)
+"""map -> odom of the simulated drives (odometry frame offset from the map frame)."""
+FRAMES = ('map', 'odom', 'base_link', 'laser')
+"""Frames of ``robot_messages``: map, odometry, robot base, laser (REP 105 names)."""
+
+
+def accepted_inputs() -> str:
+    """Return the accepted input kinds as text, for error messages."""
+    return ('point files (' + ', '.join(SUFFIXES['points']) + '), CARMEN logs ('
+            + ', '.join(SUFFIXES['carmen']) + '), bags (a rosbag2 folder, '
+            + ', '.join(s for s in SUFFIXES['bag'] if s != '.bag') + ', a ROS 1 .bag) or a '
+            'simulated drive (' + ', '.join(SIM_PREFIX + w for w in SIM_WORLDS) + ')')
+
+
+def kind_of(path) -> str:
+    """
+    Return the kind of input ``path`` is: 'points', 'carmen', 'bag' or 'sim'.
+
+    Raises ValueError with one line for a missing file, an unknown simulated drive, a folder
+    that is not a rosbag2 bag, an unknown suffix (the message lists the accepted kinds) or a
+    file that is not a regular file (a device or a pipe would block or never end).
+    """
+    name = os.fspath(path) if isinstance(path, os.PathLike) else str(path)
+    if name.startswith(SIM_PREFIX):
+        if name[len(SIM_PREFIX):] not in SIM_WORLDS:
+            raise ValueError(f'{name}: unknown simulated drive (expected one of '
+                             f'{", ".join(SIM_PREFIX + w for w in SIM_WORLDS)})')
+        return 'sim'
+    if not os.path.exists(name):
+        raise ValueError(f'{name}: no such file or folder')
+    if os.path.isdir(name):
+        if os.path.isfile(os.path.join(name, 'metadata.yaml')):
+            return 'bag'
+        raise ValueError(f'{name}: a folder without metadata.yaml, not a rosbag2 bag (accepted '
+                         f'inputs: {accepted_inputs()})')
+    low = name.lower()
+    kind = next((k for k, endings in SUFFIXES.items() if low.endswith(endings)), None)
+    if kind is None:
+        raise ValueError(f'{name}: unknown input type (accepted inputs: {accepted_inputs()})')
+    if not os.path.isfile(name):
+        raise ValueError(f'{name}: not a regular file')
+    return kind
+
+
+# -- poses + mount -> messages -------------------------------------------------------------------
+def robot_messages(stamps, laser_poses, scans, mount=(0.0, 0.0, 0.0), upside_down: bool = False,
+                   odom_poses=None, map_to_odom=None, frames: tuple = FRAMES, tf: bool = True,
+                   static: bool = True, odom: bool = True,
+                   tf_until: Optional[float] = None) -> Iterator[tuple]:
+    """
+    Yield ``(log_time, topic, record)`` of a robot carrying a laser, as it would record them.
+
+    In the recordings' order: /tf_static (the mount), then per scan /tf, /odom and /scan, each
+    stamped and logged at the scan's stamp. The base pose is the laser pose composed with the
+    inverse mount, so a mapper must chain map -> odom -> base -> laser to place the scans.
+
+    Parameters
+    ----------
+    stamps : (P,) float array
+        Seconds, one per scan.
+    laser_poses : (P, 3) float array
+        (x, y, yaw) of the laser in the map frame, metres and radians.
+    scans : iterable of P Scan
+        The scans in the laser frame ``frames[3]``, beams counter-clockwise seen from above.
+    mount : (3,) float
+        (x, y, yaw) of the laser on the base: /tf_static base -> laser.
+    upside_down : bool
+        The laser is rolled 180 degrees on its mount (``mount_quaternion``): it sweeps
+        clockwise seen from above, so each scan lists the same beams in reverse order. Its beam
+        fan must be symmetric about the laser's x axis.
+    odom_poses : (P, 3) float array, optional
+        Base poses by odometry, in the odometry frame; map -> odom is then chosen per scan so
+        that the chain gives the laser pose (CARMEN logs). Not with ``map_to_odom``.
+    map_to_odom : (3,) float, optional
+        A constant map -> odom; odometry is then its inverse composed with the base pose. None
+        (and no ``odom_poses``): no map frame, odometry is the base pose itself.
+    frames : tuple of 4 str
+        Frame names of the map, the odometry, the robot base and the laser.
+    tf, static, odom : bool
+        Whether to write /tf, /tf_static and /odom.
+    tf_until : float, optional
+        Write no /tf stamped after this (s): a transform stream that stops.
+
+    """
+    stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
+    laser = np.asarray(laser_poses, dtype=np.float64)
+    mount = np.asarray(mount, dtype=np.float64)
+    if laser.shape != (len(stamps), 3) or mount.shape != (3,):
+        raise ValueError(f'laser_poses must be ({len(stamps)}, 3) like the stamps and mount '
+                         f'(3,), got {laser.shape} and {mount.shape}')
+    map_frame, odom_frame, base_frame, laser_frame = frames
+    base = se2_compose(laser, se2_inverse(mount))
+    if odom_poses is not None:
+        if map_to_odom is not None:
+            raise ValueError('give odom_poses or map_to_odom, not both')
+        odometry = np.asarray(odom_poses, dtype=np.float64)
+        if odometry.shape != laser.shape:
+            raise ValueError(f'odom_poses must be {laser.shape}, got {odometry.shape}')
+        map_odom = se2_compose(base, se2_inverse(odometry))
+    elif map_to_odom is not None:
+        fixed = np.asarray(map_to_odom, dtype=np.float64)
+        odometry = se2_compose(se2_inverse(fixed), base)
+        map_odom = np.broadcast_to(fixed, base.shape)
+    else:
+        odometry, map_odom = base, None
+    if static and len(stamps):
+        rotation = mount_quaternion(mount[2], True) if upside_down else None
+        yield float(stamps[0]), '/tf_static', [planar_transform(
+            stamps[0], base_frame, laser_frame, mount, True, rotation)]
+    for i, scan in enumerate(scans):
+        if i >= len(stamps):
+            raise ValueError(f'more scans than the {len(stamps)} stamps')
+        if scan.frame_id != laser_frame:
+            raise ValueError(f'scan {i} is in frame {scan.frame_id!r}, not {laser_frame!r}')
+        t = float(stamps[i])
+        moved = planar_transform(t, odom_frame, base_frame, odometry[i])
+        if tf and (tf_until is None or t <= tf_until):
+            yield t, '/tf', ([] if map_odom is None else [
+                planar_transform(t, map_frame, odom_frame, map_odom[i])]) + [moved]
+        if odom:
+            yield t, '/odom', Odometry(t, odom_frame, base_frame, moved.translation.copy(),
+                                       moved.rotation.copy())
+        yield t, '/scan', _flipped(scan) if upside_down else scan
+
+
+def _flipped(scan: Scan) -> Scan:
+    """Return the scan of an upside-down laser: the same beams listed in reverse order."""
+    last = scan.angle_min + scan.angle_increment * (len(scan.ranges) - 1)
+    if not math.isclose(scan.angle_min + last, 0.0, abs_tol=1e-6):
+        raise ValueError('an upside-down laser needs a beam fan symmetric about its x axis '
+                         f'(angles {scan.angle_min:.6f} .. {last:.6f} rad)')
+    return replace(scan, ranges=np.ascontiguousarray(scan.ranges[::-1]))
+
+
+def carmen_messages(log, stamps) -> Iterator[tuple]:
+    """
+    Yield ``(log_time, topic, record)`` for a CARMEN log, as ``convert`` writes its bag.
+
+    Per laser record at ``stamps`` (R,) seconds: /tf map -> odom -> base_link (odom -> base_link
+    the record's odometry pose, map -> odom chosen so that the chain gives its corrected laser
+    pose), /odom and the /scan in frame ``laser`` (LaserScan precision, no pose); once, first,
+    /tf_static base_link -> laser from the log's laser offset. ``log``: a formats.carmen.CarmenLog.
+    """
+    laser = np.array([r.pose for r in log.records])
+    odometry = np.array([r.odom for r in log.records])
+    return robot_messages(stamps, laser, log.scans(stamps, frame_id='laser', with_pose=False),
+                          mount=log.laser_offset, odom_poses=odometry)
+
+
+def make_drive(name: str, seed: int = 1, noise: float = 0.01, beams: int = 541):
+    """Return the SimulatedDrive of ``sim:<name>`` (or ``<name>``); ValueError if unknown."""
+    from .sim import corridor_loop, hall_with_arc, LaserSpec, office_floor, simulate_drive
+    worlds = {'office': office_floor, 'hall': hall_with_arc, 'corridors': corridor_loop}
+    world = name[len(SIM_PREFIX):] if str(name).startswith(SIM_PREFIX) else name
+    if world not in worlds:
+        raise ValueError(f'{name}: unknown simulated drive (expected one of '
+                         f'{", ".join(SIM_PREFIX + w for w in SIM_WORLDS)})')
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f'noise must be a finite number >= 0 (m), got {noise!r}')
+    return simulate_drive(worlds[world](), LaserSpec(beams=beams, noise=noise), rng=seed)
+
+
+def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down: bool = False,
+                   map_to_odom=SIM_MAP_TO_ODOM, **options) -> Iterator[tuple]:
+    """
+    Yield ``(log_time, topic, record)`` for a SimulatedDrive, as a robot would record it.
+
+    The drive's poses are laser poses in the map frame and its stamps start at 0: the messages
+    are stamped ``start`` + those. The laser sits at ``mount`` on base_link (rolled when
+    ``upside_down``), odom at ``map_to_odom`` in map. ``options`` go to ``robot_messages``.
+    """
+    spec = drive.spec
+    stamps = start + np.asarray(drive.stamps, dtype=np.float64)
+    laser_frame = options.get('frames', FRAMES)[3]
+    scans = (Scan(t, laser_frame, spec.angle_min, spec.angle_increment, spec.range_min,
+                  spec.range_max, np.asarray(ranges, dtype=np.float32))
+             for t, ranges in zip(stamps.tolist(), drive.ranges))
+    return robot_messages(stamps, drive.poses, scans, mount=mount, upside_down=upside_down,
+                          map_to_odom=map_to_odom, **options)
+
+
+# -- opening -------------------------------------------------------------------------------------
+class Recording:
+    """
+    An opened log, bag or simulated drive: its timed messages, counts and a description.
+
+    ``messages()`` (callable again, each call a new pass) yields ``(log_time s, topic, record)``
+    in time order; ``records()`` the same stream one record at a time (Scan, Transform,
+    Odometry, Skipped). ``drive`` is the SimulatedDrive of a ``sim:`` input (its true poses and
+    walls), else None. ``warnings``: lines to show the user (e.g. skipped malformed lines).
+    """
+
+    def __init__(self, messages: Callable[[], Iterator[tuple]], scan_count: int,
+                 description: str, kind: str, warnings: list = None, drive=None):
+        self._messages = messages
+        self.scan_count = int(scan_count)
+        self.description = description
+        self.kind = kind
+        self.warnings = list(warnings or [])
+        self.drive = drive
+
+    def messages(self) -> Iterator[tuple]:
+        """Yield ``(log_time, topic, record)`` from the start of the recording."""
+        return self._messages()
+
+    def records(self) -> Iterator:
+        """Yield the messages' records one by one (a TFMessage's transforms in order)."""
+        for _, _, record in self._messages():
+            if isinstance(record, list):
+                yield from record
+            else:
+                yield record
+
+
+@contextmanager
+def open_recording(path, scan_topic: str = None, odom_topic: str = None, period: float = 1.0,
+                   seed: int = 1, noise: float = 0.01, odometry='auto') -> Iterator[Recording]:
+    """
+    Open a CARMEN log, a bag or a ``sim:`` drive (context manager yielding a Recording).
+
+    ``scan_topic``, ``odom_topic``: a bag's LaserScan and Odometry topics (default: the only
+    one). ``odometry`` (bags): 'auto' or None reads the Odometry topic when ``odom_topic`` is
+    given or the bag has exactly one, True requires one, False reads none (so a bag with two
+    Odometry topics opens for a caller that does not need odometry). ``period``: seconds
+    between a CARMEN log's scans when its times do not increase. ``seed``, ``noise`` (m): of a
+    ``sim:`` drive. Raises ValueError (BagError for bags) with one line when the input cannot
+    be used.
+    """
+    kind = kind_of(path)
+    path = str(path)
+    if kind == 'points':
+        raise ValueError(f'{path}: a point file holds no scans (it is for fit and plot --points); '
+                         'expected a CARMEN log, a bag or a simulated drive')
+    if kind != 'bag' and (scan_topic is not None or odom_topic is not None):
+        raise ValueError('--scan-topic and --odom-topic apply to bags, not '
+                         + ('simulated drives' if kind == 'sim' else 'CARMEN logs'))
+    if odometry not in (None, 'auto', True, False):
+        raise ValueError(f"odometry must be None, 'auto', True or False, got {odometry!r}")
+    if kind == 'sim':
+        drive = make_drive(path, seed, noise)
+        yield Recording(lambda: drive_messages(drive), len(drive.poses),
+                        f'simulated drive {path}, {len(drive.poses)} scans of '
+                        f'{drive.spec.beams} beams', kind, drive=drive)
+    elif kind == 'carmen':
+        log, stamps, warnings = read_log(path, period)
+        desc = f'CARMEN log, {len(log.records)} scans'
+        if log.skipped:
+            desc += f', {log.skipped} malformed record(s) skipped'
+        yield Recording(lambda: carmen_messages(log, stamps), len(log.records), desc, kind,
+                        warnings)
+    else:
+        yield from _open_bag(path, scan_topic, odom_topic, 'auto' if odometry is None
+                             else odometry)
+
+
+def _open_bag(path: str, scan_topic, odom_topic, odometry) -> Iterator[Recording]:
+    from .formats.bag import BagReader
+    with BagReader(path, scan_topic, odom_topic, odometry=odometry) as bag:
+        first = [bag]
+        topics = [bag.scan_topic] + ([bag.odom_topic] if bag.odom_topic else []) + bag.tf_topics
+        warnings = []
+        if not bag.tf_topics:
+            warnings.append(f'{path}: no /tf or /tf_static topic: its scans can be placed by '
+                            'odometry only (--pose-source odom)')
+
+        def messages():
+            if first:                       # the first pass reads the reader opened here
+                yield from first.pop().messages()
+                return
+            with BagReader(path, scan_topic, odom_topic, odometry=odometry) as again:
+                yield from again.messages()
+        yield Recording(messages, bag.scan_count, f'bag, {bag.scan_count} scans on '
+                        f'{bag.scan_topic}; topics {", ".join(topics)}', 'bag', warnings)
+
+
+def read_log(path: str, period: float = 1.0) -> tuple:
+    """
+    Read a CARMEN log to replay or play it: return (log, stamps (R,) s, warnings).
+
+    ``stamps`` as ``CarmenLog.stamps(period)``; ``warnings`` name skipped malformed records and
+    made-up stamps. ValueError when the log cannot be read or ``period`` is not > 0.
+    """
+    from .formats.carmen import read_carmen
+    if not _positive(period) or math.isinf(period):
+        raise ValueError(f'period must be a positive number of seconds, got {period!r}')
+    log = read_carmen(path)
+    stamps, made_up = log.stamps(period)
+    warnings = []
+    if log.skipped:
+        warnings.append(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
+                        f'{log.skipped_examples[0]}')
+    if made_up:
+        warnings.append(f'{path}: log times do not increase; made-up stamps {period:g} s '
+                        'apart, from t = 1 s')
+    return log, stamps, warnings
+
+
+def read_points(path, range_max: float = None, progress=None,
+                warn: Callable[[str], None] = None) -> tuple:
+    """
+    Read the points of a point file or a CARMEN log: return ((N, 2) float array m, description).
+
+    A log's scans are placed at their corrected poses (``CarmenLog.points``); ``range_max`` (m,
+    logs only) limits the usable range further, ``progress`` wraps the scan iterator (e.g.
+    tqdm), ``warn`` gets each warning line (skipped malformed log lines). A bag or a simulated
+    drive has no points to read: its scans need poses, so it is registered by the mapping
+    session (``replay`` without mapping); for those, as for anything unreadable, ValueError
+    with one line.
+    """
+    kind = kind_of(path)
+    path = str(path)
+    if kind in ('bag', 'sim'):
+        raise ValueError(f'{path}: a {"bag" if kind == "bag" else "simulated drive"} holds '
+                         'scans, not points: its points come from replaying it')
+    if range_max is not None:
+        if kind == 'points':
+            raise ValueError('--range-max applies to laser logs only')
+        if not _positive(range_max):
+            raise ValueError(f'range_max must be a number > 0 (m), got {range_max!r}')
+    if kind == 'points':
+        from .formats.points import read_points as read_file
+        return read_file(path), 'point file'
+    from .formats.carmen import read_carmen
+    log = read_carmen(path)
+    desc = f'CARMEN log, {len(log.records)} scans'
+    if log.skipped:
+        desc += f', {log.skipped} malformed record(s) skipped'
+        if warn is not None:
+            warn(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
+                 f'{log.skipped_examples[0]}')
+    return log.points(range_max=range_max, progress=progress), desc
+
+
+def _positive(value) -> bool:
+    """Return whether ``value`` is a real number > 0 (inf included, NaN and bools not)."""
+    try:
+        return not isinstance(value, (bool, str)) and float(value) > 0
+    except (TypeError, ValueError):
+        return False
