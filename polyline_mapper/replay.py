@@ -14,11 +14,10 @@ and its bag give the same map.
 """
 
 from collections import Counter
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 import os
 import time
-from typing import Iterator, Optional
+from typing import Optional
 
 import numpy as np
 
@@ -26,6 +25,7 @@ from .core import map_metrics
 from .core.incremental import IncrementalConfig
 from .core.mapvalue import MapValue
 from .formats.records import Scan
+from .recordings import open_recording
 from .session import MappingSession, SessionError, SessionOptions
 
 ReplayError = SessionError
@@ -139,7 +139,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     t0 = time.perf_counter()
     options = dataclasses.replace(options or SessionOptions(), keep_points=True,
                                   mapping=mapping)
-    with open_input(path, scan_topic, odom_topic, options.pose_source) as source:
+    odometry = options.pose_source == 'odom'
+    with open_recording(path, scan_topic, odom_topic, odometry=odometry) as source:
         bar = None
         if progress:
             import sys
@@ -152,7 +153,7 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
             if session.received % 25 == 0:
                 bar.set_postfix(segments=len(session.mapper.segments))
         try:
-            session = replay_records(source.records, config, options,
+            session = replay_records(source.records(), config, options,
                                      tick if bar is not None else None)
         finally:
             if bar is not None:
@@ -174,46 +175,3 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')
     return ReplayResult(session, value, points, time.perf_counter() - t0, warnings)
-
-
-@dataclass
-class Source:
-    """An opened input: its records, how many scans it holds, and a description."""
-
-    records: Iterator
-    scan_count: int
-    description: str
-    warnings: list = field(default_factory=list)
-
-
-@contextmanager
-def open_input(path: str, scan_topic: str = None, odom_topic: str = None,
-               pose_source: str = 'tf', period: float = 1.0) -> Iterator[Source]:
-    """
-    Open a bag or a CARMEN log as a stream of records (context manager yielding a Source).
-
-    Raises ValueError (BagError for bags) with one line when the input cannot be used.
-    """
-    from .formats.bag import BagReader, is_bag
-    from .formats.convert import carmen_messages, is_carmen, read_for_messages
-    if is_carmen(path):
-        log, stamps, warnings = read_for_messages(path, period, scan_topic, odom_topic)
-        records = (one for _, rec, _ in carmen_messages(log, stamps)
-                   for one in (rec if isinstance(rec, list) else [rec]))
-        desc = f'CARMEN log, {len(log.records)} scans'
-        if log.skipped:
-            desc += f', {log.skipped} malformed record(s) skipped'
-        yield Source(records, len(log.records), desc, warnings)
-        return
-    if not os.path.exists(path):
-        raise ValueError(f'{path}: no such file or folder')
-    if not is_bag(path):
-        raise ValueError(f'{path}: unknown input type (expected a rosbag2 folder, .db3, .mcap, '
-                         '.bag, or a CARMEN .log / .log.gz)')
-    with BagReader(path, scan_topic, odom_topic, odometry=pose_source == 'odom') as bag:
-        desc = f'bag, {bag.scan_count} scans on {bag.scan_topic}'
-        warnings = []
-        if pose_source == 'tf' and not bag.tf_topics:
-            warnings.append(f'{path}: no /tf or /tf_static topic; scans cannot be placed '
-                            '(try --pose-source odom)')
-        yield Source(bag.records(), bag.scan_count, desc, warnings)

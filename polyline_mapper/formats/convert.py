@@ -24,31 +24,7 @@ import numpy as np
 
 from .bag import BagWriter
 from .carmen import read_carmen
-from ..recordings import carmen_messages as _carmen_messages, kind_of, read_log
-
-
-# -- The names replay.open_input imports, until it opens inputs with recordings.open_recording
-# -- (issue 17: the session rewrite of replay.py). Remove them with it.
-def is_carmen(path) -> bool:
-    """Return whether ``path`` is an existing CARMEN log (``recordings.kind_of``)."""
-    try:
-        return kind_of(path) == 'carmen'
-    except ValueError:
-        return False
-
-
-def read_for_messages(path: str, period: float = 1.0, scan_topic: str = None,
-                      odom_topic: str = None) -> tuple:
-    """Return ``recordings.read_log(path, period)``; ValueError if topics are given."""
-    if scan_topic is not None or odom_topic is not None:
-        raise ValueError('--scan-topic and --odom-topic apply to bags, not CARMEN logs')
-    return read_log(path, period)
-
-
-def carmen_messages(log, stamps):
-    """Yield ``recordings.carmen_messages`` as (topic, record, log_time)."""
-    for t, topic, record in _carmen_messages(log, stamps):
-        yield topic, record, t
+from ..recordings import carmen_messages
 
 
 def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period: float = 1.0,
@@ -75,7 +51,7 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
     tmp = tempfile.mkdtemp(prefix='.tmp-bag-', dir=parent)
     try:
         bag = os.path.join(tmp, os.path.basename(os.path.abspath(out_path)))
-        messages = _carmen_messages(log, stamps)
+        messages = carmen_messages(log, stamps)
         with BagWriter(bag, storage) as out:
             for t, topic, record in (messages if progress is None else progress(messages)):
                 out.write(topic, record, t)
