@@ -309,7 +309,7 @@ def _open_bag(path: str, scan_topic, odom_topic, odometry) -> Iterator[Recording
     with BagReader(path, scan_topic, odom_topic, odometry=odometry) as bag:
         first = [bag]
         topics = [bag.scan_topic] + ([bag.odom_topic] if bag.odom_topic else []) + bag.tf_topics
-        warnings = []
+        warnings = list(bag.warnings)       # e.g. a ROS 1 index rebuilt from the chunks
         if not bag.tf_topics:
             warnings.append(f'{path}: no /tf or /tf_static topic: its scans can be placed by '
                             'odometry only (--pose-source odom)')

@@ -179,3 +179,14 @@ def test_random_damage_to_an_index_less_bag_never_escapes(tmp_path, intact):
             assert '\n' not in str(exc)
             outcomes.add('error')
     assert 'read' in outcomes
+
+
+def test_replay_of_a_bag_without_its_index_says_the_index_was_rebuilt(tmp_path, intact, capsys):
+    compression, data, lay, want = intact
+    path = tmp_path / 'noindex.bag'
+    path.write_bytes(set_index_pos(data[:lay['index_pos']], 0))
+    out = tmp_path / 'm.json'
+    assert main(['replay', str(path), '-o', str(out), '-q']) == 0
+    err = capsys.readouterr().err
+    assert 'warning' in err and 'index rebuilt in memory' in err, err
+    assert out.exists()
