@@ -186,9 +186,10 @@ class PolylineMapperNode(Node):
                            config, self.settings.fixed_frame)
         try:
             write_json_atomic(path, data)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:       # ValueError: formats.output refused it
             response.success = False
-            response.message = f'cannot write {path}: {exc.strerror or exc}'
+            reason = getattr(exc, 'strerror', None) or exc
+            response.message = f'cannot write {path}: {reason}'
             self.get_logger().error(response.message)
             return response
         response.success = True
