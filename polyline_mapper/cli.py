@@ -12,20 +12,27 @@ Subcommands:
   record-map [TOPIC] -o MAP.json [--plot MAP.png]           save the map a running node publishes
 
 Errors in input, files or configuration end the program with exit code 2 and one line saying
-why; no output file is left behind by a failed run.
+why; no output file is left behind by a failed run. Every output goes through
+``formats.output``: never over an input, a device, a folder or a read-only file; a symlink is
+followed to its target; a replaced file keeps its mode; a map JSON and its PNG are written all or
+nothing. Outputs are checked before the work starts, so a bad ``-o`` fails at once.
 """
 
 import argparse
+import io
+import math
 import os
 import signal
 import sys
-import tempfile
 import time
+import typing
 
 import numpy as np
 
 from .core import fit, map_metrics, SMEMSFConfig
-from .formats.mapjson import map_to_dict, set_default_mode, write_json_atomic
+from .core.mapvalue import MapValue
+from .formats.mapjson import config_dict, dumps_map, map_value_to_dict
+from .formats.output import check_outputs, OutputSet
 
 EXIT_USAGE = 2
 
@@ -41,7 +48,7 @@ def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
     The file is either a flat mapping of SMEMSFConfig keys, or a ROS 2 parameter file
     (``node_name: ros__parameters: {...}``) whose ``smemsf.*`` or plain keys are used.
     """
-    values = _config_values(path, overrides, _flatten_ros_params)
+    values = _config_values(path, overrides, _flatten_ros_params, (SMEMSFConfig,))
     try:
         return SMEMSFConfig.from_dict(values)
     except (TypeError, ValueError) as exc:
@@ -72,7 +79,7 @@ def load_incremental_config(path: str = None, overrides: list = ()):
                         values[name] = v
                 break
         return values
-    values = _config_values(path, overrides, from_ros)
+    values = _config_values(path, overrides, from_ros, (SMEMSFConfig, IncrementalConfig))
     inc = {k: values.pop(k) for k in list(values) if k in inc_keys}
     try:
         return IncrementalConfig(smemsf=SMEMSFConfig.from_dict(values), **inc)
@@ -81,14 +88,64 @@ def load_incremental_config(path: str = None, overrides: list = ()):
                        ) from None
 
 
-def incremental_config_dict(config) -> dict:
-    """Flat dict of an IncrementalConfig (SMEMSF keys and incremental keys), for the map JSON."""
-    out = config.smemsf.to_dict()
-    out.update({k: getattr(config, k) for k in config.__dataclass_fields__ if k != 'smemsf'})
+def _field_types(classes) -> dict:
+    """Return {field: (type, may be None)} of config dataclasses (nested configs skipped)."""
+    out = {}
+    for cls in classes:
+        for name, hint in typing.get_type_hints(cls).items():
+            args = typing.get_args(hint)
+            optional = typing.get_origin(hint) is typing.Union and type(None) in args
+            base = next(a for a in args if a is not type(None)) if optional else hint
+            if base in (bool, int, float, str):
+                out[name] = (base, optional)
     return out
 
 
-def _config_values(path: str, overrides: list, flatten) -> dict:
+_EXPECTED = {bool: 'true or false', int: 'an integer', float: 'a finite number',
+             str: 'a string'}
+
+
+def typed_value(key: str, value, types: dict, origin: str):
+    """
+    Return ``value`` (a --set string or a YAML value) as the type of config field ``key``.
+
+    Numbers given as text (``1e-3``, which YAML reads as a string) become numbers; an optional
+    field takes none / null. Unknown keys pass unchanged (the config names them). Raises
+    CliError naming ``origin``, the key and the expected type.
+    """
+    if key not in types:
+        return value
+    base, optional = types[key]
+    text = value.strip() if isinstance(value, str) else None
+    nothing = ('none', 'null', '~', '')
+    if optional and (value is None or (text is not None and text.lower() in nothing)):
+        return None
+    try:
+        if base is bool:
+            if isinstance(value, bool):
+                return value
+            return {'true': True, 'false': False}[(text or '').lower()]
+        if base is str:
+            if isinstance(value, str):
+                return value
+            raise ValueError
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise ValueError
+        number = float(text) if text is not None else value
+        if not math.isfinite(number):
+            raise ValueError
+        if base is int:
+            if number != int(number):
+                raise ValueError
+            return int(text) if text is not None and text.lstrip('+-').isdigit() else int(number)
+        return float(number)
+    except (ValueError, KeyError, OverflowError):
+        expected = _EXPECTED[base] + (' or none' if optional else '')
+        raise CliError(f'{origin}: {key} must be {expected}, got {value!r}') from None
+
+
+def _config_values(path: str, overrides: list, flatten, classes=()) -> dict:
+    types = _field_types(classes)
     values = {}
     if path:
         import yaml
@@ -101,12 +158,15 @@ def _config_values(path: str, overrides: list, flatten) -> dict:
             raise CliError(f'{path}: unreadable config ({exc.__class__.__name__})') from None
         if not isinstance(data, dict):
             raise CliError(f'{path}: a config file must hold a mapping')
-        values = flatten(data)
+        values = {k: typed_value(k, v, types, path) for k, v in flatten(data).items()}
     for item in overrides:
         key, sep, raw = item.partition('=')
-        if not sep:
+        key = key.strip()
+        if not sep or not key:
             raise CliError(f'--set expects key=value, got {item!r}')
-        values[key.strip()] = _yaml_value(raw)
+        if key not in types:
+            raw = _yaml_value(raw)
+        values[key] = typed_value(key, raw, types, f'--set {item}')
     return values
 
 
@@ -131,25 +191,10 @@ def _flatten_ros_params(data: dict) -> dict:
 
 def read_input(path: str, range_max: float = None, progress: bool = True) -> tuple:
     """Read an (N, 2) point file or a CARMEN log; return points and a description."""
-    low = path.lower()
-    if low.endswith(('.log', '.log.gz', '.clf', '.clf.gz')):
-        from .formats.carmen import read_carmen
-        log = read_carmen(path)
-        bar = _progress_factory(progress, 'register', 'scan')
-        pts = log.points(range_max=range_max, progress=bar)
-        desc = f'CARMEN log, {len(log.records)} scans'
-        if log.skipped:
-            desc += f', {log.skipped} malformed record(s) skipped'
-            print(f'polyline-mapper: warning: {path}: skipped {log.skipped} malformed laser '
-                  f'record(s), e.g. {log.skipped_examples[0]}', file=sys.stderr)
-        return pts, desc
-    if low.endswith(('.npy', '.csv', '.txt', '.xy')):
-        from .formats.points import read_points
-        pts = read_points(path)
-        if range_max is not None:
-            raise CliError('--range-max applies to laser logs only')
-        return pts, 'point file'
-    raise CliError(f'{path}: unknown input type (expected .npy, .csv, .txt, .log or .log.gz)')
+    from .recordings import read_points
+    return read_points(path, range_max, _progress_factory(progress, 'register', 'scan'),
+                       warn=lambda line: print(f'polyline-mapper: warning: {line}',
+                                               file=sys.stderr))
 
 
 def _progress_factory(enabled: bool, desc: str, unit: str):
@@ -182,47 +227,64 @@ def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True):
 
 
 def write_outputs(result, points, config, out_json: str, out_png: str = None,
-                  frame_id: str = 'map', title: str = '', truth=None, extra=None) -> dict:
-    """Write the map JSON (and PNG) atomically; return the stats written."""
+                  frame_id: str = 'map', title: str = '', truth=None, extra=None,
+                  inputs=()) -> dict:
+    """Write the map JSON (and PNG) of a batch fit, all or nothing; return the stats written."""
     stats = map_metrics(points, result.segments)
     stats.update(iterations=int(result.iterations), converged=bool(result.converged),
                  seconds=round(float(result.seconds), 3), polylines=len(result.polylines),
                  sigma=float(result.sigma), r=float(result.r))
     stats.update(extra or {})
-    data = map_to_dict(result.segments, result.polylines, result.closed, result.support, stats,
-                       config.to_dict(), frame_id)
-    save_map(data, points, out_json, out_png, title, truth)
+    value = MapValue.from_fit(result, frame_id, stats)
+    save_map(value, points, out_json, out_png, title, truth, config=config.to_dict(),
+             inputs=inputs)
     return stats
 
 
-def save_map(data: dict, points, out_json: str = None, out_png: str = None, title: str = '',
-             truth=None) -> None:
-    """Write a map dict as JSON and/or a PNG over its points, each all or nothing."""
-    tmp_png = None
-    try:
+def save_map(data, points, out_json: str = None, out_png: str = None, title: str = '',
+             truth=None, config: dict = None, inputs=()) -> None:
+    """
+    Write a map as JSON and/or a PNG over its points, together and all or nothing.
+
+    ``data``: a MapValue (written with ``config``) or a map dict (``map_to_dict``). Both
+    outputs are checked (``formats.output``) against ``inputs`` and each other before the PNG
+    is drawn; neither file exists unless both were written.
+    """
+    if isinstance(data, MapValue):
+        segs, polys = data.segments, data.polylines
+        data = map_value_to_dict(data, config)
+    else:
+        segs = np.asarray(data['segments'], dtype=float).reshape(-1, 2, 2)
+        polys = [np.asarray(p, dtype=float).reshape(-1, 2) for p in data['polylines']]
+    with OutputSet(inputs) as out:
+        out.add(out_json)
+        out.add(out_png)
+        text = dumps_map(data) if out_json else None      # NaN / inf: ValueError, nothing written
         if out_png:
             from .plot import plot_map
-            folder = os.path.dirname(os.path.abspath(out_png))
-            os.makedirs(folder, exist_ok=True)
-            fd, tmp_png = tempfile.mkstemp(prefix='.tmp-', suffix='.png', dir=folder)
-            os.close(fd)
-            segs = np.asarray(data['segments'], dtype=float).reshape(-1, 2, 2)
-            polys = [np.asarray(p, dtype=float).reshape(-1, 2) for p in data['polylines']]
-            plot_map(tmp_png, np.zeros((0, 2)) if points is None else points, segs, polys,
+            png = io.BytesIO()
+            plot_map(png, np.zeros((0, 2)) if points is None else points, segs, polys,
                      title=title, truth=truth)
+            out.put(out_png, png.getvalue())
         if out_json:
-            write_json_atomic(out_json, data)
-        if tmp_png:
-            set_default_mode(tmp_png)
-            os.replace(tmp_png, out_png)
-            tmp_png = None
-    finally:
-        if tmp_png and os.path.exists(tmp_png):
-            os.unlink(tmp_png)
+            out.put(out_json, text)
+
+
+def no_segment_reason(n_points: int, config: SMEMSFConfig, sigma: float) -> str:
+    """Say why a batch fit of ``n_points`` valid points found no segment."""
+    if n_points < config.min_support:
+        return (f'{n_points} points are fewer than min_support ({config.min_support:g}), the '
+                'least a segment needs')
+    return (f'no structure: every candidate segment in the {n_points} points fell below '
+            f'min_support ({config.min_support:g} points) or min_density '
+            f'({config.min_density:g} per 2r) at sigma {sigma * 100:.2f} cm')
 
 
 def summary_line(path: str, stats: dict) -> str:
     """One line a person reads after a run."""
+    if not stats['segments']:
+        return (f"wrote {path}: an empty map (0 segments) from {stats['points']} points, "
+                f"{stats['iterations']} iterations, {stats['seconds']:.1f} s")
     return (f"wrote {path}: {stats['segments']} segments in {stats['polylines']} polylines from "
             f"{stats['points']} points, mean distance {stats['mean_distance'] * 100:.2f} cm, "
             f"p95 {stats['p95_distance'] * 100:.2f} cm, coverage "
@@ -230,7 +292,16 @@ def summary_line(path: str, stats: dict) -> str:
             f"{stats['seconds']:.1f} s")
 
 
+def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig) -> None:
+    if not stats['segments']:
+        print(f'polyline-mapper: warning: {source}: no segment found '
+              f"({no_segment_reason(stats['points'], config, stats['sigma'])}); wrote an "
+              'empty map', file=sys.stderr)
+
+
 def cmd_fit(args) -> int:
+    inputs = [args.input, args.config]
+    check_outputs([args.output, args.plot], inputs)
     config = load_config(args.config, args.set)
     t0 = time.perf_counter()
     points, desc = read_input(args.input, args.range_max, not args.quiet)
@@ -240,7 +311,9 @@ def cmd_fit(args) -> int:
     stats = write_outputs(result, points, config, args.output, args.plot, args.frame_id,
                           title=f'{os.path.basename(args.input)}: {len(result.segments)} segments',
                           extra={'input': os.path.basename(args.input), 'input_type': desc,
-                                 'total_seconds': round(time.perf_counter() - t0, 3)})
+                                 'total_seconds': round(time.perf_counter() - t0, 3)},
+                          inputs=inputs)
+    _warn_if_empty(args.input, stats, config)
     if not args.quiet:
         print(summary_line(args.output, stats))
     return 0
@@ -250,6 +323,7 @@ def cmd_demo(args) -> int:
     if not args.offline:
         return cmd_live_demo(args)
     from .sim import LaserSpec, office_floor, simulate_drive
+    check_outputs([args.output, args.plot], [args.config])
     config = load_config(args.config, args.set)
     world = office_floor()
     drive = simulate_drive(world, LaserSpec(noise=args.noise), rng=args.seed)
@@ -258,7 +332,9 @@ def cmd_demo(args) -> int:
     stats = write_outputs(result, points, config, args.output, args.plot, 'map',
                           title=f'simulated office floor: {len(result.segments)} segments',
                           truth=world.walls, extra={'input': 'simulated office floor',
-                                                    'scans': int(len(drive.poses))})
+                                                    'scans': int(len(drive.poses))},
+                          inputs=[args.config])
+    _warn_if_empty('simulated office floor', stats, config)
     if not args.quiet:
         print(summary_line(args.output, stats))
     return 0
@@ -266,6 +342,7 @@ def cmd_demo(args) -> int:
 
 def cmd_live_demo(args) -> int:
     from .ros.live_demo import DemoError, run_live_demo
+    check_outputs([args.output, args.plot], [args.config])
     params = {}
     for item in args.set:
         key, sep, value = item.partition('=')
@@ -278,10 +355,11 @@ def cmd_live_demo(args) -> int:
                             domain_id=args.domain_id, progress=not args.quiet)
     except DemoError as exc:
         raise CliError(f'live demo failed: {exc}') from None
-    st = res.data['stats']
+    st = res.value.stats
     title = (f"simulated office, live node: {st['segments']} segments, mean distance "
              f"{100 * st['mean_distance']:.2f} cm")
-    save_map(res.data, res.points, args.output, args.plot, title=title, truth=res.walls)
+    save_map(res.value, res.points, args.output, args.plot, title=title, truth=res.walls,
+             inputs=[args.config])
     if not args.quiet:
         print(f"wrote {args.output}{' and ' + args.plot if args.plot else ''}: "
               f"{st['segments']} segments from {st['scans_used']} of {st['scans']} scans, "
@@ -313,26 +391,27 @@ def cmd_play(args) -> int:
 
 
 def cmd_record_map(args) -> int:
+    from .ros.player import stop_on_signals
     from .ros.recorder import run_record_map
-    data = run_record_map(args.topic, once=args.once, idle=args.idle, timeout=args.timeout,
-                          ros_args=_ros_args(args))
-    st = data['stats']
-    save_map(data, None, args.output, args.plot,
-             title=f"{st['segments']} segments from {st['topic']}")
+    check_outputs([args.output, args.plot])
+    stops = []
+    # SIGINT and SIGTERM (docker stop, systemd, launch) end the recording: the newest map is
+    # written and the exit code is 0 (the map was saved as asked; a signal is how an open-ended
+    # recording ends, unlike `play`, which exits 128 + signal because it did not finish). A
+    # second signal while the map is being written aborts it: exit 130, nothing written.
+    with stop_on_signals(stops.append):
+        value = run_record_map(args.topic, once=args.once, idle=args.idle,
+                               timeout=args.timeout, ros_args=_ros_args(args),
+                               should_stop=lambda: bool(stops))
+        st = value.stats
+        save_map(value, None, args.output, args.plot,
+                 title=f"{st['segments']} segments from {st['topic']}")
     if not args.quiet:
+        how = f', stopped by {signal.Signals(stops[0]).name}' if stops else ''
         print(f"wrote {args.output}: {st['segments']} segments in {st['polylines']} polylines "
-              f"(frame {data['frame_id']}, stamp {st['stamp']:.3f} s) from {st['topic']}, "
-              f"{st['maps_received']} map(s) received")
+              f"(frame {value.frame_id}, stamp {st['stamp']:.3f} s) from {st['topic']}, "
+              f"{st['maps_received']} map(s) received{how}")
     return 0
-
-
-def _json_safe(value):
-    """Replace NaN / inf (e.g. the mean distance of an empty map) by None, recursively."""
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def _mount(text: str) -> tuple:
@@ -363,6 +442,7 @@ def _replay_options(args, every: int = 1):
 def cmd_replay(args) -> int:
     from .replay import run_replay
     config = load_incremental_config(args.config, args.set)
+    check_outputs([args.output, args.plot], [args.input, args.config])
     options = _replay_options(args, args.every)
     t0 = time.perf_counter()
     res = run_replay(args.input, config, options, args.scan_topic, args.odom_topic,
@@ -375,12 +455,10 @@ def cmd_replay(args) -> int:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     value = res.map_value
     value.stats['total_seconds'] = round(time.perf_counter() - t0, 3)
-    value.stats = _json_safe(value.stats)
-    data = map_to_dict(value.segments, value.polylines, value.closed, value.support,
-                       value.stats, incremental_config_dict(config), value.frame_id)
-    save_map(data, res.points, args.output, args.plot,
+    save_map(value, res.points, args.output, args.plot,
              title=f'{os.path.basename(os.path.normpath(args.input))} (replay): '
-                   f'{len(value.segments)} segments')
+                   f'{len(value.segments)} segments', config=config_dict(config),
+             inputs=[args.input, args.config])
     if not args.quiet:
         print(res.summary(args.output))
     return 0
@@ -388,8 +466,8 @@ def cmd_replay(args) -> int:
 
 def read_points_any(path: str, args) -> np.ndarray:
     """Points of a point file, a CARMEN log, or a bag (registered like replay, not mapped)."""
-    low = path.lower()
-    if low.endswith(('.npy', '.csv', '.txt', '.xy', '.log', '.log.gz', '.clf', '.clf.gz')):
+    from .recordings import kind_of
+    if kind_of(path) in ('points', 'carmen'):
         return read_input(path, None, not args.quiet)[0]
     from .replay import run_replay
     options = _replay_options(args)
@@ -402,14 +480,16 @@ def read_points_any(path: str, args) -> np.ndarray:
 
 def cmd_plot(args) -> int:
     from .formats.mapjson import read_map
+    inputs = [args.map, args.points]
+    check_outputs([args.output], inputs)
     data = read_map(args.map)
     points = read_points_any(args.points, args) if args.points else None
-    segs = data['segments_array']
-    title = args.title or (f'{os.path.basename(args.map)}: {len(segs)} segments, '
-                           f'{len(data["polylines"])} polylines')
-    save_map(data, points, None, args.output, title=title)
+    value = data.value
+    title = args.title or (f'{os.path.basename(args.map)}: {len(value)} segments, '
+                           f'{len(value.polylines)} polylines')
+    save_map(value, points, None, args.output, title=title, inputs=inputs)
     if not args.quiet:
-        print(f'wrote {args.output}: {len(segs)} segments'
+        print(f'wrote {args.output}: {len(value)} segments'
               + (f' over {len(points)} points' if points is not None else ''))
     return 0
 
@@ -417,16 +497,19 @@ def cmd_plot(args) -> int:
 def cmd_export(args) -> int:
     from .formats.export import export_map
     from .formats.mapjson import read_map
+    check_outputs([args.output], [args.map])
     data = read_map(args.map)
-    fmt = export_map(data, args.output, args.format)
+    fmt = export_map(data, args.output, args.format, inputs=[args.map])
     if not args.quiet:
-        print(f'wrote {args.output}: {fmt}, {len(data["polylines"])} polylines, '
-              f'{len(data["segments_array"])} segments')
+        print(f'wrote {args.output}: {fmt}, {len(data.value.polylines)} polylines, '
+              f'{len(data.value)} segments')
     return 0
 
 
 def cmd_convert(args) -> int:
     from .formats.convert import carmen_to_bag
+    from .formats.output import check_new_folder
+    check_new_folder(args.output, [args.input])
     bar = _progress_factory(not args.quiet, 'convert', 'msg')
     info = carmen_to_bag(args.input, args.output, args.storage, args.period, progress=bar)
     if info['skipped']:
@@ -441,6 +524,49 @@ def cmd_convert(args) -> int:
               '(frame laser), /tf map -> odom -> base_link, /tf_static base_link -> laser '
               f'({off[0]:g}, {off[1]:g}, {np.rad2deg(off[2]):g} deg), /odom')
     return 0
+
+
+def number(lo: float = None, hi: float = None, lo_open: bool = False, kind=float):
+    """
+    Make an argparse type for finite values of ``kind`` within [lo, hi] (lo excluded if open).
+
+    Refuses nan, inf and out-of-range values with one line naming the bound.
+    """
+    what = 'an integer' if kind is int else 'a number'
+    if lo == 0 and lo_open and hi is None:
+        rule = f'a positive {"integer" if kind is int else "number"}'
+    elif lo is not None and hi is not None:
+        rule = f'{what} in [{lo:g}, {hi:g}]'
+    elif lo is not None:
+        rule = f'{what} {">" if lo_open else ">="} {lo:g}'
+    else:
+        rule = f'{what} <= {hi:g}' if hi is not None else f'a finite {what[2:]}'
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'must be {rule}, got {text!r}') from None
+        low = lo is not None and (value <= lo if lo_open else value < lo)
+        if not math.isfinite(value) or low or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f'must be {rule}, got {text!r}')
+        return value
+    parse.__name__ = kind.__name__
+    return parse
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line: ``polyline-mapper: error: ...``."""
+
+    def error(self, message: str):
+        """Print one line and exit 2 (``--rate must be ...`` for a refused option value)."""
+        import re
+        message = re.sub(r'^argument (?:[^:/]+/)?([^:]+): must be', r'\1 must be', message)
+        self.exit(EXIT_USAGE, f'polyline-mapper: error: {message}\n')
+
+
+SECONDS = number(0.0)
+POSITIVE = number(0.0, lo_open=True)
 
 
 def _pose_args(sp) -> None:
@@ -459,8 +585,8 @@ def _pose_args(sp) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog='polyline-mapper',
-                                description='2D polyline maps from laser scans (SMEMSF).')
+    p = _Parser(prog='polyline-mapper',
+                description='2D polyline maps from laser scans (SMEMSF).')
     sub = p.add_subparsers(dest='command', required=True)
 
     def common(sp):
@@ -476,18 +602,20 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument('input', help='.npy/.csv/.txt points (metres) or CARMEN .log/.log.gz')
     common(f)
     f.add_argument('--frame-id', default='map', help='frame of the points (default: map)')
-    f.add_argument('--range-max', type=float, default=None,
+    f.add_argument('--range-max', type=POSITIVE, default=None,
                    help='for logs: ignore readings beyond this range (m)')
     f.set_defaults(func=cmd_fit)
 
     d = sub.add_parser('demo', help='map a simulated office drive with the live node (or '
                        'offline with --offline)')
     common(d)
-    d.add_argument('--noise', type=float, default=0.01, help='laser range noise (m)')
-    d.add_argument('--seed', type=int, default=1, help='simulation seed')
-    d.add_argument('--rate', type=float, default=1.0,
+    d.add_argument('--noise', type=number(0.0, 10.0), default=0.01,
+                   help='laser range noise (m)')
+    d.add_argument('--seed', type=number(0, 2 ** 32 - 1, kind=int), default=1,
+                   help='simulation seed')
+    d.add_argument('--rate', type=POSITIVE, default=1.0,
                    help='live: play the drive at this many times real time (default 1)')
-    d.add_argument('--domain-id', type=int, metavar='N',
+    d.add_argument('--domain-id', type=number(0, 232, kind=int), metavar='N',
                    help='live: ROS_DOMAIN_ID to run on (default: a random one in 1-101, '
                    'discovery on this machine only, so the demo never reaches a robot)')
     d.add_argument('--offline', action='store_true',
@@ -499,7 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, or CARMEN .log(.gz)')
     common(r)
     _pose_args(r)
-    r.add_argument('--every', type=int, default=1, metavar='N', help='use every N-th scan')
+    r.add_argument('--every', type=number(1, kind=int), default=1, metavar='N',
+                   help='use every N-th scan')
     r.set_defaults(func=cmd_replay)
 
     pl = sub.add_parser('plot', help='draw a map JSON as a PNG, over points if given')
@@ -524,19 +653,22 @@ def build_parser() -> argparse.ArgumentParser:
                         'topics with its timing (scan, odom, /tf, /tf_static, /clock)')
     py.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, CARMEN .log(.gz), '
                     'or a built-in drive: sim:office, sim:hall, sim:corridors')
-    py.add_argument('--rate', type=float, default=1.0, help='time scale (default 1: as recorded)')
+    py.add_argument('--rate', type=POSITIVE, default=1.0,
+                    help='time scale (default 1: as recorded)')
     py.add_argument('--loop', action='store_true', help='play again and again (stamps shifted '
                     'by the recording length each pass, so time never runs backwards)')
     py.add_argument('--no-clock', action='store_true', help='do not publish /clock')
-    py.add_argument('--clock-hz', type=float, default=40.0, help='/clock ticks per second '
+    py.add_argument('--clock-hz', type=POSITIVE, default=40.0, help='/clock ticks per second '
                     'between messages (default 40)')
     py.add_argument('--scan-topic', help='bags: LaserScan topic (default: the only one)')
     py.add_argument('--odom-topic', help='bags: Odometry topic (default: the only one, if any)')
-    py.add_argument('--wait-for-subscriber', type=float, default=0.0, metavar='SECONDS',
+    py.add_argument('--wait-for-subscriber', type=SECONDS, default=0.0, metavar='SECONDS',
                     help='wait up to this long for a subscriber on the scan topic first')
-    py.add_argument('--seed', type=int, default=1, help='sim: drives: simulation seed')
-    py.add_argument('--noise', type=float, default=0.01, help='sim: drives: range noise (m)')
-    py.add_argument('--period', type=float, default=1.0, help='CARMEN logs: seconds between '
+    py.add_argument('--seed', type=number(0, 2 ** 32 - 1, kind=int), default=1,
+                    help='sim: drives: simulation seed')
+    py.add_argument('--noise', type=number(0.0, 10.0), default=0.01,
+                    help='sim: drives: range noise (m)')
+    py.add_argument('--period', type=POSITIVE, default=1.0, help='CARMEN logs: seconds between '
                     'scans when the log times do not increase')
     py.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
     py.add_argument('--ros-args', nargs=argparse.REMAINDER, default=None,
@@ -549,9 +681,10 @@ def build_parser() -> argparse.ArgumentParser:
     rm.add_argument('-o', '--output', required=True, help='map JSON to write')
     rm.add_argument('--plot', metavar='PNG', help='also write a PNG of the map')
     rm.add_argument('--once', action='store_true', help='save the first map received and stop')
-    rm.add_argument('--idle', type=float, metavar='SECONDS',
-                    help='stop once no new map came for this long (default: run until Ctrl-C)')
-    rm.add_argument('--timeout', type=float, default=30.0, metavar='SECONDS',
+    rm.add_argument('--idle', type=SECONDS, metavar='SECONDS',
+                    help='stop once no new map came for this long (default: run until Ctrl-C '
+                    'or SIGTERM; either writes the newest map and exits 0)')
+    rm.add_argument('--timeout', type=SECONDS, default=30.0, metavar='SECONDS',
                     help='give up (exit 2) if no map arrives within this long; 0: wait forever')
     rm.add_argument('-q', '--quiet', action='store_true', help='no summary')
     rm.add_argument('--ros-args', nargs=argparse.REMAINDER, default=None,
@@ -563,7 +696,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument('-o', '--output', required=True, help='rosbag2 folder to create')
     c.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3',
                    help='rosbag2 storage (default: sqlite3)')
-    c.add_argument('--period', type=float, default=1.0,
+    c.add_argument('--period', type=POSITIVE, default=1.0,
                    help='seconds between scans when the log times do not increase')
     c.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
     c.set_defaults(func=cmd_convert)
@@ -573,7 +706,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Entry point; returns the process exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:            # usage errors (exit 2) and --help (0), already printed
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     try:
         return args.func(args)
     except (CliError, ValueError) as exc:

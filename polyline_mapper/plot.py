@@ -3,15 +3,15 @@
 import numpy as np
 
 
-def plot_map(path: str, points: np.ndarray, segments: np.ndarray, polylines=None,
+def plot_map(path, points: np.ndarray, segments: np.ndarray, polylines=None,
              title: str = '', max_points: int = 200_000, truth=None, dpi: int = 150) -> None:
     """
     Write a PNG of the points (grey), the map (one colour per polyline) and end points.
 
     Parameters
     ----------
-    path : str
-        Output file name (.png).
+    path : str or binary file object
+        Where the PNG goes (a file name, or e.g. ``io.BytesIO`` to stage it in memory).
     points : (N, 2) array
         Metres; at most ``max_points`` are drawn (evenly subsampled).
     segments : (K, 2, 2) array
@@ -31,7 +31,6 @@ def plot_map(path: str, points: np.ndarray, segments: np.ndarray, polylines=None
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
 
     pts = np.asarray(points)
     if len(pts) > max_points:
@@ -46,6 +45,19 @@ def plot_map(path: str, points: np.ndarray, segments: np.ndarray, polylines=None
     width = 12.0
     height = float(np.clip(width * span[1] / span[0], 4.0, 16.0))
     fig, ax = plt.subplots(figsize=(width, height))
+    try:
+        _draw(ax, pts, segments, polylines, truth, (lo, hi, span), title)
+        fig.tight_layout()
+        fig.savefig(path, dpi=dpi, format='png')
+    finally:
+        plt.close(fig)
+
+
+def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
+    """Draw truth, points, map, scale bar and labels on ``ax``; ``box``: (lo, hi, span)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    lo, hi, span = box
     if truth is not None and len(truth):
         ax.add_collection(LineCollection(truth, colors='0.6', linewidths=0.6, linestyles='--',
                                          zorder=1))
@@ -72,9 +84,6 @@ def plot_map(path: str, points: np.ndarray, segments: np.ndarray, polylines=None
     if title:
         ax.set_title(title, fontsize=10)
     ax.grid(True, lw=0.3, alpha=0.5)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
 
 
 def _scale_bar(ax, corner, span) -> None:

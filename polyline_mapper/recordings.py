@@ -379,7 +379,8 @@ def read_points(path, range_max: float = None, progress=None,
         if warn is not None:
             warn(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
                  f'{log.skipped_examples[0]}')
-    return log.points(range_max=range_max, progress=progress), desc
+    from .formats.points import check_coordinates
+    return check_coordinates(log.points(range_max=range_max, progress=progress), path), desc
 
 
 def _positive(value) -> bool:

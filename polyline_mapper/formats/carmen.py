@@ -146,49 +146,87 @@ def _offset(rec: Optional[LaserRecord], front: float) -> np.ndarray:
     return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], yaw])
 
 
+MAX_LINE_BYTES = 2 ** 20
+"""Longest log line read (1 MiB: a 100k-beam laser line); longer lines are skipped as
+malformed without being held in memory."""
+
+
+def _lines(fh, limit: int = MAX_LINE_BYTES):
+    """
+    Yield ``(bytes line, over_long)`` of a binary file, reading at most ``limit`` bytes at once.
+
+    An over-long line is yielded once as its first ``limit`` bytes with ``over_long`` True;
+    the rest of it is read and dropped, so memory stays bounded whatever the file holds.
+    """
+    while True:
+        line = fh.readline(limit)
+        if not line:
+            return
+        if len(line) < limit or line.endswith(b'\n'):
+            yield line, False
+            continue
+        while True:                     # drop the rest of the line
+            rest = fh.readline(limit)
+            if not rest or rest.endswith(b'\n'):
+                break
+        yield line, True
+
+
 def read_carmen(path: str) -> CarmenLog:
     """
     Read the laser records of a CARMEN log (.log, .log.gz, or any gzip / text file).
 
-    Lines that are not FLASER / ROBOTLASER1 are ignored; malformed laser lines are skipped and
-    counted. Raises ValueError when the file cannot be read (missing, truncated gzip, binary) or
-    holds no usable laser record.
+    Lines that are not FLASER / ROBOTLASER1 are ignored; malformed laser lines, and lines longer
+    than MAX_LINE_BYTES, are skipped and counted. The file is streamed: memory grows with the
+    records kept, not with the (decompressed) file size. Raises ValueError when the file cannot
+    be read (missing, truncated gzip, not UTF-8 text) or holds no usable laser record.
     """
+    records, skipped, examples, front, robotlaser = [], 0, [], 0.0, None
+
+    def skip(lineno, why):
+        nonlocal skipped
+        skipped += 1
+        if len(examples) < 3:
+            examples.append(f'line {lineno}: {why}')
+
+    lineno = 0
     try:
         with open(path, 'rb') as fh:
             head = fh.read(2)
         opener = gzip.open if head == b'\x1f\x8b' else open
-        with opener(path, 'rt', encoding='utf-8', errors='strict') as fh:
-            lines = fh.readlines()
+        with opener(path, 'rb') as fh:
+            for lineno, (raw, over_long) in enumerate(_lines(fh), 1):
+                if over_long:
+                    skip(lineno, f'longer than {MAX_LINE_BYTES:,} bytes')
+                    continue
+                tok = raw.decode('utf-8', errors='strict').split()
+                if len(tok) >= 3 and tok[:2] == ['PARAM', 'robot_frontlaser_offset']:
+                    try:
+                        front = float(tok[2]) if np.isfinite(float(tok[2])) else 0.0
+                    except ValueError:
+                        pass
+                    continue
+                if not tok or tok[0] not in ('FLASER', 'ROBOTLASER1'):
+                    continue
+                try:
+                    rec = _parse_flaser(tok) if tok[0] == 'FLASER' else _parse_robotlaser(tok)
+                except (ValueError, IndexError) as exc:
+                    skip(lineno, exc)
+                    continue
+                records.append(rec)
+                if robotlaser is None and tok[0] == 'ROBOTLASER1':
+                    robotlaser = rec
     except FileNotFoundError:
         raise ValueError(f'{path}: no such file') from None
-    except (OSError, EOFError, zlib.error, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        raise ValueError(f'{path}: unreadable log (not UTF-8 text at line {lineno + 1}: '
+                         f'{exc.reason})') from None
+    except (OSError, EOFError, zlib.error) as exc:
         raise ValueError(f'{path}: unreadable or truncated log ({exc.__class__.__name__}: '
                          f'{exc})') from None
-    records, skipped, examples, front, robotlaser = [], 0, [], 0.0, None
-    for lineno, line in enumerate(lines, 1):
-        tok = line.split()
-        if len(tok) >= 3 and tok[:2] == ['PARAM', 'robot_frontlaser_offset']:
-            try:
-                front = float(tok[2]) if np.isfinite(float(tok[2])) else 0.0
-            except ValueError:
-                pass
-            continue
-        if not tok or tok[0] not in ('FLASER', 'ROBOTLASER1'):
-            continue
-        try:
-            rec = _parse_flaser(tok) if tok[0] == 'FLASER' else _parse_robotlaser(tok)
-        except (ValueError, IndexError) as exc:
-            skipped += 1
-            if len(examples) < 3:
-                examples.append(f'line {lineno}: {exc}')
-            continue
-        records.append(rec)
-        if robotlaser is None and tok[0] == 'ROBOTLASER1':
-            robotlaser = rec
     if not records:
         raise ValueError(f'{path}: no usable FLASER or ROBOTLASER1 record'
-                         + (f' ({skipped} malformed)' if skipped else ''))
+                         + (f' ({skipped} malformed), e.g. {examples[0]}' if skipped else ''))
     no_return = np.inf
     flaser = [r.ranges for r in records if not np.isfinite(r.range_max)]
     if flaser:

@@ -24,6 +24,7 @@ import numpy as np
 
 from .bag import BagWriter
 from .carmen import read_carmen
+from .output import check_new_folder
 from ..recordings import carmen_messages
 
 
@@ -42,8 +43,7 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
         raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
     if not (np.isfinite(period) and period > 0):
         raise ValueError(f'period must be a positive number of seconds, got {period!r}')
-    if os.path.lexists(out_path):
-        raise ValueError(f'{out_path}: exists already (a bag is written to a new folder)')
+    check_new_folder(out_path, [log_path])
     log = read_carmen(log_path)
     stamps, made_up = log.stamps(period)
     parent = os.path.dirname(os.path.abspath(out_path))

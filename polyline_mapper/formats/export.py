@@ -17,7 +17,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .mapjson import write_text_atomic
+from .mapjson import map_value_from_dict
+from .output import write_text_atomic
 
 FORMATS = ('geojson', 'svg', 'csv')
 
@@ -111,18 +112,22 @@ def to_csv(data: dict) -> str:
     return '\n'.join(rows) + '\n'
 
 
-def export_map(data: dict, path: str, fmt: str = None) -> str:
+def export_map(data: dict, path: str, fmt: str = None, inputs=()) -> str:
     """
     Write a map to ``path`` as GeoJSON, SVG or CSV (from ``fmt`` or the file suffix).
 
-    Written through a temporary file, so a failure leaves nothing behind. Returns the format.
-    Raises ValueError on an unknown format.
+    ``data``: a map checked by ``read_map`` (finite coordinates). Written through
+    ``formats.output`` (never over one of ``inputs``, a device or a folder; a failure leaves
+    nothing behind). Returns the format. Raises ValueError on an unknown format or a refused
+    output.
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
     if fmt not in FORMATS:
         raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg or '
                          '.csv, or --format)')
-    text = {'geojson': lambda d: json.dumps(to_geojson(d), separators=(',', ':')) + '\n',
+    map_value_from_dict(data)          # finite, sane coordinates: no NaN / Infinity written
+    text = {'geojson': lambda d: json.dumps(to_geojson(d), separators=(',', ':'),
+                                            allow_nan=False) + '\n',
             'svg': to_svg, 'csv': to_csv}[fmt](data)
-    write_text_atomic(path, text)
+    write_text_atomic(path, text, inputs)
     return fmt

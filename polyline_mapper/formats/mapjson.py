@@ -1,58 +1,103 @@
 """
-The map JSON schema shared by the CLI, the replay tools and the node's save_map service.
+MAP.json: the one writer and the one reader of the map file (schema_version 1).
 
-``{"frame_id": str, "segments": [[x1, y1, x2, y2], ...], "polylines": [[[x, y], ...], ...],
-"closed": [bool, ...], "support": [float, ...], "stats": {...}, "config": {...}}``; metres.
-Files are written to a temporary name and renamed, so a failed run never leaves a partial map.
+``{"schema_version": 1, "frame_id": str, "segments": [[x1, y1, x2, y2], ...],
+"polylines": [[[x, y], ...], ...], "closed": [bool, ...], "support": [float, ...],
+"stats": {...}, "config": {...}}``; metres in ``frame_id``. Coordinates are rounded to 0.1 mm and
+support to 0.01. The file never holds NaN or Infinity: a non-finite stat (the mean distance of
+an empty map) is written as null. One top-level key per line, compact values.
+
+``write_map`` writes a ``core.mapvalue.MapValue`` through ``formats.output`` (never over an
+input, a device or a folder; all or nothing). ``read_map`` checks a file completely (size,
+nesting, types, shapes, finite and sane coordinates, segments and support of equal length) and
+raises ValueError with one line naming what is wrong.
 """
 
 import json
+import math
 import os
-import tempfile
+from typing import Iterable
 
 import numpy as np
 
+from .output import OutputError, OutputSet, write_text_atomic
+from .points import MAX_COORDINATE
+from ..core.mapvalue import MapValue
+
 SCHEMA_VERSION = 1
+MAX_MAP_BYTES = 64 * 2 ** 20
+"""Largest map file read (64 MiB: about 700k segments, far beyond any building or campus)."""
+
+__all__ = ['SCHEMA_VERSION', 'MapFile', 'map_value_to_dict', 'map_to_dict', 'dumps_map',
+           'write_map', 'write_json_atomic', 'write_text_atomic', 'read_map', 'OutputError',
+           'OutputSet', 'json_safe', 'map_value_from_dict']
+
+
+def json_safe(value):
+    """
+    Return ``value`` with NaN / inf floats replaced by None and numpy scalars made plain.
+
+    Recurses into dicts, lists and tuples (tuples become lists).
+    """
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def map_value_to_dict(value: MapValue, config: dict = None) -> dict:
+    """
+    Return the JSON-ready dict of a map (the file's content, keys in the file's order).
+
+    ``config``: the flat configuration the map was made with (optional). The map's ``stamp``
+    goes into ``stats['stamp']`` (seconds, unless the stats have one). Support is left out
+    when it is unknown (all NaN, e.g. a map read from a file without it).
+    """
+    support = np.asarray(value.support, dtype=np.float64)
+    known = len(support) == 0 or not np.isnan(support).all()
+    stats = dict(value.stats or {})
+    if value.stamp is not None and 'stamp' not in stats:
+        stats['stamp'] = round(float(value.stamp), 6)
+    return _content(value.segments, value.polylines, value.closed, support if known else None,
+                    stats, config, value.frame_id)
 
 
 def map_to_dict(segments, polylines, closed=None, support=None, stats=None, config=None,
                 frame_id: str = 'map') -> dict:
-    """Build the JSON-ready dict of a map (floats rounded to 0.1 mm)."""
-    segs = np.asarray(segments, dtype=float).reshape(-1, 4)
+    """
+    Build the JSON-ready dict of a map from its parts (floats rounded to 0.1 mm).
+
+    The file content ``map_value_to_dict`` gives; ``support`` None leaves it out, ``closed``
+    None marks every polyline open. Unlike a MapValue, the parts are not checked against each
+    other (kept for producers that still hand over a support array of another length).
+    """
+    closed = [False] * len(polylines) if closed is None else closed
+    return _content(segments, polylines, closed, support, stats, config, frame_id)
+
+
+def _content(segments, polylines, closed, support, stats, config, frame_id) -> dict:
+    """Lay out the file: rounding (0.1 mm, support 0.01), key order, non-finite stats -> null."""
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     out = {
         'schema_version': SCHEMA_VERSION,
-        'frame_id': frame_id,
+        'frame_id': str(frame_id),
         'segments': np.round(segs, 4).tolist(),
-        'polylines': [np.round(np.asarray(p, dtype=float), 4).tolist() for p in polylines],
-        'closed': [bool(c) for c in (closed if closed is not None else [False] * len(polylines))],
+        'polylines': [np.round(np.asarray(p, dtype=np.float64), 4).tolist() for p in polylines],
+        'closed': [bool(c) for c in closed],
     }
     if support is not None:
-        out['support'] = np.round(np.asarray(support, dtype=float), 2).tolist()
-    out['stats'] = dict(stats or {})
+        out['support'] = np.round(np.asarray(support, dtype=np.float64), 2).tolist()
+    out['stats'] = json_safe(dict(stats or {}))
     if config is not None:
-        out['config'] = dict(config)
+        out['config'] = json_safe(dict(config))
     return out
-
-
-def write_json_atomic(path: str, data: dict) -> None:
-    """Write JSON to ``path`` through a temporary file in the same folder."""
-    write_text_atomic(path, dumps_map(data))
-
-
-def write_text_atomic(path: str, text: str) -> None:
-    """Write text (UTF-8) to ``path`` through a temporary file in the same folder, renamed."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix=os.path.splitext(path)[1], dir=folder)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
-            fh.write(text)
-        set_default_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def dumps_map(data: dict) -> str:
@@ -62,29 +107,175 @@ def dumps_map(data: dict) -> str:
     return '{\n' + ',\n'.join(rows) + '\n}\n'
 
 
-def set_default_mode(path: str) -> None:
-    """Give a file made by mkstemp (mode 0600) the mode a plain open() would have."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
+def write_map(path, value, config: dict = None, inputs: Iterable = ()) -> dict:
+    """
+    Write a map (a MapValue, or a dict from ``map_value_to_dict``) to ``path``; return the dict.
+
+    Through ``formats.output``: refuses (OutputError, a ValueError) an input, a device, a folder,
+    a read-only file; keeps the mode of a file it replaces; all or nothing.
+    """
+    data = map_value_to_dict(value, config) if isinstance(value, MapValue) else value
+    write_text_atomic(path, dumps_map(data), inputs)
+    return data
 
 
-def read_map(path: str) -> dict:
-    """Read and check a map JSON file; raise ValueError naming what is wrong."""
+def write_json_atomic(path, data: dict, inputs: Iterable = ()) -> None:
+    """Write a map dict (from ``map_to_dict``) to ``path``; same rules as ``write_map``."""
+    write_text_atomic(path, dumps_map(data), inputs)
+
+
+class MapFile(dict):
+    """
+    A checked map file: the JSON object as a dict (as before) and the map as ``value``.
+
+    Keys are the file's (``frame_id``, ``segments``, ``polylines``, ``closed``, ``stats``,
+    ``config`` ...) plus ``segments_array`` ((K, 2, 2) float). ``value`` is the MapValue
+    (support NaN when the file has none), ``config`` the configuration dict or None.
+    """
+
+    value: MapValue
+
+    @property
+    def config(self):
+        """Return the configuration the map was made with (a dict), or None."""
+        return self.get('config')
+
+
+def _reject_constant(name: str):
+    raise ValueError(f'{name} is not valid JSON (non-finite numbers are not allowed)')
+
+
+def _finite_float(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f'number {text[:20]} is out of range')
+    return v
+
+
+def _coords(obj, width: int, what: str) -> np.ndarray:
+    """Check a list of ``width``-number lists; return it as an (N, width) float array."""
+    if not isinstance(obj, list):
+        raise ValueError(f'{what} must be a list, got {type(obj).__name__}')
+    if not all(type(row) is list and len(row) == width for row in obj):
+        raise ValueError(f'{what} must be a list of {width}-number lists')
+    flat = [v for row in obj for v in row]
+    if not {type(v) for v in flat} <= {int, float}:
+        raise ValueError(f'{what} must hold numbers only')
+    arr = np.array(flat, dtype=np.float64).reshape(-1, width)
+    if not np.isfinite(arr).all() or (np.abs(arr) > MAX_COORDINATE).any():
+        raise ValueError(f'{what} must be finite coordinates within +-{MAX_COORDINATE:g} m')
+    return arr
+
+
+def _parse(path: str) -> dict:
     try:
-        with open(path, 'r', encoding='utf-8') as fh:
-            data = json.load(fh)
+        st = os.stat(path)
     except FileNotFoundError:
         raise ValueError(f'{path}: no such file') from None
-    except (OSError, ValueError) as exc:
-        raise ValueError(f'{path}: not a readable map JSON ({exc})') from None
+    except OSError as exc:
+        raise ValueError(f'{path}: cannot read ({exc.strerror or exc})') from None
+    if not os.path.isfile(path):
+        raise ValueError(f'{path}: not a regular file')
+    if st.st_size > MAX_MAP_BYTES:
+        raise ValueError(f'{path}: {st.st_size / 2 ** 20:.0f} MiB is too large for a map JSON '
+                         f'(limit {MAX_MAP_BYTES // 2 ** 20} MiB)')
+    try:
+        with open(path, 'rb') as fh:
+            raw = fh.read(MAX_MAP_BYTES + 1)
+        if len(raw) > MAX_MAP_BYTES:
+            raise ValueError(f'larger than {MAX_MAP_BYTES // 2 ** 20} MiB')
+        return json.loads(raw.decode('utf-8'), parse_constant=_reject_constant,
+                          parse_float=_finite_float)
+    except RecursionError:
+        raise ValueError(f'{path}: not a map JSON (nested too deeply)') from None
+    except (OSError, ValueError) as exc:        # JSONDecodeError, UnicodeDecodeError
+        msg = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
+        raise ValueError(f'{path}: not a readable map JSON ({msg})') from None
+
+
+def read_map(path) -> MapFile:
+    """
+    Read and check a map JSON file; return a MapFile (a dict with ``.value``, a MapValue).
+
+    Raises ValueError with one line naming what is wrong: missing file, not JSON, too large or
+    too deeply nested, NaN / Infinity, a missing key, a field of the wrong type or shape,
+    non-finite or absurd coordinates (beyond +-1e8 m), segments and support of different
+    lengths, polylines and closed flags of different lengths.
+    """
+    path = os.fspath(path)
+    data = _parse(path)
+    try:
+        value = map_value_from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f'{path}: {exc}') from None
+    out = MapFile(data)
+    out['segments_array'] = value.segments
+    out.value = value
+    return out
+
+
+def map_value_from_dict(data) -> MapValue:
+    """
+    Check the content of a map JSON (a dict, as parsed); return its MapValue.
+
+    Raises ValueError (one line, without the file name) naming what is wrong.
+    """
     if not isinstance(data, dict):
-        raise ValueError(f'{path}: a map JSON must be an object')
+        raise ValueError('a map JSON must be an object')
+    version = data.get('schema_version', SCHEMA_VERSION)
+    if type(version) is not int or version != SCHEMA_VERSION:
+        raise ValueError(f'schema_version {version!r} is not supported (this version reads '
+                         f'{SCHEMA_VERSION})')
     for key in ('frame_id', 'segments', 'polylines'):
         if key not in data:
-            raise ValueError(f'{path}: missing key "{key}"')
-    segs = np.asarray(data['segments'], dtype=float)
-    if segs.size and (segs.ndim != 2 or segs.shape[1] != 4 or not np.isfinite(segs).all()):
-        raise ValueError(f'{path}: "segments" must be a list of [x1, y1, x2, y2]')
-    data['segments_array'] = segs.reshape(-1, 2, 2)
-    return data
+            raise ValueError(f'missing key "{key}"')
+    if not isinstance(data['frame_id'], str):
+        raise ValueError('"frame_id" must be a string')
+    segs = _coords(data['segments'], 4, '"segments"')
+    polys = data['polylines']
+    if not isinstance(polys, list):
+        raise ValueError(f'"polylines" must be a list of vertex lists, got '
+                         f'{type(polys).__name__}')
+    polylines = []
+    for i, p in enumerate(polys):
+        verts = _coords(p, 2, f'"polylines"[{i}]')
+        if len(verts) < 2:
+            raise ValueError(f'"polylines"[{i}] must have at least 2 vertices')
+        polylines.append(verts)
+    closed = data.get('closed', [False] * len(polys))
+    if not (isinstance(closed, list) and all(type(c) is bool for c in closed)):
+        raise ValueError('"closed" must be a list of true / false')
+    if len(closed) != len(polys):
+        raise ValueError(f'"closed" has {len(closed)} flags for {len(polys)} polylines')
+    if 'support' in data:
+        sup = data['support']
+        if not (isinstance(sup, list) and all(type(v) in (int, float) for v in sup)):
+            raise ValueError('"support" must be a list of numbers')
+        sup = np.array(sup, dtype=np.float64)
+        if len(sup) != len(segs):
+            raise ValueError(f'"support" has {len(sup)} values for {len(segs)} segments')
+    else:
+        sup = np.full(len(segs), np.nan)
+    for key in ('stats', 'config'):
+        if key in data and not isinstance(data[key], dict):
+            raise ValueError(f'"{key}" must be an object')
+    stats = dict(data.get('stats') or {})
+    stamp = stats.get('stamp')
+    stamp = float(stamp) if type(stamp) in (int, float) else None
+    return MapValue(segs.reshape(-1, 2, 2), sup, polylines, list(closed), data['frame_id'],
+                    stamp, stats)
+
+
+def config_dict(config) -> dict:
+    """
+    Return the flat ``config`` block of a map JSON for a fit or mapper configuration.
+
+    An SMEMSFConfig gives its fields; an IncrementalConfig its SMEMSF fields and its own
+    (without the nested ``smemsf``).
+    """
+    if hasattr(config, 'smemsf'):
+        out = config.smemsf.to_dict()
+        out.update({k: getattr(config, k) for k in config.__dataclass_fields__
+                    if k != 'smemsf'})
+        return out
+    return config.to_dict()

@@ -26,14 +26,15 @@ from typing import Callable, Optional
 import numpy as np
 
 from ..core import map_metrics
+from ..core.mapvalue import MapValue
 from ..formats.records import Scan
 
 
 @dataclass
 class DemoResult:
-    """The recorded map (map JSON dict), the drive's points and true walls, and the node log."""
+    """The recorded map (MapValue), the drive's points and true walls, and the node log."""
 
-    data: dict
+    value: MapValue
     points: np.ndarray
     walls: np.ndarray
     node_log: str
@@ -132,7 +133,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
                 raise DemoError(f'the map did not reach the last scan within {timeout:g} s of '
                                 'the end of the drive' + _tail(node_err))
             info = dict(diag)
-            data = recorder.to_dict()
+            value = recorder.to_value()
         finally:
             executor.shutdown(timeout_sec=1.0)
             if spinner is not None:
@@ -143,10 +144,8 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
         node_log = node_err.read()
 
     points = drive.points()
-    segs = np.asarray(data['segments'], dtype=float).reshape(-1, 2, 2)
-    metrics = map_metrics(points, segs)
-    data['stats'].update(metrics)
-    data['stats'].update(
+    value.stats.update(map_metrics(points, value.segments))
+    value.stats.update(
         input=f'{world} (seed {seed}, noise {noise:g} m), played at {rate:g}x',
         scans=int(len(drive.poses)), scans_played=stats.scans,
         scans_used=int(info.get('scans_used', 0)),
@@ -155,7 +154,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
         update_ms_p99=_float(info.get('update_ms_p99')),
         latency_ms_median=_float(info.get('latency_ms_p50')),
         play_seconds=round(stats.wall_seconds, 2), play_max_delay_ms=round(stats.max_late_ms, 1))
-    return DemoResult(data, points, np.asarray(drive.world.walls), node_log)
+    return DemoResult(value, points, np.asarray(drive.world.walls), node_log)
 
 
 def _float(text) -> Optional[float]:

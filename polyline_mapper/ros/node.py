@@ -55,7 +55,7 @@ from .convert import (diagnostics_msg, map_to_markers, map_to_msg, odometry_from
 from .params import all_params, settings_from
 from .qos import MAP_QOS, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
-from ..formats.mapjson import map_to_dict, write_json_atomic
+from ..formats.mapjson import config_dict, write_map
 from ..session import MappingSession, SessionOptions, WarningThrottle
 
 NODE_NAME = 'polyline_mapper_node'
@@ -189,16 +189,12 @@ class PolylineMapperNode(Node):
     def _on_save_map(self, request, response):
         path = self.settings.output_path
         value = self.session.map_value()
-        config = self.config.smemsf.to_dict()
-        config.update({k: getattr(self.config, k) for k in self.config.__dataclass_fields__
-                       if k != 'smemsf'})
-        data = map_to_dict(value.segments, value.polylines, value.closed, value.support,
-                           value.stats, config, value.frame_id)
         try:
-            write_json_atomic(path, data)
-        except OSError as exc:
+            write_map(path, value, config_dict(self.config))
+        except (OSError, ValueError) as exc:       # ValueError: formats.output refused it
             response.success = False
-            response.message = f'cannot write {path}: {exc.strerror or exc}'
+            reason = getattr(exc, 'strerror', None) or exc
+            response.message = f'cannot write {path}: {reason}'
             self.get_logger().error(response.message)
             return response
         response.success = True

@@ -3,19 +3,22 @@
 
 Subscribes to a polyline_mapper_msgs/PolylineMap topic with the node's QoS (reliable, transient
 local), so the current map arrives at once, and keeps the newest. It stops after the first map
-(``once``), after ``idle`` seconds without a new map, or on Ctrl-C, and returns the newest. No
-map within ``timeout`` seconds is an error (ValueError, one line).
+(``once``), after ``idle`` seconds without a new map, when ``should_stop()`` says so (the
+command line sets that from SIGINT / SIGTERM, see ``ros.player.stop_on_signals``) or on
+KeyboardInterrupt, and returns the newest as a ``MapValue``. No map within ``timeout`` seconds,
+or a stop before any map, is an error (ValueError, one line).
 """
 
 import math
 import time
-from typing import Optional
+from typing import Callable, Optional
 
 from polyline_mapper_msgs.msg import PolylineMap
 
 from .convert import map_from_msg
 from .qos import MAP_QOS
-from ..formats.mapjson import map_to_dict
+from ..core.mapvalue import MapValue
+from ..formats.mapjson import map_value_to_dict
 
 
 class MapRecorder:
@@ -39,8 +42,8 @@ class MapRecorder:
             return -math.inf
         return self.latest.header.stamp.sec + 1e-9 * self.latest.header.stamp.nanosec
 
-    def to_dict(self, extra_stats: dict = None) -> dict:
-        """Build the map JSON dict of the newest map (ValueError when there is none)."""
+    def to_value(self, extra_stats: dict = None) -> MapValue:
+        """Return the newest map as a MapValue (ValueError when there is none)."""
         if self.latest is None:
             raise ValueError(f'no map received on {self.topic}')
         m = map_from_msg(self.latest)
@@ -48,17 +51,22 @@ class MapRecorder:
                  'stamp': round(m['stamp'], 6), 'topic': self.topic,
                  'maps_received': self.count}
         stats.update(extra_stats or {})
-        return map_to_dict(m['segments'], m['polylines'], m['closed'], m['support'], stats,
-                           None, m['frame_id'])
+        return MapValue(m['segments'], m['support'], m['polylines'], m['closed'],
+                        m['frame_id'], m['stamp'], stats)
+
+    def to_dict(self, extra_stats: dict = None) -> dict:
+        """Build the map JSON dict of the newest map (ValueError when there is none)."""
+        return map_value_to_dict(self.to_value(extra_stats))
 
 
 def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float = None,
-                   timeout: float = 30.0, ros_args=None) -> dict:
+                   timeout: float = 30.0, ros_args=None,
+                   should_stop: Callable[[], bool] = None) -> MapValue:
     """
-    Wait for the map published on ``topic``; return the newest as a map JSON dict.
+    Wait for the map published on ``topic``; return the newest as a MapValue.
 
     Runs its own rclpy context; see the module docstring for when it stops. ``timeout`` None
-    or 0 waits for the first map forever.
+    or 0 waits for the first map forever. ``should_stop`` is polled every 50 ms.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -78,6 +86,8 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
             while True:
                 executor.spin_once(timeout_sec=0.05)
                 now = time.monotonic()
+                if should_stop is not None and should_stop():
+                    break
                 if rec.count == 0:
                     if timeout and now - t0 >= timeout:
                         raise ValueError(f'no map on {rec.topic} within {timeout:g} s (is the '
@@ -86,10 +96,11 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
                 if once or (idle is not None and now - rec.received_at >= idle):
                     break
         except KeyboardInterrupt:
-            if rec.count == 0:
-                raise ValueError(f'interrupted before any map arrived on {rec.topic}') from None
-        data = rec.to_dict()
+            pass
+        if rec.count == 0:
+            raise ValueError(f'interrupted before any map arrived on {rec.topic}')
+        value = rec.to_value()
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
-    return data
+    return value

@@ -1,0 +1,689 @@
+"""
+Hostile input and output paths for the command line (issue 17, items 5 and 6), table-driven.
+
+Every case runs ``polyline_mapper.cli.main`` in this process (a subprocess only for signals and
+memory) and checks the exit code, that the error is one line naming the cause, and what must
+hold afterwards: the inputs unchanged byte for byte, no output and no temporary file left, a
+device still a device, a file's mode kept.
+"""
+
+import gzip
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import stat
+import struct
+import subprocess
+import sys
+import time
+import warnings
+import zlib
+
+from conftest import noisy_line
+import numpy as np
+from polyline_mapper.cli import main
+import pytest
+
+CLI = [sys.executable, '-m', 'polyline_mapper.cli']
+
+
+# -- a workspace of inputs: points, a map, a CARMEN log, a bag, a config ---------------------
+def room_points(seed: int = 0) -> np.ndarray:
+    """Return a 4 x 3 m room, 1 cm noise: 3200 points (metres)."""
+    rng = np.random.default_rng(seed)
+    corners = [(0, 0), (4, 0), (4, 3), (0, 3), (0, 0)]
+    return np.concatenate([noisy_line(a, b, 800, 0.01, rng)
+                           for a, b in zip(corners[:-1], corners[1:])])
+
+
+def carmen_text(scans: int = 6) -> str:
+    """Return a FLASER log of a robot in a 6 x 4 m room (181 beams, 0.5 m steps)."""
+    from polyline_mapper.sim import LaserSpec, simulate_drive, World
+    walls = np.array([[[0, 0], [6, 0]], [[6, 0], [6, 4]], [[6, 4], [0, 4]], [[0, 4], [0, 0]]],
+                     dtype=float)
+    spec = LaserSpec(beams=181, fov=np.pi, range_max=50.0, noise=0.01, dropout=0.0)
+    drive = simulate_drive(World(walls, path=[(1, 1), (5, 1), (5, 3)]), spec, step=0.5, rng=2)
+    lines = []
+    for i, (pose, ranges) in enumerate(zip(drive.poses[:scans], drive.ranges[:scans])):
+        r = ' '.join(f'{v:.3f}' for v in np.where(np.isfinite(ranges), ranges, 81.91))
+        p = ' '.join(f'{v:.5f}' for v in pose)
+        lines.append(f'FLASER 181 {r} {p} {p} {1 + i * 0.1:.2f} host 0.0\n')
+    return ''.join(lines)
+
+
+@pytest.fixture(scope='module')
+def originals(tmp_path_factory):
+    """Make the inputs once: points, their fitted map, a log, its bag (copied per test)."""
+    base = tmp_path_factory.mktemp('originals')
+    np.save(base / 'pts.npy', room_points())
+    (base / 'room.log').write_text(carmen_text())
+    (base / 'cfg.yaml').write_text('kappa: 3.0\n')
+    assert main(['fit', str(base / 'pts.npy'), '-o', str(base / 'map.json'), '-q']) == 0
+    assert main(['convert', str(base / 'room.log'), '-o', str(base / 'bag'), '-q']) == 0
+    return base
+
+
+@pytest.fixture
+def ws(tmp_path, originals):
+    """Make a fresh workspace: the inputs, a FIFO, a folder; ``ws[name]`` is a path."""
+    for name in ('pts.npy', 'room.log', 'cfg.yaml', 'map.json'):
+        shutil.copy(originals / name, tmp_path / name)
+    shutil.copytree(originals / 'bag', tmp_path / 'bag')
+    os.mkfifo(tmp_path / 'fifo')
+    (tmp_path / 'folder').mkdir()
+    paths = {p.name.split('.')[0]: str(p) for p in tmp_path.iterdir()}
+    paths['db3'] = str(next((tmp_path / 'bag').glob('*.db3')))
+    paths['out'] = str(tmp_path / 'out.json')
+    paths['png'] = str(tmp_path / 'out.png')
+    paths['dir'] = str(tmp_path)
+    return paths
+
+
+def snapshot(folder: str) -> dict:
+    """Return {relative path: (kind, content hash or link target, mode)} of a whole tree."""
+    out = {}
+    for root, dirs, files in os.walk(folder):
+        for name in dirs + files:
+            path = os.path.join(root, name)
+            st = os.lstat(path)
+            if stat.S_ISREG(st.st_mode):
+                with open(path, 'rb') as fh:
+                    what = hashlib.sha256(fh.read()).hexdigest()
+            elif stat.S_ISLNK(st.st_mode):
+                what = os.readlink(path)
+            else:
+                what = None
+            out[os.path.relpath(path, folder)] = (stat.S_IFMT(st.st_mode), what,
+                                                  stat.S_IMODE(st.st_mode))
+    return out
+
+
+def temp_files(folder: str) -> list:
+    """Return temporary files (``.tmp-``) anywhere under ``folder``."""
+    return [os.path.join(r, n) for r, ds, fs in os.walk(folder) for n in ds + fs
+            if '.tmp-' in n]
+
+
+def run(argv: list, capsys) -> tuple:
+    """Run the CLI in this process; return (exit code, stderr lines, stdout)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    assert not caught, [str(w.message) for w in caught]
+    return code, out.err.strip().splitlines(), out.out
+
+
+def assert_one_line(err: list, needle: str) -> None:
+    assert len(err) == 1, err
+    assert err[0].startswith('polyline-mapper: error:') and needle in err[0], err
+    assert '.tmp-' not in err[0] and 'Traceback' not in err[0], err
+
+
+# -- 1. never write over an input ------------------------------------------------------------
+INPUT_CASES = [
+    ('fit -o input', ['fit', '{pts}', '-o', '{pts}'], 'is an input'),
+    ('fit log -o log', ['fit', '{room}', '-o', '{room}'], 'is an input'),
+    ('fit --plot input', ['fit', '{pts}', '-o', '{out}', '--plot', '{pts}'], 'is an input'),
+    ('fit -o config', ['fit', '{pts}', '-o', '{cfg}', '--config', '{cfg}'], 'is an input'),
+    ('demo -o config', ['demo', '--offline', '-o', '{cfg}', '--config', '{cfg}'],
+     'is an input'),
+    ('export -o input', ['export', '{map}', '-o', '{map}', '--format', 'geojson'],
+     'is an input'),
+    ('plot -o map', ['plot', '{map}', '-o', '{map}'], 'is an input'),
+    ('plot -o points', ['plot', '{map}', '--points', '{pts}', '-o', '{pts}'], 'is an input'),
+    ('convert log -o log', ['convert', '{room}', '-o', '{room}'], 'is an input'),
+    ('replay log -o log', ['replay', '{room}', '-o', '{room}'], 'is an input'),
+    ('replay db3 -o db3', ['replay', '{db3}', '-o', '{db3}'], 'is an input'),
+    ('replay bag -o inside bag', ['replay', '{bag}', '-o', '{bag}/map.json'],
+     'inside the input folder'),
+    ('replay --plot inside bag', ['replay', '{bag}', '-o', '{out}', '--plot', '{bag}/m.png'],
+     'inside the input folder'),
+    ('plot -o inside points bag', ['plot', '{map}', '--points', '{bag}', '-o', '{bag}/m.png'],
+     'inside the input folder'),
+    ('-o and --plot the same', ['fit', '{pts}', '-o', '{out}', '--plot', '{out}'],
+     'named twice'),
+]
+
+
+@pytest.mark.parametrize('argv, needle', [c[1:] for c in INPUT_CASES],
+                         ids=[c[0] for c in INPUT_CASES])
+def test_an_output_never_overwrites_an_input(ws, capsys, argv, needle):
+    before = snapshot(ws['dir'])
+    code, err, _ = run([a.format(**ws) for a in argv] + ['-q'], capsys)
+    assert code == 2
+    assert_one_line(err, needle)
+    assert snapshot(ws['dir']) == before        # inputs byte for byte, nothing added
+
+
+@pytest.mark.parametrize('link', ['symlink', 'hardlink'])
+def test_a_link_to_an_input_is_the_input(ws, capsys, link):
+    alias = os.path.join(ws['dir'], 'alias.npy')
+    (os.symlink if link == 'symlink' else os.link)(ws['pts'], alias)
+    before = snapshot(ws['dir'])
+    code, err, _ = run(['fit', ws['pts'], '-o', alias, '-q'], capsys)
+    assert code == 2
+    assert_one_line(err, 'is an input')
+    assert snapshot(ws['dir']) == before
+
+
+# -- 2. never replace a device, a folder, a FIFO, a socket, a read-only file -----------------
+COMMANDS = {
+    'fit': ['fit', '{pts}', '-o', '{target}'],
+    'fit --plot': ['fit', '{pts}', '-o', '{out}', '--plot', '{target}'],
+    'export': ['export', '{map}', '-o', '{target}', '--format', 'svg'],
+    'plot': ['plot', '{map}', '-o', '{target}'],
+    'demo --offline': ['demo', '--offline', '-o', '{target}'],
+}
+TARGETS = {
+    'fifo': ('{fifo}', 'FIFO'),
+    'folder': ('{folder}', 'directory'),
+    'socket': ('{dir}/sock', 'socket'),
+    'symlink loop': ('{dir}/loop_a', 'symlink loop'),
+    'read-only file': ('{dir}/ro.json', 'read-only'),
+    'parent is a file': ('{pts}/m.json', 'is not a folder'),
+    'trailing slash': ('{dir}/newdir/', 'names a folder'),
+}
+
+
+def make_targets(ws: dict) -> socket.socket:
+    """Add a socket, a symlink loop and a read-only file to the workspace."""
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(os.path.join(ws['dir'], 'sock'))
+    os.symlink('loop_b', os.path.join(ws['dir'], 'loop_a'))
+    os.symlink('loop_a', os.path.join(ws['dir'], 'loop_b'))
+    ro = os.path.join(ws['dir'], 'ro.json')
+    with open(ro, 'w') as fh:
+        fh.write('{"keep": true}\n')
+    os.chmod(ro, 0o444)
+    return sock
+
+
+@pytest.mark.parametrize('target', list(TARGETS))
+@pytest.mark.parametrize('command', list(COMMANDS))
+def test_a_non_regular_or_read_only_target_is_refused(ws, capsys, command, target):
+    sock = make_targets(ws)
+    try:
+        path, needle = TARGETS[target]
+        values = dict(ws, target=path.format(**ws))
+        before = snapshot(ws['dir'])
+        code, err, _ = run([a.format(**values) for a in COMMANDS[command]] + ['-q'], capsys)
+        assert code == 2
+        assert_one_line(err, needle)
+        assert snapshot(ws['dir']) == before     # FIFO still a FIFO, no JSON left by --plot
+    finally:
+        sock.close()
+
+
+def test_dev_null_stays_a_device(ws, capsys):
+    from polyline_mapper.formats.output import check_output, OutputError
+    # Refused by the check itself first: this test must never reach a rename over /dev/null.
+    with pytest.raises(OutputError, match='character device'):
+        check_output('/dev/null')
+    for argv in (['fit', ws['pts'], '-o', '/dev/null'],
+                 ['fit', ws['pts'], '-o', ws['out'], '--plot', '/dev/null'],
+                 ['export', ws['map'], '-o', '/dev/null', '--format', 'csv'],
+                 ['plot', ws['map'], '-o', '/dev/null']):
+        code, err, _ = run(argv + ['-q'], capsys)
+        assert code == 2
+        assert_one_line(err, '/dev/null: is a character device')
+        st = os.stat('/dev/null')
+        assert stat.S_ISCHR(st.st_mode) and st.st_rdev == os.makedev(1, 3)
+    assert not os.path.exists(ws['out'])
+
+
+def test_a_device_node_is_never_replaced_even_as_root(ws, capsys):
+    node = os.path.join(ws['dir'], 'null')
+    try:
+        os.mknod(node, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    except PermissionError:
+        pytest.skip('cannot create a device node here (not root)')
+    code, err, _ = run(['fit', ws['pts'], '-o', node, '-q'], capsys)
+    assert code == 2
+    assert_one_line(err, 'is a character device')
+    assert stat.S_ISCHR(os.lstat(node).st_mode)
+
+
+# -- 3. what is allowed: an existing file (mode kept), a symlink (followed) ------------------
+WRITERS = {
+    'fit': (['fit', '{pts}', '-o', '{target}', '-q'], b'"schema_version": 1'),
+    'export': (['export', '{map}', '-o', '{target}', '--format', 'geojson', '-q'],
+               b'FeatureCollection'),
+    'plot': (['plot', '{map}', '-o', '{target}', '-q'], b'\x89PNG'),
+    'fit --plot': (['fit', '{pts}', '-o', '{out}', '--plot', '{target}', '-q'], b'\x89PNG'),
+}
+
+
+@pytest.mark.parametrize('mode', [0o600, 0o640])
+@pytest.mark.parametrize('writer', list(WRITERS))
+def test_an_overwritten_file_keeps_its_mode(ws, capsys, writer, mode):
+    argv, magic = WRITERS[writer]
+    target = os.path.join(ws['dir'], 'old.out')
+    with open(target, 'w') as fh:
+        fh.write('old content\n')
+    os.chmod(target, mode)
+    code, err, _ = run([a.format(**ws, target=target) for a in argv], capsys)
+    assert code == 0, err
+    with open(target, 'rb') as fh:
+        assert magic in fh.read(200)
+    assert stat.S_IMODE(os.stat(target).st_mode) == mode
+    assert not temp_files(ws['dir'])
+
+
+@pytest.mark.parametrize('writer', list(WRITERS))
+def test_a_symlink_is_followed_and_stays_a_link(ws, capsys, writer):
+    argv, magic = WRITERS[writer]
+    real = os.path.join(ws['folder'], 'real.out')
+    with open(real, 'w') as fh:
+        fh.write('old\n')
+    os.chmod(real, 0o600)
+    link = os.path.join(ws['dir'], 'link.out')
+    os.symlink(real, link)
+    code, err, _ = run([a.format(**ws, target=link) for a in argv], capsys)
+    assert code == 0, err
+    assert os.path.islink(link) and os.readlink(link) == real
+    with open(real, 'rb') as fh:
+        assert magic in fh.read(200)
+    assert stat.S_IMODE(os.stat(real).st_mode) == 0o600
+    assert not temp_files(ws['dir'])
+
+
+def test_a_failed_write_names_the_target_and_leaves_nothing(ws, capsys, monkeypatch):
+    real_replace = os.replace
+
+    def full_disk(src, dst, *args, **kwargs):
+        if '.tmp-' in str(src):
+            raise OSError(28, 'No space left on device', str(src), None, str(dst))
+        return real_replace(src, dst, *args, **kwargs)
+    monkeypatch.setattr(os, 'replace', full_disk)
+    for argv in (['fit', ws['pts'], '-o', ws['out']],
+                 ['export', ws['map'], '-o', ws['out'], '--format', 'geojson'],
+                 ['plot', ws['map'], '-o', ws['png']]):
+        before = snapshot(ws['dir'])
+        code, err, _ = run(argv + ['-q'], capsys)
+        assert code == 2
+        assert_one_line(err, 'No space left on device')
+        assert os.path.basename(argv[3]) + ':' in err[0], err
+        assert snapshot(ws['dir']) == before
+
+
+def test_record_map_checks_its_output_before_waiting(ws, capsys):
+    t0 = time.monotonic()
+    code, err, _ = run(['record-map', '/nobody/publishes', '-o', ws['fifo'], '--timeout', '5'],
+                       capsys)
+    assert code == 2 and time.monotonic() - t0 < 3.0
+    assert_one_line(err, 'FIFO')
+    assert stat.S_ISFIFO(os.lstat(ws['fifo']).st_mode)
+
+
+def test_convert_refuses_a_bag_inside_an_input_folder_or_over_a_device(ws, capsys):
+    for out, needle in ((ws['fifo'], 'exists already'), ('/dev/null', 'exists already'),
+                        (ws['room'], 'is an input')):
+        before = snapshot(ws['dir'])
+        code, err, _ = run(['convert', ws['room'], '-o', out, '-q'], capsys)
+        assert code == 2
+        assert_one_line(err, needle)
+        assert snapshot(ws['dir']) == before
+    assert stat.S_ISCHR(os.stat('/dev/null').st_mode)
+
+
+# -- 4. hostile map JSON given to export and plot --------------------------------------------
+def _map(**fields) -> str:
+    data = {'schema_version': 1, 'frame_id': 'map', 'segments': [[0, 0, 1, 0]],
+            'polylines': [[[0, 0], [1, 0]]], 'closed': [False], 'support': [10.0]}
+    data.update(fields)
+    return json.dumps(data)
+
+
+DEEP = 100_000
+BAD_MAPS = {
+    'polylines is a number': (_map(polylines=5), '"polylines" must be a list'),
+    'nested 100k deep': ('{"frame_id": "map", "segments": [], "polylines": ' + '[' * DEEP
+                         + ']' * DEEP + '}', 'nested too deeply'),
+    'NaN literal': (_map().replace('[[0, 0, 1, 0]]', '[[0, 0, NaN, 0]]'), 'not valid JSON'),
+    'Infinity literal': (_map().replace('[[0, 0], [1, 0]]', '[[0, 0], [Infinity, 0]]'),
+                         'not valid JSON'),
+    'overflowing number': (_map().replace('[[0, 0], [1, 0]]', '[[0, 0], [1e400, 0]]'),
+                           'out of range'),
+    'coordinates 1e308': (_map(segments=[[-1e308, 0, 1e308, 0]],
+                               polylines=[[[-1e308, 0], [1e308, 0]]]), 'within +-1e+08 m'),
+    'vertex triples': (_map(polylines=[[[0, 0, 0], [1, 0, 0]]]), '2-number lists'),
+    'vertices as strings': (_map(polylines=[[['0', '0'], ['1', '0']]]), 'numbers only'),
+    'one-vertex polyline': (_map(polylines=[[[0, 0]]]), 'at least 2 vertices'),
+    'support length': (_map(support=[1.0, 2.0]), '2 values for 1 segments'),
+    'closed length': (_map(closed=[True, False]), '2 flags for 1 polylines'),
+    'schema version 2': (_map(schema_version=2), 'schema_version 2 is not supported'),
+    'stats not an object': (_map(stats=[1, 2]), '"stats" must be an object'),
+}
+
+
+def huge_map(path: str) -> None:
+    """Write a valid map JSON of about 72 MB (one polyline of 12M vertices)."""
+    with open(path, 'wb') as fh:
+        fh.write(b'{"frame_id": "map", "segments": [], "polylines": [[')
+        fh.write(b'[0,0],' * 12_000_000)
+        fh.write(b'[1,1]]]}')
+
+
+@pytest.mark.parametrize('command', ['export-geojson', 'export-svg', 'plot'])
+@pytest.mark.parametrize('case', list(BAD_MAPS) + ['huge file'])
+def test_a_hostile_map_json_is_one_line(ws, capsys, case, command):
+    bad = os.path.join(ws['dir'], 'bad.json')
+    if case == 'huge file':
+        huge_map(bad)
+        needle = 'too large for a map JSON'
+    else:
+        text, needle = BAD_MAPS[case]
+        with open(bad, 'w') as fh:
+            fh.write(text)
+    out = os.path.join(ws['dir'], 'x.' + ('png' if command == 'plot' else command[7:]))
+    argv = ['plot', bad, '-o', out] if command == 'plot' else ['export', bad, '-o', out]
+    before = snapshot(ws['dir'])
+    code, err, _ = run(argv + ['-q'], capsys)
+    assert code == 2
+    assert_one_line(err, needle)
+    assert snapshot(ws['dir']) == before
+
+
+def test_export_never_writes_infinity_or_nan(tmp_path):
+    from polyline_mapper.formats.export import export_map
+    # A map dict that did not come from read_map is checked too.
+    data = json.loads(_map(segments=[[-1e308, 0, 1e308, 0]],
+                           polylines=[[[-1e308, 0], [1e308, 0]]]))
+    for fmt in ('geojson', 'svg', 'csv'):
+        out = tmp_path / f'x.{fmt}'
+        with pytest.raises(ValueError, match='within'):
+            export_map(data, str(out), fmt)
+        assert not out.exists()
+
+
+# -- 5. hostile point files, CARMEN logs and options -----------------------------------------
+def npy_declaring(path: str, rows: int) -> None:
+    """Write an .npy whose header declares ``rows`` x 2 float64 but holds 4 numbers."""
+    with open(path, 'wb') as fh:
+        np.lib.format.write_array_header_1_0(fh, {'descr': '<f8', 'fortran_order': False,
+                                                  'shape': (rows, 2)})
+        fh.write(np.zeros(4).tobytes())
+
+
+BAD_POINT_FILES = {
+    'npy header of 1e11 rows': ('huge.npy', None, 'header declares shape (100000000000, 2)'),
+    'csv of +-1e308': ('big.csv', 'x,y\n1e308,1e308\n-1e308,-1e308\n1e308,-1e308\n',
+                       'beyond +-1e+08 m'),
+    'header-only csv': ('head.csv', 'x,y\n', 'no points'),
+    'csv of 1e9 m': ('far.csv', '0,0\n1,0\n2,0\n1e9,0\n', 'row 3: (1e+09, 0)'),
+}
+
+
+@pytest.mark.parametrize('case', list(BAD_POINT_FILES))
+@pytest.mark.parametrize('command', ['fit', 'plot --points'])
+def test_a_hostile_point_file_is_one_line_without_warnings(ws, capsys, case, command):
+    name, text, needle = BAD_POINT_FILES[case]
+    path = os.path.join(ws['dir'], name)
+    if text is None:
+        npy_declaring(path, 10 ** 11)
+    else:
+        with open(path, 'w') as fh:
+            fh.write(text)
+    argv = (['fit', path, '-o', ws['out']] if command == 'fit'
+            else ['plot', ws['map'], '--points', path, '-o', ws['png']])
+    before = snapshot(ws['dir'])
+    code, err, _ = run(argv + ['-q'], capsys)      # run() also fails on any Python warning
+    assert code == 2
+    assert_one_line(err, needle)
+    assert snapshot(ws['dir']) == before
+
+
+OPTION_CASES = [
+    ('--set seed=abc', ['fit', '{pts}', '-o', '{out}', '--set', 'seed=abc'],
+     '--set seed=abc: seed must be an integer'),
+    ('--set seed=1.5', ['fit', '{pts}', '-o', '{out}', '--set', 'seed=1.5'],
+     'seed must be an integer'),
+    ('--set kappa=yes', ['fit', '{pts}', '-o', '{out}', '--set', 'kappa=yes'],
+     'kappa must be a finite number'),
+    ('fit --range-max nan', ['fit', '{room}', '-o', '{out}', '--range-max', 'nan'],
+     '--range-max must be a positive number'),
+    ('fit --range-max -1', ['fit', '{room}', '-o', '{out}', '--range-max', '-1'],
+     '--range-max must be a positive number'),
+    ('play --wait-for-subscriber -1',
+     ['play', '{dir}/missing.mcap', '--wait-for-subscriber', '-1'],
+     '--wait-for-subscriber must be a number >= 0'),
+    ('play --rate inf', ['play', '{dir}/missing.mcap', '--rate', 'inf'],
+     '--rate must be a positive number'),
+    ('play --clock-hz nan', ['play', '{dir}/missing.mcap', '--clock-hz', 'nan'],
+     '--clock-hz must be a positive number'),
+    ('demo --noise nan', ['demo', '--offline', '-o', '{out}', '--noise', 'nan'],
+     '--noise must be a number in [0, 10]'),
+]
+
+
+@pytest.mark.parametrize('argv, needle', [c[1:] for c in OPTION_CASES],
+                         ids=[c[0] for c in OPTION_CASES])
+def test_a_bad_option_value_is_one_line(ws, capsys, argv, needle):
+    before = snapshot(ws['dir'])
+    code, err, _ = run([a.format(**ws) for a in argv] + ['-q'], capsys)
+    assert code == 2
+    assert_one_line(err, needle)
+    assert snapshot(ws['dir']) == before
+
+
+@pytest.mark.parametrize('how', ['--set', 'config file'])
+def test_numbers_written_as_text_are_numbers(ws, capsys, how):
+    # YAML 1.1 reads 1e-3 as a string; the config field's type says it is a number.
+    if how == '--set':
+        extra = ['--set', 'sigma=1e-3', '--set', 'max_iterations=2e1']
+    else:
+        with open(ws['cfg'], 'w') as fh:
+            fh.write('sigma: 1e-3\nmax_iterations: "2e1"\nsigma_start: null\n')
+        extra = ['--config', ws['cfg']]
+    code, err, _ = run(['fit', ws['pts'], '-o', ws['out'], '-q'] + extra, capsys)
+    assert code == 0, err
+    with open(ws['out']) as fh:
+        config = json.load(fh)['config']
+    assert config['sigma'] == 0.001 and type(config['sigma']) is float
+    assert config['max_iterations'] == 20 and config['sigma_start'] is None
+
+
+# -- 6. valid points without structure: an empty map, said clearly ---------------------------
+@pytest.mark.parametrize('points, reason', [
+    (np.array([[0.0, 0.0], [1.0, 1.0]]), '2 points are fewer than min_support (4)'),
+    (np.random.default_rng(0).uniform(0.0, 10.0, (200, 2)), 'no structure: every candidate'),
+])
+def test_points_without_a_segment_give_a_valid_empty_map(ws, capsys, points, reason):
+    from polyline_mapper.formats.mapjson import read_map
+    src = os.path.join(ws['dir'], 'few.npy')
+    np.save(src, points)
+    code, err, out = run(['fit', src, '-o', ws['out'], '--plot', ws['png']], capsys)
+    assert code == 0, err
+    assert len(err) == 1 and 'warning' in err[0] and 'no segment found' in err[0], err
+    assert reason in err[0], err
+    assert f'wrote {ws["out"]}: an empty map (0 segments) from {len(points)} points' in out
+    with open(ws['out']) as fh:
+        text = fh.read()
+    assert 'NaN' not in text and 'Infinity' not in text
+    data = read_map(ws['out'])
+    assert data['segments'] == [] and data['polylines'] == [] and len(data.value) == 0
+    assert data['stats']['mean_distance'] is None and data['stats']['points'] == len(points)
+    assert os.path.getsize(ws['png']) > 1000
+
+
+# -- 7. a gzip bomb as CARMEN log: streamed, bounded memory ----------------------------------
+def gzip_bomb(path: str, gib: float = 1.0) -> int:
+    """
+    Write a gzip file of ``gib`` GiB of zero bytes (one endless line); return its size.
+
+    Deflate blocks after a full flush are independent, so one compressed MiB is repeated.
+    """
+    chunk = b'\0' * 2 ** 20
+    co = zlib.compressobj(9, zlib.DEFLATED, -15)
+    block = co.compress(chunk) + co.flush(zlib.Z_FULL_FLUSH)
+    n = int(gib * 1024)
+    crc = 0
+    for _ in range(n):
+        crc = zlib.crc32(chunk, crc)
+    with open(path, 'wb') as fh:
+        fh.write(b'\x1f\x8b\x08\x00\x00\x00\x00\x00\x02\xff')
+        fh.write(block * n)
+        fh.write(b'\x03\x00')                               # final, empty block
+        fh.write(struct.pack('<II', crc, (n * len(chunk)) & 0xFFFFFFFF))
+    return os.path.getsize(path)
+
+
+MEASURE = """
+import resource, sys
+from polyline_mapper.cli import main
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+code = main(sys.argv[1:])
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(code, (after - before) / 1024.0)
+"""
+
+
+def test_a_gzip_bomb_log_is_streamed_in_bounded_memory(tmp_path):
+    bomb = str(tmp_path / 'bomb.log.gz')
+    assert gzip_bomb(bomb) < 2 * 2 ** 20
+    with gzip.open(bomb, 'rb') as fh:                    # the test file is what it says
+        assert fh.read(10) == b'\0' * 10
+    out = tmp_path / 'm.json'
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, '-c', MEASURE, 'fit', bomb, '-o', str(out), '-q'],
+                          capture_output=True, text=True, timeout=300)
+    took = time.monotonic() - t0
+    code, growth_mb = proc.stdout.split()
+    assert int(code) == 2, proc.stderr
+    err = proc.stderr.strip().splitlines()
+    assert len(err) == 1 and 'no usable FLASER or ROBOTLASER1 record' in err[0], err
+    assert 'longer than 1,048,576 bytes' in err[0], err
+    assert float(growth_mb) < 200, growth_mb
+    assert not out.exists() and took < 120, took
+
+
+def test_over_long_lines_are_skipped_and_the_rest_is_read(tmp_path):
+    from polyline_mapper.formats.carmen import read_carmen
+    good = carmen_text(scans=3).splitlines(keepends=True)
+    path = tmp_path / 'mixed.log.gz'
+    with gzip.open(path, 'wb') as fh:
+        fh.write(good[0].encode())
+        fh.write(b'FLASER ' + b'1.0 ' * 600_000 + b'\n')       # 2.4 MB: over the limit
+        fh.write(''.join(good[1:]).encode())
+    log = read_carmen(str(path))
+    assert len(log.records) == 3 and log.skipped == 1
+    assert log.skipped_examples == ['line 2: longer than 1,048,576 bytes']
+
+
+# -- 8. record-map stopped by SIGTERM writes the map it has ----------------------------------
+def test_record_map_writes_the_map_on_sigterm(tmp_path):
+    import rclpy
+    from geometry_msgs.msg import Point
+    from polyline_mapper.formats.mapjson import read_map
+    from polyline_mapper.ros.node import MAP_QOS
+    from polyline_mapper_msgs.msg import Polyline, PolylineMap, Segment
+    out = tmp_path / 'rec.json'
+    proc = subprocess.Popen(CLI + ['record-map', 'hostile_map', '-o', str(out), '--timeout',
+                                   '60'], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('hostile_map_publisher', context=context)
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        pub = node.create_publisher(PolylineMap, 'hostile_map', MAP_QOS)
+        deadline = time.monotonic() + 30
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        assert pub.get_subscription_count() == 1, 'record-map did not subscribe'
+        for k in (1, 2):                                 # the newest (k = 2) must be written
+            msg = PolylineMap()
+            msg.header.frame_id = 'odom'
+            msg.header.stamp.sec = 100 + k
+            pts = [Point(x=0.0, y=0.0), Point(x=float(k), y=0.0), Point(x=float(k), y=2.0)]
+            msg.segments = [Segment(start=a, end=b, support=10 * k)
+                            for a, b in zip(pts[:-1], pts[1:])]
+            msg.polylines = [Polyline(points=pts, closed=False)]
+            pub.publish(msg)
+            t_end = time.monotonic() + 1.5
+            while time.monotonic() < t_end:
+                executor.spin_once(timeout_sec=0.05)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        try:
+            stdout, stderr = proc.communicate(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise AssertionError('record-map did not stop within 15 s of SIGTERM')
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert proc.returncode == 0, stderr
+    assert 'stopped by SIGTERM' in stdout and '2 map(s) received' in stdout, stdout
+    data = read_map(out)
+    assert data['frame_id'] == 'odom' and data['stats']['stamp'] == 102.0
+    np.testing.assert_array_equal(data.value.segments,
+                                  [[[0, 0], [2, 0]], [[2, 0], [2, 2]]])
+    assert data['support'] == [20.0, 20.0]
+    assert not temp_files(str(tmp_path))
+
+
+# -- 9. the API the node, replay and the live demo use ---------------------------------------
+def test_an_output_set_is_all_or_nothing(tmp_path):
+    from polyline_mapper.formats.output import OutputError, OutputSet
+    a, b = tmp_path / 'a.json', tmp_path / 'b.png'
+    b.write_bytes(b'old png')
+    with pytest.raises(RuntimeError):
+        with OutputSet() as out:
+            out.add(a)
+            out.add(b)
+            out.put(a, '{}')
+            raise RuntimeError('the second output could not be made')
+    assert not a.exists() and b.read_bytes() == b'old png' and not temp_files(str(tmp_path))
+    with pytest.raises(OutputError, match='named twice'):
+        with OutputSet() as out:
+            out.add(a)
+            out.add(str(tmp_path / '.' / 'a.json'))
+    with OutputSet() as out:
+        out.put(a, '{"a": 1}')
+        out.put(b, b'new png')
+    assert a.read_text() == '{"a": 1}' and b.read_bytes() == b'new png'
+    assert stat.S_IMODE(a.stat().st_mode) == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def test_write_map_and_read_map_round_trip_without_nan(tmp_path):
+    from polyline_mapper.core.mapvalue import MapValue
+    from polyline_mapper.formats.mapjson import map_to_dict, map_value_to_dict, read_map, \
+        write_map
+    segs = np.array([[[0.0, 0.0], [1.00004, 0.0]], [[1.00004, 0.0], [1.0, 2.0]]])
+    polys = [np.array([[0.0, 0.0], [1.00004, 0.0], [1.0, 2.0]])]
+    value = MapValue(segs, np.array([12.3456, 7.0]), polys, [False], 'odom', 12.5,
+                     {'mean_distance': float('nan'), 'p95': np.float64(np.inf),
+                      'n': np.int64(3)})
+    path = tmp_path / 'm.json'
+    data = write_map(str(path), value, config={'sigma': None, 'kappa': 3.0})
+    text = path.read_text()
+    assert 'NaN' not in text and 'Infinity' not in text
+    back = read_map(str(path))
+    assert back['stats'] == {'mean_distance': None, 'p95': None, 'n': 3, 'stamp': 12.5}
+    assert back.config == {'sigma': None, 'kappa': 3.0} and back.value.frame_id == 'odom'
+    np.testing.assert_array_equal(back.value.segments, np.round(segs, 4))
+    np.testing.assert_array_equal(back.value.support, [12.35, 7.0])
+    assert back.value.stamp == 12.5 and back.value.closed == [False]
+    # map_to_dict (the old entry point) gives the same file content
+    old = map_to_dict(segs, polys, [False], value.support, value.stats,
+                      {'sigma': None, 'kappa': 3.0}, 'odom')
+    old['stats']['stamp'] = 12.5
+    assert old == data == map_value_to_dict(value, {'sigma': None, 'kappa': 3.0})
+    assert 'support' not in map_to_dict(segs, polys)
