@@ -3,11 +3,12 @@
 from conftest import end_errors
 import numpy as np
 from polyline_mapper.core import fit, map_metrics
-from polyline_mapper.core.geometry import PointIndex, sample_segments
-from polyline_mapper.core.incremental import (
-    _median, _percentile, IncrementalConfig, IncrementalMapper, near_points, seen_through,
-    SegmentGrid)
+from polyline_mapper.core.cleanup import seen_through
+from polyline_mapper.core.geometry import sample_segments
+from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
+from polyline_mapper.core.index import near_points, PointIndex, SegmentGrid
 from polyline_mapper.core.metrics import twin_fraction
+from polyline_mapper.core.noise import median, percentile
 from polyline_mapper.core.split import split_segments
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive, World
 from polyline_mapper.sim.laser import simulate_scan
@@ -290,7 +291,7 @@ def test_running_statistics_equal_numpy():
     rng = np.random.default_rng(5)
     for n in list(range(1, 60)) + [359, 360, 720]:
         x = rng.exponential(0.03, n)
-        assert _median(list(x)) == float(np.median(x))
+        assert median(list(x)) == float(np.median(x))
         if n >= 2:
             for q in (25.0, 50.0, 75.0, 90.0):
-                assert _percentile(x, q) == float(np.percentile(x, q))
+                assert percentile(x, q) == float(np.percentile(x, q))

@@ -32,7 +32,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from .emsf import emsf_step, extend_for
-from .geometry import as_points, as_segments, lengths, piece_pairs, PointIndex
+from .geometry import as_points, as_segments, lengths
+from .index import piece_pairs, PointIndex
 from .merge import merge_segments, noise_stubs
 from .noise import estimate_noise
 from .polylines import assemble_polylines
