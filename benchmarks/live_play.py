@@ -75,7 +75,7 @@ def play_one(name: str, path: pathlib.Path, scan_hz: float, env: dict, tmp: str)
                     summary[-1] if summary else '')
     live = read_map(out)
     offline = run_replay(bag)
-    segs_off, _, _ = offline.mapper.polylines()
+    segs_off = offline.mapper.polylines().segments
     m_off = map_metrics(offline.points, segs_off)
     m_live = map_metrics(offline.points, live['segments_array'])
     row = {'log': name, 'scans': int(len(stamps)), 'rate': round(rate, 2),

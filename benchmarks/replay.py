@@ -43,7 +43,8 @@ def replay_one(name: str, path: pathlib.Path, out_dir: pathlib.Path, via_bag: bo
     res = run_replay(str(path), progress=True)
     wall = time.perf_counter() - t0
     stats = res.stats()
-    segments, polylines, _ = res.mapper.polylines()
+    geo = res.mapper.polylines()
+    segments, polylines = geo.segments, geo.polylines
     row = {'dataset': name, 'scans': res.scans, 'scans_used': res.used,
            'skipped': dict(res.skipped), 'points': stats['points'],
            'segments': stats['segments'], 'polylines': stats['polylines'],
@@ -61,7 +62,7 @@ def replay_one(name: str, path: pathlib.Path, out_dir: pathlib.Path, via_bag: bo
             bag = os.path.join(tmp, name)
             carmen_to_bag(str(path), bag, 'sqlite3')
             other = run_replay(bag, progress=True)
-        theirs = other.mapper.polylines()[0]
+        theirs = other.mapper.polylines().segments
         row['bag_max_diff_m'] = (float(np.abs(theirs - segments).max())
                                  if theirs.shape == segments.shape else float('inf'))
     print(f"{name}: {row['scans_used']}/{row['scans']} scans, {row['segments']} segments, "

@@ -373,11 +373,12 @@ def cmd_replay(args) -> int:
         raise CliError(f'{args.input}: {res.nothing_mapped()}')
     for line in res.skip_lines():
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
-    segments, polylines, closed = res.mapper.polylines()
+    geo = res.mapper.polylines()
+    segments = geo.segments
     stats = res.stats()
     stats['total_seconds'] = round(time.perf_counter() - t0, 3)
     stats = _json_safe(stats)
-    data = map_to_dict(segments, polylines, closed, res.mapper.support, stats,
+    data = map_to_dict(segments, geo.polylines, geo.closed, geo.support, stats,
                        incremental_config_dict(config), res.fixed_frame or 'map')
     save_map(data, res.points, args.output, args.plot,
              title=f'{os.path.basename(os.path.normpath(args.input))} (replay): '

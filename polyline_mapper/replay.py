@@ -193,11 +193,11 @@ class ReplayResult:
 
     def stats(self) -> dict:
         """Map quality over the replayed points, counts and update times, for the map JSON."""
-        segments, polylines, _ = self.mapper.polylines()
-        stats = map_metrics(self.points, segments)
+        geo = self.mapper.polylines()
+        stats = map_metrics(self.points, geo.segments)
         ms = self.update_ms
         stats.update(
-            polylines=len(polylines), scans=int(self.scans), scans_used=int(self.used),
+            polylines=len(geo.polylines), scans=int(self.scans), scans_used=int(self.used),
             skipped=dict(sorted(self.skipped.items())),
             update_ms_median=round(float(np.median(ms)), 3) if ms.size else None,
             update_ms_p99=round(float(np.percentile(ms, 99)), 3) if ms.size else None,

@@ -33,7 +33,7 @@ def office_incremental(office_drive):
 def test_incremental_finds_every_wall_like_batch(office_incremental, office_drive, office_fit):
     mapper, _ = office_incremental
     pts, hits, batch = office_fit
-    segs, _, _ = mapper.polylines()          # the published map, ends joined like batch's
+    segs = mapper.polylines().segments      # the published map, ends joined like batch's
     for i, wall in enumerate(office_drive.world.walls):
         a, b = wall
         u = (b - a) / np.linalg.norm(b - a)
@@ -158,7 +158,7 @@ def test_sparse_low_noise_scans_give_the_batch_map():
                                             dropout=0.01), step=0.5, rng=0)
     mapper, _ = run_drive(drive)
     pts, hits = drive.points(with_hits=True)
-    segs, _, _ = mapper.polylines()
+    segs = mapper.polylines().segments
     for i, (a, b) in enumerate(world.walls):
         u = (b - a) / np.linalg.norm(b - a)
         t = (pts[hits == i] - a) @ u
@@ -295,3 +295,25 @@ def test_running_statistics_equal_numpy():
         if n >= 2:
             for q in (25.0, 50.0, 75.0, 90.0):
                 assert percentile(x, q) == float(np.percentile(x, q))
+
+
+@pytest.mark.parametrize('world, noise, stubs', [
+    (office_floor, 0.01, [24]),           # the demo's drive (seed 1): a stub last, 25 -> 24
+    (corridor_loop, 0.05, [3, 6, 20]),    # 5 cm noise: stubs inside the list, 27 -> 24
+])
+def test_published_support_belongs_to_the_segment_beside_it(world, noise, stubs):
+    """``polylines()`` drops noise stubs from segments and support alike, in the same order."""
+    from polyline_mapper.core.geometry import end_distance
+    from polyline_mapper.core.merge import noise_stubs
+    mapper, _ = run_drive(simulate_drive(world(), LaserSpec(beams=541, noise=noise), rng=1))
+    inner, sup = mapper.segments, mapper.support
+    stub = noise_stubs(inner, mapper.sigma, mapper.r, mapper.config.smemsf.kappa)
+    assert np.flatnonzero(stub).tolist() == stubs          # the case this test is about
+    geo = mapper.polylines()
+    assert len(geo.segments) == len(geo.support) == len(inner) - len(stubs)
+    # Each published segment is its inner segment with ends joined (moved a few cm at most).
+    src = [int(np.argmin(end_distance(inner, s[None]))) for s in geo.segments]
+    assert src == np.flatnonzero(~stub).tolist()
+    assert end_distance(inner[src], geo.segments).max() < 0.1
+    np.testing.assert_array_equal(geo.support, sup[src])
+    assert sum(len(p) - 1 + c for p, c in zip(geo.polylines, geo.closed)) == len(geo.segments)

@@ -96,7 +96,7 @@ def test_play_into_the_live_node_matches_offline_replay(tmp_path, office_bag):
     offline = run_replay(str(bag))
     assert offline.used == 355
     pts = offline.points
-    segs_off, _, _ = offline.mapper.polylines()
+    segs_off = offline.mapper.polylines().segments
     m_off = map_metrics(pts, segs_off)
     m_live = map_metrics(pts, live['segments_array'])
     # The bar: the live map within 1.25x the offline replay's mean distance.

@@ -68,9 +68,8 @@ import numpy as np
 from .cleanup import as_origins, corner_chords, origin_runs, seen_through
 from .geometry import as_points, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
-from .merge import noise_stubs
 from .noise import estimate_noise, median, scan_spacing
-from .polylines import assemble_polylines
+from .polylines import map_geometry, MapGeometry
 from .smemsf import smemsf_iteration, SMEMSFConfig
 from ..scan import scan_to_points
 
@@ -165,17 +164,20 @@ class IncrementalMapper:
         """Return the accumulated, capped point weight behind each segment, shape (K,)."""
         return self._sup[self._alive].copy()
 
-    def polylines(self) -> tuple:
+    def polylines(self) -> MapGeometry:
         """
-        Chain the current map: (segments with joined ends, polylines, closed flags).
+        Return the map as published: ``MapGeometry(segments, support, polylines, closed)``.
 
         Short stubs inside a wall's noise band (``merge.noise_stubs``) are left out, as in a
-        batch fit; they stay in ``segments``, where later scans may still grow them.
+        batch fit, from ``segments`` and ``support`` alike (``support[i]`` belongs to
+        ``segments[i]``); the rest keep the order of ``self.segments``, with joined ends moved
+        to their shared vertex. The stubs stay in the mapper's own map (``self.segments``),
+        where later scans may still grow them.
         """
-        segs = self.segments
-        if self.sigma is not None:
-            segs = segs[~noise_stubs(segs, self.sigma, self.r, self.config.smemsf.kappa)]
-        return assemble_polylines(segs, self.config.smemsf.join_over_r * self.r)
+        cfg = self.config.smemsf
+        r = self.r
+        return map_geometry(self.segments, self.support, self.sigma, r, cfg.kappa,
+                            cfg.join_over_r * r)
 
     def load(self, segments, support=None) -> None:
         """

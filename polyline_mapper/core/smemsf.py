@@ -34,9 +34,9 @@ import numpy as np
 from .emsf import emsf_step, extend_for
 from .geometry import as_points, as_segments, lengths
 from .index import piece_pairs, PointIndex
-from .merge import merge_segments, noise_stubs
+from .merge import merge_segments
 from .noise import estimate_noise
-from .polylines import assemble_polylines
+from .polylines import map_geometry
 from .seed import seed_segments
 from .split import split_segments
 
@@ -344,9 +344,7 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     segments, support, _ = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
         config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
-    keep = ~noise_stubs(segments, sigma, r, config.kappa)
-    segments, support = segments[keep], support[keep]
-    segments, polylines, closed = assemble_polylines(segments, config.join_over_r * r)
-    return FitResult(segments=segments, support=support, polylines=polylines, closed=closed,
-                     iterations=it, converged=converged, sigma=sigma, r=r,
+    geo = map_geometry(segments, support, sigma, r, config.kappa, config.join_over_r * r)
+    return FitResult(segments=geo.segments, support=geo.support, polylines=geo.polylines,
+                     closed=geo.closed, iterations=it, converged=converged, sigma=sigma, r=r,
                      seconds=time.perf_counter() - t0, history=history)

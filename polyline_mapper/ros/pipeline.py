@@ -210,8 +210,8 @@ class ScanPipeline:
     def snapshot(self) -> MapSnapshot:
         """Return the current map (ends joined into polylines) and its stamp."""
         with self.map_lock:
-            segs, polys, closed = self.mapper.polylines()
-            return MapSnapshot(segs, self.mapper.support, polys, closed, self.header,
+            geo = self.mapper.polylines()
+            return MapSnapshot(geo.segments, geo.support, geo.polylines, geo.closed, self.header,
                                self.mapper.sigma, self.updates)
 
     def reset(self) -> int:
