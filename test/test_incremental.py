@@ -317,3 +317,27 @@ def test_published_support_belongs_to_the_segment_beside_it(world, noise, stubs)
     assert end_distance(inner[src], geo.segments).max() < 0.1
     np.testing.assert_array_equal(geo.support, sup[src])
     assert sum(len(p) - 1 + c for p, c in zip(geo.polylines, geo.closed)) == len(geo.segments)
+
+
+def test_reset_forgets_the_map_but_keeps_sigma_and_spacing():
+    drive = simulate_drive(corridor_loop(width=2.0, side=16.0),
+                           LaserSpec(beams=361, fov=np.deg2rad(270), range_max=8.0, noise=0.01),
+                           step=0.3, rng=3)
+    mapper, infos = run_drive(drive, IncrementalMapper(IncrementalConfig(noise_updates=5)))
+    assert [i.skipped for i in infos[:5]] == ['estimating noise'] * 4 + [None]
+    sigma, r = mapper.sigma, mapper.r
+    assert sigma is not None and len(mapper.segments) > 0
+    mapper.reset()
+    assert len(mapper.segments) == 0 and len(mapper.polylines().segments) == 0
+    assert mapper.nbytes() == IncrementalMapper().nbytes() and mapper.updates == 0
+    assert (mapper.sigma, mapper.r) == (sigma, r)
+    info = mapper.update_scan(drive.ranges[0], drive.spec.angles(), drive.poses[0],
+                              drive.spec.range_min, drive.spec.range_max)
+    assert info.skipped is None and info.segments > 0 and mapper.updates == 1
+    # A reset before sigma is known keeps the estimates pooled so far.
+    fresh = IncrementalMapper(IncrementalConfig(noise_updates=3))
+    for i in range(2):
+        fresh.update_scan(drive.ranges[i], drive.spec.angles(), drive.poses[i])
+    fresh.reset()
+    assert fresh.sigma is None
+    assert fresh.update_scan(drive.ranges[2], drive.spec.angles(), drive.poses[2]).skipped is None

@@ -195,8 +195,18 @@ class IncrementalMapper:
         self._replace(np.flatnonzero(self._alive), segs, sup)
 
     def reset(self) -> None:
-        """Forget the map and the buffer (sigma, once estimated, is kept)."""
+        """
+        Forget the map and the scan buffer; keep what describes the sensor.
+
+        Kept: sigma and its floor (the first estimate), the residual scales sigma follows, the
+        noise estimates pooled so far, and the scan-spacing estimate (so r). They describe the
+        laser and the registration, not the map: once sigma was estimated, the next update after
+        a reset maps at once, at the same sigma and r, instead of estimating the noise again.
+        ``updates`` restarts at 0.
+        """
+        sensor = (self.sigma, self._sigma0, self._noise, self._scales, self._spacings)
         self.__init__(self.config)
+        self.sigma, self._sigma0, self._noise, self._scales, self._spacings = sensor
 
     def nbytes(self) -> int:
         """Bytes held by the map arrays and the scan buffer."""
