@@ -307,6 +307,21 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     ValueError
         On invalid points, weights, init or config.
 
+    Examples
+    --------
+    Two walls meeting at a corner, 200 points each with 1 cm noise:
+
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> t = rng.uniform(0.0, 1.0, 200)
+    >>> points = np.concatenate([np.c_[4 * t, rng.normal(0, 0.01, 200)],
+    ...                          np.c_[4 + rng.normal(0, 0.01, 200), 3 * t]])
+    >>> result = fit(points)
+    >>> len(result.segments), len(result.support), result.closed
+    (2, 2, [False])
+    >>> (result.polylines[0].round(1) + 0.0).tolist()     # metres, the corner joined
+    [[4.0, 3.0], [4.0, 0.0], [0.0, 0.0]]
+
     """
     t0 = time.perf_counter()
     config = config or SMEMSFConfig()
