@@ -154,7 +154,7 @@ def run_method(method: str, value, ds: dict, k_ours: int, cap: float) -> dict:
             info = mapper.update_scan(ranges, angles, pose, rmin, rmax)
             if info.skipped is None:
                 per_scan.append(1000.0 * (time.perf_counter() - t1))
-        segs = mapper.polylines()[0]
+        segs = mapper.polylines().segments
     elif method == 'split-merge':
         merger = SegmentMerger(cfg['merge_angle_deg'], cfg['merge_offset'], cfg['merge_gap'])
         per_scan = []

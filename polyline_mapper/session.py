@@ -267,18 +267,6 @@ class WarningThrottle:
         return True
 
 
-def _geometry(mapper):
-    """TEMPORARY until the core's MapGeometry lands: polylines() with aligned support."""
-    from types import SimpleNamespace
-    out = mapper.polylines()
-    if hasattr(out, 'support'):
-        return out
-    segs, polys, closed = out
-    sup = mapper.support if len(mapper.support) == len(segs) else np.zeros(len(segs))
-    return SimpleNamespace(segments=segs, support=sup,
-                           polylines=polys, closed=closed)
-
-
 def _percentiles(values) -> dict:
     v = 1e3 * np.asarray(values, dtype=float)
     return {'p50': float(np.percentile(v, 50)), 'p95': float(np.percentile(v, 95)),
@@ -567,7 +555,7 @@ class MappingSession:
     def map_value(self) -> MapValue:
         """Return the current map: segments, aligned support, polylines, frame, stamp, stats."""
         with self._map_lock:
-            geo = _geometry(self.mapper)
+            geo = self.mapper.polylines()
             sigma, r = self.mapper.sigma, (self.mapper.r if self.mapper.sigma else None)
         stats = self.stats()
         stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,

@@ -3,7 +3,7 @@
 from conftest import noisy_line
 import numpy as np
 from polyline_mapper.core.emsf import e_step, emsf_step, weighted_lines
-from polyline_mapper.core.geometry import PointIndex
+from polyline_mapper.core.index import PointIndex
 
 
 def test_weighted_lines_recover_orientation_of_noisy_line():

@@ -1,8 +1,8 @@
 """Segment geometry and the spatial index, against brute force."""
 
 import numpy as np
-from polyline_mapper.core.geometry import (as_points, in_sorted, lengths, nearest_distance,
-                                           piece_pairs, PointIndex, project, sample_segments)
+from polyline_mapper.core.geometry import as_points, lengths, project, sample_segments
+from polyline_mapper.core.index import in_sorted, nearest_distance, piece_pairs, PointIndex
 import pytest
 
 

@@ -3,11 +3,12 @@
 from conftest import end_errors
 import numpy as np
 from polyline_mapper.core import fit, map_metrics
-from polyline_mapper.core.geometry import PointIndex, sample_segments
-from polyline_mapper.core.incremental import (
-    _median, _percentile, IncrementalConfig, IncrementalMapper, near_points, seen_through,
-    SegmentGrid)
+from polyline_mapper.core.cleanup import seen_through
+from polyline_mapper.core.geometry import sample_segments
+from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
+from polyline_mapper.core.index import near_points, PointIndex, SegmentGrid
 from polyline_mapper.core.metrics import twin_fraction
+from polyline_mapper.core.noise import median, percentile
 from polyline_mapper.core.split import split_segments
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive, World
 from polyline_mapper.sim.laser import simulate_scan
@@ -32,7 +33,7 @@ def office_incremental(office_drive):
 def test_incremental_finds_every_wall_like_batch(office_incremental, office_drive, office_fit):
     mapper, _ = office_incremental
     pts, hits, batch = office_fit
-    segs, _, _ = mapper.polylines()          # the published map, ends joined like batch's
+    segs = mapper.polylines().segments      # the published map, ends joined like batch's
     for i, wall in enumerate(office_drive.world.walls):
         a, b = wall
         u = (b - a) / np.linalg.norm(b - a)
@@ -157,7 +158,7 @@ def test_sparse_low_noise_scans_give_the_batch_map():
                                             dropout=0.01), step=0.5, rng=0)
     mapper, _ = run_drive(drive)
     pts, hits = drive.points(with_hits=True)
-    segs, _, _ = mapper.polylines()
+    segs = mapper.polylines().segments
     for i, (a, b) in enumerate(world.walls):
         u = (b - a) / np.linalg.norm(b - a)
         t = (pts[hits == i] - a) @ u
@@ -290,7 +291,53 @@ def test_running_statistics_equal_numpy():
     rng = np.random.default_rng(5)
     for n in list(range(1, 60)) + [359, 360, 720]:
         x = rng.exponential(0.03, n)
-        assert _median(list(x)) == float(np.median(x))
+        assert median(list(x)) == float(np.median(x))
         if n >= 2:
             for q in (25.0, 50.0, 75.0, 90.0):
-                assert _percentile(x, q) == float(np.percentile(x, q))
+                assert percentile(x, q) == float(np.percentile(x, q))
+
+
+@pytest.mark.parametrize('world, noise, stubs', [
+    (office_floor, 0.01, [24]),           # the demo's drive (seed 1): a stub last, 25 -> 24
+    (corridor_loop, 0.05, [3, 6, 20]),    # 5 cm noise: stubs inside the list, 27 -> 24
+])
+def test_published_support_belongs_to_the_segment_beside_it(world, noise, stubs):
+    """``polylines()`` drops noise stubs from segments and support alike, in the same order."""
+    from polyline_mapper.core.geometry import end_distance
+    from polyline_mapper.core.merge import noise_stubs
+    mapper, _ = run_drive(simulate_drive(world(), LaserSpec(beams=541, noise=noise), rng=1))
+    inner, sup = mapper.segments, mapper.support
+    stub = noise_stubs(inner, mapper.sigma, mapper.r, mapper.config.smemsf.kappa)
+    assert np.flatnonzero(stub).tolist() == stubs          # the case this test is about
+    geo = mapper.polylines()
+    assert len(geo.segments) == len(geo.support) == len(inner) - len(stubs)
+    # Each published segment is its inner segment with ends joined (moved a few cm at most).
+    src = [int(np.argmin(end_distance(inner, s[None]))) for s in geo.segments]
+    assert src == np.flatnonzero(~stub).tolist()
+    assert end_distance(inner[src], geo.segments).max() < 0.1
+    np.testing.assert_array_equal(geo.support, sup[src])
+    assert sum(len(p) - 1 + c for p, c in zip(geo.polylines, geo.closed)) == len(geo.segments)
+
+
+def test_reset_forgets_the_map_but_keeps_sigma_and_spacing():
+    drive = simulate_drive(corridor_loop(width=2.0, side=16.0),
+                           LaserSpec(beams=361, fov=np.deg2rad(270), range_max=8.0, noise=0.01),
+                           step=0.3, rng=3)
+    mapper, infos = run_drive(drive, IncrementalMapper(IncrementalConfig(noise_updates=5)))
+    assert [i.skipped for i in infos[:5]] == ['estimating noise'] * 4 + [None]
+    sigma, r = mapper.sigma, mapper.r
+    assert sigma is not None and len(mapper.segments) > 0
+    mapper.reset()
+    assert len(mapper.segments) == 0 and len(mapper.polylines().segments) == 0
+    assert mapper.nbytes() == IncrementalMapper().nbytes() and mapper.updates == 0
+    assert (mapper.sigma, mapper.r) == (sigma, r)
+    info = mapper.update_scan(drive.ranges[0], drive.spec.angles(), drive.poses[0],
+                              drive.spec.range_min, drive.spec.range_max)
+    assert info.skipped is None and info.segments > 0 and mapper.updates == 1
+    # A reset before sigma is known keeps the estimates pooled so far.
+    fresh = IncrementalMapper(IncrementalConfig(noise_updates=3))
+    for i in range(2):
+        fresh.update_scan(drive.ranges[i], drive.spec.angles(), drive.poses[i])
+    fresh.reset()
+    assert fresh.sigma is None
+    assert fresh.update_scan(drive.ranges[2], drive.spec.angles(), drive.poses[2]).skipped is None

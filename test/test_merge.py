@@ -2,7 +2,7 @@
 
 from conftest import noisy_line
 import numpy as np
-from polyline_mapper.core.geometry import PointIndex
+from polyline_mapper.core.index import PointIndex
 from polyline_mapper.core.merge import grouping_cost, merge_segments, merged_segment
 
 
@@ -108,5 +108,5 @@ def test_range_noise_at_head_on_incidence_leaves_no_stub_in_the_map():
     mapper = IncrementalMapper()
     for ranges, pose in zip(drive.ranges, drive.poses):
         mapper.update_scan(ranges, spec.angles(), pose, spec.range_min, spec.range_max)
-    segs = mapper.polylines()[0]
+    segs = mapper.polylines().segments
     assert len(_strays(world, segs)) == 0, _strays(world, segs)

@@ -65,3 +65,20 @@ def test_corner_join_does_not_cut_a_wall_back_past_its_points():
     np.testing.assert_allclose(out[0, 1], [4.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(out[1, 0], [4.0, 0.0], atol=1e-12)
     assert len(polylines) == 1
+
+
+def test_segments_keep_their_input_order_and_each_end_moves_at_most_the_corner_reach():
+    """The i-th output segment is the i-th input segment (what aligns support with it)."""
+    rng = np.random.default_rng(3)
+    a = rng.uniform(0, 10, (300, 2))
+    segs = np.stack([a, a + rng.normal(0, 0.5, (300, 2))], axis=1)
+    join = 0.1
+    chains = assemble_polylines(segs, join)
+    assert chains.segments.shape == segs.shape
+    moved = np.linalg.norm(chains.segments - segs, axis=2)
+    # an end moves to a corner within join * max(corner_reach, 1 / sin(min_angle)), else stays
+    assert moved.max() <= join / np.sin(np.deg2rad(5.0)) + 1e-9
+    assert (moved == 0).any() and (moved > 0).any()
+    own = np.linalg.norm(chains.segments[:, None] - segs[None], axis=3).sum(axis=2)
+    assert (np.argmin(own, axis=1) == np.arange(len(segs))).mean() > 0.99
+    assert chains == tuple(chains) and len(chains.polylines) == len(chains.closed)

@@ -7,7 +7,7 @@ from bag_helpers import drive_messages, room_drive, write_bag, write_carmen
 from conftest import radish_log
 import numpy as np
 from polyline_mapper.cli import main
-from polyline_mapper.core.geometry import nearest_distance
+from polyline_mapper.core.index import nearest_distance
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.mapjson import read_map
 from polyline_mapper.poses import mount_quaternion

@@ -4,7 +4,7 @@ from conftest import end_errors, noisy_line
 import numpy as np
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.emsf import emsf_step
-from polyline_mapper.core.geometry import nearest_distance, PointIndex
+from polyline_mapper.core.index import nearest_distance, PointIndex
 import pytest
 
 

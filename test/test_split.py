@@ -2,7 +2,7 @@
 
 from conftest import noisy_line
 import numpy as np
-from polyline_mapper.core.geometry import PointIndex
+from polyline_mapper.core.index import PointIndex
 from polyline_mapper.core.split import split_segments
 
 

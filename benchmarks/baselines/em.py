@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import time
 
 import numpy as np
-from polyline_mapper.core.geometry import as_points, lengths, PointIndex
+from polyline_mapper.core.geometry import as_points, lengths
+from polyline_mapper.core.index import PointIndex
 
 from .lines import line_segments
 

@@ -1,7 +1,8 @@
 """Wall precision / recall / F1 and end-point error of a segment map against known walls."""
 
 import numpy as np
-from polyline_mapper.core.geometry import PointIndex, project, sample_segments
+from polyline_mapper.core.geometry import project, sample_segments
+from polyline_mapper.core.index import PointIndex
 from scipy.spatial import cKDTree
 
 

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import directions, group_minmax, lengths, Pairs, PointIndex
+from .geometry import directions, group_minmax, lengths
+from .index import Pairs, PointIndex
 
 
 @dataclass
@@ -51,7 +52,7 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
         trimming still stops at its last supporting point.
     pairs : Pairs
         The pairs of the (extended) segments within ``kappa * sigma``, when the caller already
-        has them (see ``geometry.piece_pairs``); queried from ``index`` when None.
+        has them (see ``index.piece_pairs``); queried from ``index`` when None.
 
     """
     n = len(index)

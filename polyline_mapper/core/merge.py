@@ -39,7 +39,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import pdtr
 
-from .geometry import directions, label_runs, PointIndex, project, sample_segments
+from .geometry import directions, label_runs, project, sample_segments
+from .index import PointIndex
 
 
 def merged_segment(s1: np.ndarray, s2: np.ndarray) -> dict:

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .geometry import nearest_distance, PointIndex
+from .index import nearest_distance, PointIndex
 
 
 def map_metrics(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,

@@ -1,4 +1,10 @@
-"""Estimate the range noise of a point set from the thickness of its local structure."""
+"""
+The scales a point set sets: its noise (the thickness of its local structure) and its spacing.
+
+``estimate_noise`` gives the noise scale sigma; ``scan_spacing`` the distance between one
+scan's neighbouring points, which the incremental mapper's squares (2r) must span. ``percentile``
+and ``median`` are numpy's, by partial sort, for the small arrays of per-scan statistics.
+"""
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -55,3 +61,49 @@ def estimate_noise(points: np.ndarray, radius: float = 0.2, sample: int = 4000,
     # Unbiased variance: n points, 2 parameters of the line.
     var = np.maximum(lam_min[ok], 0.0) * cnt[ok] / np.maximum(cnt[ok] - 2.0, 1.0)
     return float(np.sqrt(np.median(var)))
+
+
+SPACING_QUANTILE = 75.0
+"""Percentile of a scan's nearest-neighbour distances that ``scan_spacing`` returns."""
+
+
+def percentile(x: np.ndarray, q: float) -> float:
+    """Return the q-th percentile of finite x as numpy does (linear), by partial sort."""
+    v = (x.size - 1) * (q / 100.0)
+    lo = int(np.floor(v))
+    hi = min(lo + 1, x.size - 1)
+    part = np.partition(x, (lo, hi))
+    a, b, t = part[lo], part[hi], v - lo
+    return float(b - (b - a) * (1 - t)) if t >= 0.5 else float(a + (b - a) * t)
+
+
+def median(values) -> float:
+    """Return ``np.median`` of a few finite values (e.g. a deque), by partial sort."""
+    x = np.fromiter(values, dtype=np.float64)
+    mid = x.size // 2
+    if x.size % 2:
+        return float(np.partition(x, mid)[mid])
+    part = np.partition(x, (mid - 1, mid))
+    return float((part[mid - 1] + part[mid]) / 2.0)
+
+
+def scan_spacing(points: np.ndarray, ordered: bool = False) -> float:
+    """
+    Point spacing of one scan (m): the upper quartile of each point's nearest-neighbour distance.
+
+    ``ordered``: the points are in beam order, so a point's nearest neighbour in its scan is the
+    one before or after it, read off without a k-d tree. Returns nan for fewer than 3 points.
+    """
+    if len(points) < 3:
+        return float('nan')
+    if ordered:
+        # On the shared logs the upper quartile of these equals the k-d tree's to 1.000x
+        # (median over scans; 1.02x at the 90th percentile on fr079).
+        gap = np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1]))
+        nearest = np.minimum(np.append(gap, np.inf), np.insert(gap, 0, np.inf))
+        return percentile(nearest, SPACING_QUANTILE)
+    # At most about 256 query points (a scan's upper quartile needs no more; the running
+    # median over scans smooths it further), so the cost stays far below the fit's.
+    probe = points[::max(1, len(points) // 256)]
+    d, _ = cKDTree(points, balanced_tree=False, compact_nodes=False).query(probe, k=2)
+    return percentile(d[:, 1], SPACING_QUANTILE)

@@ -1,7 +1,67 @@
-"""Order segments into polylines: chain segments whose ends meet."""
+"""Order segments into polylines: chain segments whose ends meet; the map as published."""
+
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .merge import noise_stubs
+
+
+class Chains(NamedTuple):
+    """Segments chained into polylines (``assemble_polylines``)."""
+
+    segments: np.ndarray
+    """(K, 2, 2) metres: the input segments, in input order, joined ends moved to their vertex."""
+    polylines: list
+    """List of (M, 2) vertex arrays (M >= 2), metres."""
+    closed: list
+    """One bool per polyline: True when the chain returns to its first vertex."""
+
+
+class MapGeometry(NamedTuple):
+    """
+    A segment map as published: segments with joined ends, their support, the polylines.
+
+    ``support[i]`` belongs to ``segments[i]``: both come from the same filtered array, in the
+    same order.
+    """
+
+    segments: np.ndarray
+    """(K, 2, 2) float, metres; ends joined where polylines meet."""
+    support: np.ndarray
+    """(K,) float: the (capped) point weight behind each segment."""
+    polylines: list
+    """List of (M, 2) float vertex arrays, metres."""
+    closed: list
+    """One bool per polyline: whether it closes on itself."""
+
+
+def map_geometry(segments: np.ndarray, support: np.ndarray, sigma: float, r: float,
+                 kappa: float, join: float) -> MapGeometry:
+    """
+    Publish a fitted map: drop noise stubs, chain the rest into polylines.
+
+    The batch fit and the incremental mapper both publish through here, so the stub filter
+    applies to segments and support alike. ``sigma`` (m) None skips the stub filter (the noise
+    scale is not known yet); ``r`` (m) and ``kappa`` are the fit's LSS half-size and cut-off
+    (see ``merge.noise_stubs``), ``join`` (m) the join distance of ``assemble_polylines``.
+
+    >>> import numpy as np
+    >>> segs = np.array([[[0.0, 0.0], [2.0, 0.0]], [[2.01, 0.0], [2.01, 1.0]]])
+    >>> geo = map_geometry(segs, np.array([40.0, 20.0]), 0.01, 0.025, 3.0, 0.05)
+    >>> geo.support.tolist(), geo.closed, geo.polylines[0].round(2).tolist()
+    ([40.0, 20.0], [False], [[0.0, 0.0], [2.01, 0.0], [2.01, 1.0]])
+    """
+    segments = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    support = np.asarray(support, dtype=np.float64).reshape(-1)
+    if support.shape != (len(segments),):
+        raise ValueError(f'support has {support.size} values for {len(segments)} segments')
+    if sigma is not None:
+        keep = ~noise_stubs(segments, sigma, r, kappa)
+        segments, support = segments[keep], support[keep]
+    chains = assemble_polylines(segments, join)
+    return MapGeometry(chains.segments, support.copy(), chains.polylines, chains.closed)
 
 
 def _line_intersection(p, u, q, v):
@@ -13,7 +73,7 @@ def _line_intersection(p, u, q, v):
 
 
 def assemble_polylines(segments: np.ndarray, join: float,
-                       min_angle: float = np.deg2rad(5.0), corner_reach: float = 4.0) -> tuple:
+                       min_angle: float = np.deg2rad(5.0), corner_reach: float = 4.0) -> Chains:
     """
     Chain segments into polylines.
 
@@ -50,15 +110,23 @@ def assemble_polylines(segments: np.ndarray, join: float,
 
     Returns
     -------
-    segments : (K, 2, 2) the same segments with joined ends moved to their shared vertex.
-    polylines : list of (M, 2) vertex arrays (M >= 2).
-    closed : list of bool, True when the chain returns to its first vertex.
+    Chains
+        ``segments`` (K, 2, 2): the same segments in the same order, joined ends moved to their
+        shared vertex; ``polylines``: list of (M, 2) vertex arrays (M >= 2); ``closed``: list
+        of bool, True when the chain returns to its first vertex.
+
+    >>> import numpy as np
+    >>> square = np.array([[[0, 0], [1, 0]], [[1, 0], [1, 1]], [[1, 1], [0, 1]],
+    ...                    [[0, 1], [0, 0]]], dtype=float)
+    >>> chains = assemble_polylines(square, join=0.05)
+    >>> len(chains.polylines), chains.closed
+    (1, [True])
 
     """
     segments = np.array(segments, dtype=np.float64, copy=True)
     k = len(segments)
     if k == 0:
-        return segments, [], []
+        return Chains(segments, [], [])
     ends = segments.reshape(-1, 2)
     partner = np.full(2 * k, -1, dtype=np.intp)
     widest = join * max(corner_reach, 1.0 / np.sin(min_angle))
@@ -135,4 +203,4 @@ def assemble_polylines(segments: np.ndarray, join: float,
             verts, cl = walk(2 * s)
             polylines.append(verts[:-1] if cl else verts)
             closed.append(cl)
-    return segments, polylines, closed
+    return Chains(segments, polylines, closed)

@@ -13,7 +13,8 @@ grid is joined again by merging; a blob of clutter keeps a short segment or lose
 import numpy as np
 
 from .emsf import weighted_lines
-from .geometry import cell_keys, group_minmax
+from .geometry import group_minmax
+from .index import cell_keys
 
 
 def seed_segments(points: np.ndarray, weights: np.ndarray, cell: float,

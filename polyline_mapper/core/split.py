@@ -29,7 +29,8 @@ low: they were tested when observed, and a sparse new look is no evidence that a
 import numpy as np
 from scipy.special import pdtr
 
-from .geometry import directions, group_minmax, label_runs, Pairs, PointIndex
+from .geometry import directions, group_minmax, label_runs
+from .index import Pairs, PointIndex
 
 
 def _flank_level(support, group, pos, n, flank):
@@ -68,7 +69,7 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
         Squares on each side whose mean support is a square's expected support.
     query_radius : float
         Query the point-segment pairs out to at least this distance (m), for the caller to
-        derive the pieces' pairs from (``geometry.piece_pairs``); the split itself uses those
+        derive the pieces' pairs from (``index.piece_pairs``); the split itself uses those
         within r (2r with an old map present, for the span its virtual points hold).
     return_pairs : bool
         Also return those pairs and where each piece starts on its parent.

@@ -83,7 +83,7 @@ class World:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Distance from each point to the nearest wall or arc, metres, shape (N,)."""
-        from ..core.geometry import nearest_distance
+        from ..core.index import nearest_distance
         d = np.full(len(points), np.inf)
         if len(self.walls):
             d, _ = nearest_distance(points, self.walls)
