@@ -32,7 +32,7 @@ import time
 from common import HERE, REPO, stamp, write_readme
 from polyline_mapper.core import map_metrics
 from polyline_mapper.formats.carmen import read_carmen
-from polyline_mapper.formats.convert import carmen_to_bag
+from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.formats.mapjson import read_map
 from polyline_mapper.replay import run_replay
 

@@ -69,7 +69,7 @@ def run(seconds: float, rate: float, beams: int) -> dict:
     from rclpy.qos import qos_profile_sensor_data
     from polyline_mapper.ros.qos import MAP_QOS
     from polyline_mapper.recordings import drive_messages
-    from polyline_mapper.ros.convert import scan_msg, transform_msg
+    from polyline_mapper.ros.messages import scan_msg, transform_msg
     from polyline_mapper.ros.qos import TF_QOS, TF_STATIC_QOS
     from polyline_mapper_msgs.msg import PolylineMap
     from sensor_msgs.msg import LaserScan

@@ -27,7 +27,7 @@ import time
 
 from common import HERE, REPO, stamp, write_readme
 import numpy as np
-from polyline_mapper.formats.convert import carmen_to_bag
+from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.plot import plot_map
 from polyline_mapper.replay import run_replay
 

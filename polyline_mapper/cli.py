@@ -507,7 +507,7 @@ def cmd_export(args) -> int:
 
 
 def cmd_convert(args) -> int:
-    from .formats.convert import carmen_to_bag
+    from .formats.carmen_bag import carmen_to_bag
     from .formats.output import check_new_folder
     check_new_folder(args.output, [args.input])
     bar = _progress_factory(not args.quiet, 'convert', 'msg')

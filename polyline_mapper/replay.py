@@ -8,7 +8,7 @@ value with the points it was made from. The node maps through the same session, 
 played into the live node gives the same map (``test_live_tools``).
 
 CARMEN logs are replayed as the messages ``polyline-mapper convert`` writes into a bag
-(``formats.convert.carmen_messages``): the corrected laser pose of each record reaches the
+(``formats.carmen_bag.carmen_messages``): the corrected laser pose of each record reaches the
 mapper through the same TF lookups, in LaserScan precision (float32 ranges and angles), so a log
 and its bag give the same map.
 """

@@ -147,7 +147,7 @@ class Peer:
         the /tf (``mode`` 'tf') or /odom (``mode`` 'odom') before it are stamped t0 + k / rate
         (t0: now by default); /tf_static is published once, in tf mode.
         """
-        from polyline_mapper.ros.convert import odometry_msg, scan_msg, transform_msg
+        from polyline_mapper.ros.messages import odometry_msg, scan_msg, transform_msg
         t0 = time.time() if t0 is None else t0
         period = 1.0 / rate
         tick = time.monotonic()

@@ -31,7 +31,7 @@ def test_slow_updates_shed_scans_and_the_map_and_diagnostics_keep_coming(tmp_pat
     # Before the one-update-per-step worker, the node ran every queued update before it
     # published: map and /diagnostics stopped for seconds and latency grew to 11.7 s.
     from diagnostic_msgs.msg import DiagnosticArray
-    from polyline_mapper.ros.convert import scan_msg, transform_msg
+    from polyline_mapper.ros.messages import scan_msg, transform_msg
     node = NodeProcess(tmp_path, {'diagnostics_period': 0.5, 'map_publish_period': 0.2,
                                   'stats_period': 0.0, 'warning_period': 1.0,
                                   'incremental.noise_updates': 1})

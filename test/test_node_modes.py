@@ -5,7 +5,7 @@ import re
 
 from conftest import REPO
 from polyline_mapper.recordings import drive_messages
-from polyline_mapper.ros.convert import scan_msg
+from polyline_mapper.ros.messages import scan_msg
 import pytest
 from rosnode import map_segments, NodeProcess, Peer, scans_of, stamp_of, wall_errors
 from std_srvs.srv import Trigger

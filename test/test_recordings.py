@@ -9,7 +9,7 @@ from bag_helpers import room_drive, write_bag, write_carmen
 import numpy as np
 from polyline_mapper.formats.bag import BagError, BagReader
 from polyline_mapper.formats.carmen import read_carmen
-from polyline_mapper.formats.convert import carmen_to_bag
+from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.formats.points import read_points as read_point_file
 from polyline_mapper.formats.records import Odometry, Scan, Transform
 from polyline_mapper.poses import mount_quaternion, TransformBuffer2D

@@ -27,7 +27,7 @@ from typing import Callable, Optional
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .convert import odometry_msg, scan_msg, time_msg, transform_msg
+from .messages import odometry_msg, scan_msg, time_msg, transform_msg
 from .qos import TF_QOS
 from ..formats.records import Odometry, Scan, Skipped
 

@@ -15,7 +15,7 @@ from typing import Callable, Optional
 
 from polyline_mapper_msgs.msg import PolylineMap
 
-from .convert import map_from_msg
+from .messages import map_from_msg
 from .qos import MAP_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import map_value_to_dict
