@@ -25,7 +25,6 @@ import os
 import signal
 import sys
 import time
-import typing
 
 import numpy as np
 
@@ -42,151 +41,15 @@ class CliError(Exception):
 
 
 def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
-    """
-    Build the fit configuration from an optional YAML/JSON file and ``key=value`` overrides.
-
-    The file is either a flat mapping of SMEMSFConfig keys, or a ROS 2 parameter file
-    (``node_name: ros__parameters: {...}``) whose ``smemsf.*`` or plain keys are used.
-    """
-    values = _config_values(path, overrides, _flatten_ros_params, (SMEMSFConfig,))
-    try:
-        return SMEMSFConfig.from_dict(values)
-    except (TypeError, ValueError) as exc:
-        raise CliError(f'bad config: {exc}') from None
+    """Return the fit configuration of ``--config`` and ``--set`` (see ``config``)."""
+    from .config import load_fit_config
+    return load_fit_config(path, overrides)
 
 
 def load_incremental_config(path: str = None, overrides: list = ()):
-    """
-    Build an IncrementalConfig from an optional YAML/JSON file and ``key=value`` overrides.
-
-    Keys are SMEMSFConfig and IncrementalConfig field names, flat. A ROS 2 parameter file gives
-    its ``smemsf`` block and its ``incremental`` block (or plain incremental keys).
-    """
-    from .core.incremental import IncrementalConfig
-    inc_keys = set(IncrementalConfig.__dataclass_fields__) - {'smemsf'}
-
-    def from_ros(data):
-        values = _flatten_ros_params(data)
-        for node in data.values():
-            if isinstance(node, dict) and 'ros__parameters' in node:
-                params = node['ros__parameters'] or {}
-                sub = params.get('incremental')
-                for src in (params, sub if isinstance(sub, dict) else {}):
-                    values.update({k: v for k, v in src.items() if k in inc_keys})
-                for key, v in params.items():        # dotted names: incremental.x, smemsf.y
-                    group, _, name = str(key).partition('.')
-                    if group in ('incremental', 'smemsf') and name:
-                        values[name] = v
-                break
-        return values
-    values = _config_values(path, overrides, from_ros, (SMEMSFConfig, IncrementalConfig))
-    inc = {k: values.pop(k) for k in list(values) if k in inc_keys}
-    try:
-        return IncrementalConfig(smemsf=SMEMSFConfig.from_dict(values), **inc)
-    except (TypeError, ValueError) as exc:
-        raise CliError(f'bad config: {exc} (incremental keys: {", ".join(sorted(inc_keys))})'
-                       ) from None
-
-
-def _field_types(classes) -> dict:
-    """Return {field: (type, may be None)} of config dataclasses (nested configs skipped)."""
-    out = {}
-    for cls in classes:
-        for name, hint in typing.get_type_hints(cls).items():
-            args = typing.get_args(hint)
-            optional = typing.get_origin(hint) is typing.Union and type(None) in args
-            base = next(a for a in args if a is not type(None)) if optional else hint
-            if base in (bool, int, float, str):
-                out[name] = (base, optional)
-    return out
-
-
-_EXPECTED = {bool: 'true or false', int: 'an integer', float: 'a finite number',
-             str: 'a string'}
-
-
-def typed_value(key: str, value, types: dict, origin: str):
-    """
-    Return ``value`` (a --set string or a YAML value) as the type of config field ``key``.
-
-    Numbers given as text (``1e-3``, which YAML reads as a string) become numbers; an optional
-    field takes none / null. Unknown keys pass unchanged (the config names them). Raises
-    CliError naming ``origin``, the key and the expected type.
-    """
-    if key not in types:
-        return value
-    base, optional = types[key]
-    text = value.strip() if isinstance(value, str) else None
-    nothing = ('none', 'null', '~', '')
-    if optional and (value is None or (text is not None and text.lower() in nothing)):
-        return None
-    try:
-        if base is bool:
-            if isinstance(value, bool):
-                return value
-            return {'true': True, 'false': False}[(text or '').lower()]
-        if base is str:
-            if isinstance(value, str):
-                return value
-            raise ValueError
-        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-            raise ValueError
-        number = float(text) if text is not None else value
-        if not math.isfinite(number):
-            raise ValueError
-        if base is int:
-            if number != int(number):
-                raise ValueError
-            return int(text) if text is not None and text.lstrip('+-').isdigit() else int(number)
-        return float(number)
-    except (ValueError, KeyError, OverflowError):
-        expected = _EXPECTED[base] + (' or none' if optional else '')
-        raise CliError(f'{origin}: {key} must be {expected}, got {value!r}') from None
-
-
-def _config_values(path: str, overrides: list, flatten, classes=()) -> dict:
-    types = _field_types(classes)
-    values = {}
-    if path:
-        import yaml
-        try:
-            with open(path, 'r', encoding='utf-8') as fh:
-                data = yaml.safe_load(fh) or {}
-        except FileNotFoundError:
-            raise CliError(f'{path}: no such config file') from None
-        except (OSError, yaml.YAMLError) as exc:
-            raise CliError(f'{path}: unreadable config ({exc.__class__.__name__})') from None
-        if not isinstance(data, dict):
-            raise CliError(f'{path}: a config file must hold a mapping')
-        values = {k: typed_value(k, v, types, path) for k, v in flatten(data).items()}
-    for item in overrides:
-        key, sep, raw = item.partition('=')
-        key = key.strip()
-        if not sep or not key:
-            raise CliError(f'--set expects key=value, got {item!r}')
-        if key not in types:
-            raw = _yaml_value(raw)
-        values[key] = typed_value(key, raw, types, f'--set {item}')
-    return values
-
-
-def _yaml_value(text: str):
-    import yaml
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
-        raise CliError(f'cannot parse value {text!r}') from None
-
-
-def _flatten_ros_params(data: dict) -> dict:
-    """Accept a flat mapping or a ROS 2 parameter file; return SMEMSFConfig keys."""
-    for node in data.values():
-        if isinstance(node, dict) and 'ros__parameters' in node:
-            params = node['ros__parameters'] or {}
-            sub = params.get('smemsf', params)
-            known = set(SMEMSFConfig.__dataclass_fields__)
-            return {k: v for k, v in sub.items() if k in known}
-    return dict(data)
+    """Return the mapper configuration of ``--config`` and ``--set`` (see ``config``)."""
+    from .config import load_mapper_config
+    return load_mapper_config(path, overrides)
 
 
 def read_input(path: str, range_max: float = None, progress: bool = True) -> tuple:

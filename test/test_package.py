@@ -6,7 +6,7 @@ import xml.etree.ElementTree as ET
 from conftest import REPO
 from polyline_mapper.core import SMEMSFConfig
 from polyline_mapper.core.incremental import IncrementalConfig
-from polyline_mapper.ros.params import all_params, defaults, settings_from
+from polyline_mapper.params import all_params, defaults, settings_from
 import pytest
 import yaml
 

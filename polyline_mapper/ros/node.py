@@ -52,10 +52,10 @@ from visualization_msgs.msg import MarkerArray
 from . import startup
 from .messages import (diagnostics_msg, map_to_markers, map_to_msg, odometry_from_msg,
                        scan_from_msg, time_msg, transforms_from_msg)
-from .params import all_params, settings_from
 from .qos import MAP_QOS, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
+from ..params import all_params, settings_from
 from ..session import MappingSession, SessionOptions, WarningThrottle
 
 NODE_NAME = 'polyline_mapper_node'

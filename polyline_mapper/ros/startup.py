@@ -16,7 +16,7 @@ import sys
 import tempfile
 from typing import Optional, Sequence
 
-from .params import all_params
+from ..params import all_params
 
 MAX_PARAMS_FILE = 16 << 20
 """Largest parameter file read for checking (bytes); rcl reads larger ones itself."""

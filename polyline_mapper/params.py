@@ -27,8 +27,8 @@ import math
 import os
 import textwrap
 
-from ..core.incremental import IncrementalConfig
-from ..core.smemsf import SMEMSFConfig
+from .core.incremental import IncrementalConfig
+from .core.smemsf import SMEMSFConfig
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,9 @@ class ParamSpec:
     """May change while the node runs (else the descriptor is read-only)."""
     choices: tuple = ()
     """Allowed values, for strings with a fixed set."""
+    optional: bool = False
+    """The setting may be None ("estimate it"); the node's parameter then stands for None
+    with 0."""
 
 
 NODE_PARAMS = (
@@ -172,13 +175,15 @@ def _core_specs(prefix: str, cls, skip=()) -> list:
             continue
         name = f'{prefix}.{f.name}'
         value = getattr(defaults, f.name)
-        if value is None:              # "automatic": ROS parameters have no None
+        optional = value is None
+        if optional:                   # "automatic": ROS parameters have no None
             value = 0.0
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
             raise TypeError(f'{cls.__name__}.{f.name}: no ROS parameter type for {value!r}')
         lo, hi = CORE_RANGES.get(name, (None, None))
         doc = docs.get(f.name, f'{cls.__name__}.{f.name}')
-        out.append(ParamSpec(name, value, doc, lo, hi, False, CORE_CHOICES.get(name, ())))
+        out.append(ParamSpec(name, value, doc, lo, hi, False, CORE_CHOICES.get(name, ()),
+                             optional))
     return out
 
 

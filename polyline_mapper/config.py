@@ -1,0 +1,159 @@
+"""
+Fit and mapper configuration from files and ``--set``, read through the parameter table.
+
+One table (``params.all_params``) names every setting of the batch fit (``smemsf.*``) and of
+the incremental mapper (``incremental.*``) with its type and range; the node declares its
+parameters from it, and the command line reads config files and ``--set key=value`` through it,
+so a value means the same and is checked the same way everywhere.
+
+A config file is YAML (or JSON): either a flat mapping of field names (``sigma: 0.03``,
+``buffer_scans: 5``) or a ROS 2 parameter file (``<node>: ros__parameters: {...}``) whose
+``smemsf.*`` / ``incremental.*`` entries (dotted, or nested blocks, or plain field names) are
+used and whose node parameters are ignored. Numbers written as text (``1e-3``, which YAML reads
+as a string) are numbers; a field that defaults to "automatic" (None) takes ``none``.
+"""
+
+import math
+from typing import Iterable
+
+from .core.incremental import IncrementalConfig
+from .core.smemsf import SMEMSFConfig
+from .params import all_params, check_value
+
+GROUPS = ('smemsf', 'incremental')
+_EXPECTED = {bool: 'true or false', int: 'an integer', float: 'a finite number',
+             str: 'a string'}
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used (one line naming the file or --set, and the key)."""
+
+
+def table(groups: Iterable[str] = GROUPS) -> dict:
+    """Return {field name: ParamSpec} of the parameter table's entries in ``groups``."""
+    out = {}
+    for spec in all_params():
+        group, _, name = spec.name.partition('.')
+        if group in groups and name:
+            out[name] = spec
+    return out
+
+
+def typed_value(spec, value, origin: str):
+    """
+    Return ``value`` (a --set string or a YAML value) as the type of table entry ``spec``.
+
+    Text numbers become numbers; an optional entry (None means "estimate it") takes
+    none / null. The value is then checked against the entry's range and choices. Raises
+    ConfigError naming ``origin``, the key and what is expected.
+    """
+    key = spec.name.partition('.')[2]
+    base = type(spec.default)
+    text = value.strip() if isinstance(value, str) else None
+    if spec.optional and (value is None or (text is not None
+                                            and text.lower() in ('none', 'null', '~', ''))):
+        return None
+    try:
+        if base is bool:
+            out = value if isinstance(value, bool) else {'true': True, 'false': False}[
+                (text or '').lower()]
+        elif base is str:
+            if not isinstance(value, str):
+                raise ValueError
+            out = value
+        else:
+            if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+                raise ValueError
+            number = float(text) if text is not None else value
+            if not math.isfinite(number):
+                raise ValueError
+            if base is int:
+                if number != int(number):
+                    raise ValueError
+                out = (int(text) if text is not None and text.lstrip('+-').isdigit()
+                       else int(number))
+            else:
+                out = float(number)
+    except (ValueError, KeyError, OverflowError):
+        expected = _EXPECTED[base] + (' or none' if spec.optional else '')
+        raise ConfigError(f'{origin}: {key} must be {expected}, got {value!r}') from None
+    try:
+        check_value(spec, out)
+    except ValueError as exc:
+        raise ConfigError(f'{origin}: {exc}') from None
+    return out
+
+
+def _file_values(data: dict, keys: dict, path: str) -> dict:
+    """Return the table keys of a flat mapping or of a ROS 2 parameter file's node block."""
+    for node in data.values():
+        if isinstance(node, dict) and 'ros__parameters' in node:
+            params = node['ros__parameters'] or {}
+            if not isinstance(params, dict):
+                raise ConfigError(f'{path}: ros__parameters must be a mapping')
+            out = {}
+            for key, value in params.items():
+                group, _, name = str(key).partition('.')
+                if group in GROUPS and isinstance(value, dict) and not name:
+                    out.update({k: v for k, v in value.items() if k in keys})   # nested block
+                elif group in GROUPS and name in keys:
+                    out[name] = value                                           # dotted
+                elif key in keys:
+                    out[key] = value                                            # plain
+            return out
+    return dict(data)
+
+
+def read_values(path: str = None, overrides: Iterable[str] = (),
+                groups: Iterable[str] = GROUPS) -> dict:
+    """
+    Read a config file and ``key=value`` overrides; return {field name: typed value}.
+
+    Only the table's entries of ``groups`` are accepted; anything else is a ConfigError that
+    lists the accepted keys.
+    """
+    keys = table(groups)
+    raw = {}
+    if path:
+        import yaml
+        try:
+            with open(path, 'r', encoding='utf-8') as fh:
+                data = yaml.safe_load(fh) or {}
+        except FileNotFoundError:
+            raise ConfigError(f'{path}: no such config file') from None
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise ConfigError(f'{path}: unreadable config ({exc.__class__.__name__})') from None
+        if not isinstance(data, dict):
+            raise ConfigError(f'{path}: a config file must hold a mapping')
+        raw.update({k: (v, path) for k, v in _file_values(data, keys, path).items()})
+    for item in overrides:
+        key, sep, value = item.partition('=')
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f'--set expects key=value, got {item!r}')
+        raw[key] = (value, f'--set {item}')
+    unknown = sorted(k for k in raw if k not in keys)
+    if unknown:
+        raise ConfigError(f'{raw[unknown[0]][1]}: unknown key {unknown[0]!r} (keys: '
+                          f'{", ".join(sorted(keys))})')
+    return {k: typed_value(keys[k], v, origin) for k, (v, origin) in raw.items()}
+
+
+def load_fit_config(path: str = None, overrides: Iterable[str] = ()) -> SMEMSFConfig:
+    """Return the batch fit's SMEMSFConfig from a config file and --set overrides."""
+    values = read_values(path, overrides, ('smemsf',))
+    try:
+        return SMEMSFConfig.from_dict(values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f'bad config: {exc}') from None
+
+
+def load_mapper_config(path: str = None, overrides: Iterable[str] = ()) -> IncrementalConfig:
+    """Return the incremental mapper's IncrementalConfig from a config file and overrides."""
+    values = read_values(path, overrides)
+    inc_keys = table(('incremental',))
+    inc = {k: values.pop(k) for k in list(values) if k in inc_keys}
+    try:
+        return IncrementalConfig(smemsf=SMEMSFConfig.from_dict(values), **inc)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f'bad config: {exc}') from None

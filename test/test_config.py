@@ -1,0 +1,45 @@
+"""Configuration read through the parameter table: files, ROS 2 parameter files and --set."""
+
+from polyline_mapper.config import ConfigError, load_fit_config, load_mapper_config, read_values
+from polyline_mapper.params import all_params
+import pytest
+
+
+def test_the_shipped_parameter_file_gives_the_defaults(tmp_path):
+    from polyline_mapper.core.incremental import IncrementalConfig
+    from conftest import REPO
+    config = load_mapper_config(str(REPO / 'config' / 'polyline_mapper.yaml'))
+    assert config == IncrementalConfig()
+
+
+def test_dotted_nested_and_plain_keys_of_a_ros_parameter_file(tmp_path):
+    path = tmp_path / 'p.yaml'
+    path.write_text('polyline_mapper_node:\n  ros__parameters:\n    fixed_frame: odom\n'
+                    '    smemsf.kappa: 2.5\n    incremental:\n      buffer_scans: 4\n'
+                    "    sigma: '1e-2'\n")
+    config = load_mapper_config(str(path), ['margin=0.5'])
+    assert (config.smemsf.kappa, config.buffer_scans, config.smemsf.sigma, config.margin) == \
+        (2.5, 4, 0.01, 0.5)
+    assert load_fit_config(str(path)).kappa == 2.5       # the fit takes the smemsf.* entries
+
+
+@pytest.mark.parametrize('item, words', [
+    ('kappa=-1', ['--set kappa=-1', 'smemsf.kappa must be in [0, 100]']),
+    ('buffer_scans=0', ['incremental.buffer_scans must be in [1, 1000]']),
+    ('seed=1.5', ['seed must be an integer']),
+    ('init=spiral', ['smemsf.init must be one of diagonals, single, random']),
+    ('nonsense=1', ["unknown key 'nonsense'", 'kappa']),
+])
+def test_set_values_are_checked_against_the_table(item, words):
+    with pytest.raises(ConfigError) as err:
+        load_mapper_config(None, [item])
+    assert all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_automatic_settings_take_none_and_every_core_entry_is_readable():
+    assert read_values(None, ['sigma=none'])['sigma'] is None
+    names = [s.name.partition('.')[2] for s in all_params()
+             if s.name.startswith(('smemsf.', 'incremental.'))]
+    values = read_values(None, [f'{n}={s.default}' for n, s in zip(names, [
+        s for s in all_params() if s.name.startswith(('smemsf.', 'incremental.'))])])
+    assert set(values) == set(names)
