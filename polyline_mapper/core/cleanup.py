@@ -20,7 +20,7 @@ from .geometry import directions, lengths, project
 from .index import in_sorted, PointIndex
 
 
-PAIR_BUDGET = 1 << 18
+PAIR_BUDGET = 1 << 16
 """Most candidate pairs one block of ``seen_through`` or ``corner_chords`` holds in memory (a
 few MB per array); larger inputs are processed in blocks with the same result."""
 

@@ -53,6 +53,14 @@ window of a few, and with a sparse scanner (1 degree between beams: 5-9 cm betwe
 3-5 m away) and low noise, squares of 2r = 5 sigma hold no point on most of a real wall, so the
 density tests of trimming, seeding and LSS chop it into fragments.
 
+Far returns: readings at or beyond ``max_mapping_range`` (100 m) are dropped before anything
+else (``update_scan``, and ``update`` with an origin), so a scan with range_max = inf and far
+junk maps as if those beams were invalid. Before this, 30 % of beams at 1e4 m made r follow their
+87 m spacing from 3 cm to 44 m: updates took seconds and GBs and the map got walls 175 m long.
+Every allocation of an update is bounded by the points kept (each scan thinned to
+``max_scan_points``), the map near them and fixed block sizes (``index.DILATE_BUDGET``,
+``cleanup.PAIR_BUDGET``), not by how far the points lie.
+
 A short chord across a corner, once in the map, is kept alive by its own virtual points; it is
 dropped when the new points near it all lie on the two longer walls whose corner it cuts
 (``cleanup.corner_chords``).
@@ -76,6 +84,15 @@ from ..scan import scan_to_points
 
 REFIT_REACH = 2.0
 """Segments within this many merge reaches of a point of the buffer are refit in an update."""
+
+SPACING_RANGE_SHARE = 0.02
+"""A scan's spacing (so 2r) is at most this share of ``max_mapping_range``: 2 m at 100 m, the
+spacing of beams 1.15 degrees apart at that range. The shared logs' running spacing stays below
+0.7 m (campus)."""
+
+COORD_LIMIT = 1e7
+"""Points must lie within this many metres of the fixed frame's origin (cell keys hold 2**30
+cells a side, 1 cm cells included)."""
 
 
 @dataclass
@@ -101,17 +118,25 @@ class IncrementalConfig:
     """Segments up to this long (m) that the new scan's beams pass through are dropped
     (free-space clearing: people, moved chairs, opened door leaves); 0 turns clearing off. Needs
     the laser position of each scan (update_scan, replay and the node give it)."""
+    max_mapping_range: float = 100.0
+    """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
+    range_max says: far returns set neither r, sigma nor the work of an update. The shared logs
+    have no valid reading beyond 82 m."""
+    max_scan_points: int = 8192
+    """Most points one scan adds (or one update, for bare points without origin); a denser scan
+    is thinned evenly in beam order. Bounds an update's work and memory."""
     smemsf: SMEMSFConfig = field(default_factory=SMEMSFConfig)
     """The fit parameters (sigma, r_over_sigma, merge and split thresholds ...)."""
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
-        for name in ('buffer_scans', 'iterations', 'noise_updates', 'sigma_window'):
+        for name, lo in (('buffer_scans', 1), ('iterations', 1), ('noise_updates', 1),
+                         ('sigma_window', 1), ('max_scan_points', 16)):
             v = getattr(self, name)
-            if int(v) != v or v < 1:
-                raise ValueError(f'{name} must be an integer >= 1, got {v!r}')
-        for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 1e-9),
-                         ('clear_max_length', 0.0)):
+            if int(v) != v or v < lo:
+                raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
+        for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 0.01),
+                         ('clear_max_length', 0.0), ('max_mapping_range', 1e-9)):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
@@ -122,10 +147,18 @@ class UpdateInfo:
     """What one update did."""
 
     points: int
+    """Points the update took (after the range limit and thinning)."""
     active: int
+    """Map segments refit."""
     segments: int
+    """Segments in the map after the update."""
     seconds: float
     skipped: Optional[str] = None
+    """Why the map did not change ('no valid points', 'estimating noise'), else None."""
+    beyond_range: int = 0
+    """Points dropped as farther than ``max_mapping_range`` from their laser."""
+    thinned: int = 0
+    """Points dropped by thinning to ``max_scan_points``."""
 
 
 class IncrementalMapper:
@@ -238,10 +271,12 @@ class IncrementalMapper:
         """
         Add one laser scan: ranges (m) at angles (rad) from a laser at pose (x, y, yaw).
 
-        NaN, inf and out-of-range readings are dropped (REP 117). Raises ValueError on
-        mismatched lengths or a bad pose, leaving the map unchanged.
+        NaN, inf and out-of-range readings are dropped (REP 117), and so are readings at or
+        beyond ``max_mapping_range`` (the range limit is min(range_max, max_mapping_range)).
+        Raises ValueError on mismatched lengths or a bad pose, leaving the map unchanged.
         """
-        return self.update(scan_to_points(ranges, angles, pose, range_min, range_max),
+        top = min(float(range_max), self.config.max_mapping_range)
+        return self.update(scan_to_points(ranges, angles, pose, range_min, top),
                            ordered=True, origin=np.asarray(pose, dtype=np.float64)[:2])
 
     def update(self, points, ordered: bool = False, origin=None) -> UpdateInfo:
@@ -257,21 +292,36 @@ class IncrementalMapper:
         segments they pass through (``IncrementalConfig.clear_max_length``); without it (bare
         points) nothing is cleared.
 
-        An empty point set changes nothing. Raises ValueError on NaN / inf / wrong shapes,
-        leaving the map unchanged.
+        Bounds, whatever the points hold: points at or beyond ``max_mapping_range`` from their
+        origin are dropped before anything else (with origin); each scan (each run of one
+        origin, or the whole call for bare points) is thinned evenly to ``max_scan_points``; a
+        scan's spacing, hence r, is robust to a minority of far points (``noise.scan_spacing``)
+        and at most ``SPACING_RANGE_SHARE`` x ``max_mapping_range``. The work and memory of an
+        update then grow with the points kept (at most ``buffer_scans`` x ``max_scan_points``
+        per scan grouped) and the map near them, not with how far the points lie.
+
+        An empty point set changes nothing. Raises ValueError on NaN / inf / wrong shapes, or
+        points farther than ``COORD_LIMIT`` from the frame's origin, leaving the map unchanged.
         """
         t0 = time.perf_counter()
         pts = as_points(points)
-        views = origin_runs(as_origins(origin, len(pts)))
+        origins = as_origins(origin, len(pts))
+        pts, origins, beyond = self._in_range(pts, origins)
+        if len(pts) and np.abs(pts).max() > COORD_LIMIT:
+            raise ValueError(f'points lie up to {np.abs(pts).max():.3g} m from the frame origin; '
+                             f'the mapper holds coordinates within {COORD_LIMIT:.0e} m')
+        pts, origins, thinned = self._thin(pts, origins)
+        views = origin_runs(origins)
         if len(pts) == 0:
-            return UpdateInfo(0, 0, int(self._alive.sum()), 0.0, skipped='no valid points')
+            return UpdateInfo(0, 0, int(self._alive.sum()), 0.0, skipped='no valid points',
+                              beyond_range=beyond)
         self._buffer.append(pts)
         self._cells.append(self._grid.cells(pts))
         self._note_spacing(pts, ordered)
         window = np.concatenate(self._buffer)
         if not self._sigma_ready(window):
-            return UpdateInfo(len(pts), 0, int(self._alive.sum()),
-                              time.perf_counter() - t0, skipped='estimating noise')
+            return UpdateInfo(len(pts), 0, int(self._alive.sum()), time.perf_counter() - t0,
+                              'estimating noise', beyond, thinned)
         sigma = self.sigma
         r = self.r
         cfg = self._config_for(r, sigma)
@@ -307,7 +357,7 @@ class IncrementalMapper:
         self._replace(active, segs, np.minimum(sup, cap))
         self.updates += 1
         return UpdateInfo(len(pts), int(active.size), int(self._alive.sum()),
-                          time.perf_counter() - t0)
+                          time.perf_counter() - t0, None, beyond, thinned)
 
     @property
     def r(self) -> float:
@@ -316,7 +366,9 @@ class IncrementalMapper:
 
         That is ``r_over_sigma`` x sigma, but the square side 2r is never below the point
         spacing of a scan: the running median, over the last ``sigma_window`` scans, of the
-        upper quartile of each scan's nearest-neighbour distances.
+        upper quartile of each scan's nearest-neighbour distances (``noise.scan_spacing``: of
+        its dense part when far points make a tail; at most ``SPACING_RANGE_SHARE`` x
+        ``max_mapping_range``).
         """
         cfg = self.config.smemsf
         r = cfg.r_over_sigma * (self.sigma or cfg.sigma_min)
@@ -325,9 +377,30 @@ class IncrementalMapper:
         return r
 
     # -- internals -----------------------------------------------------------------------------
+    def _in_range(self, pts: np.ndarray, origins) -> tuple:
+        """Drop points at or beyond ``max_mapping_range`` from their origin: (pts, origins, n)."""
+        if origins is None or len(pts) == 0:
+            return pts, origins, 0
+        rel = pts - origins
+        keep = np.hypot(rel[:, 0], rel[:, 1]) < self.config.max_mapping_range
+        if keep.all():
+            return pts, origins, 0
+        return pts[keep], origins[keep], int(keep.size - np.count_nonzero(keep))
+
+    def _thin(self, pts: np.ndarray, origins) -> tuple:
+        """Thin each run of one origin to ``max_scan_points`` (every k-th point, in order)."""
+        most = int(self.config.max_scan_points)
+        runs = origin_runs(origins) if origins is not None else [(0, len(pts), None)]
+        if all(b - a <= most for a, b, _ in runs):
+            return pts, origins, 0
+        keep = np.concatenate([np.arange(a, b, max(1, -(-(b - a) // most))) for a, b, _ in runs])
+        return (pts[keep], None if origins is None else origins[keep],
+                int(len(pts) - keep.size))
+
     def _note_spacing(self, pts: np.ndarray, ordered: bool = False) -> None:
         """Pool one scan's point spacing (``noise.scan_spacing``)."""
-        spacing = scan_spacing(pts, ordered)
+        spacing = scan_spacing(pts, ordered,
+                               SPACING_RANGE_SHARE * self.config.max_mapping_range)
         if np.isfinite(spacing):
             self._spacings.append(spacing)
 

@@ -19,6 +19,10 @@ from scipy.spatial import cKDTree
 from .geometry import as_points, directions, project, sample_segments
 
 
+DILATE_BUDGET = 1 << 20
+"""Most cell keys ``SegmentGrid.near`` builds by dilation (8 MB); wider queries use a k-d tree."""
+
+
 def cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
     """
     One int64 key per point for the square grid cell (side ``cell`` metres) that holds it.
@@ -35,6 +39,12 @@ def dilate_cells(keys: np.ndarray, rings: int) -> np.ndarray:
     offs = np.arange(-rings, rings + 1, dtype=np.int64)
     shift = ((offs[:, None] << 32) + offs[None]).ravel()
     return np.unique((np.asarray(keys)[:, None] + shift).ravel())
+
+
+def _cell_ij(keys: np.ndarray) -> np.ndarray:
+    """Return the (column, row) indices of ``cell_keys`` keys as an (M, 2) float array."""
+    keys = np.asarray(keys, dtype=np.int64)
+    return np.stack([keys >> 32, keys & 0xFFFFFFFF], axis=1).astype(np.float64)
 
 
 def in_sorted(values: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -280,12 +290,19 @@ class SegmentGrid:
         Ids of segments registered in cells within ``dist`` of any point (a superset).
 
         ``cells``: the points' cell keys (``cells(points)``, or a union of them) when known.
+        The query cells are dilated by ceil(dist / cell) rings while that makes at most
+        ``DILATE_BUDGET`` keys; beyond (a large ``dist`` or many cells) each registered cell is
+        tested against the query cells with a k-d tree in the max norm instead, with the same
+        result in memory proportional to the map and the query.
         """
         if cells is None:
             cells = self.cells(points)
         if len(cells) == 0:
             return np.zeros(0, dtype=np.intp)
-        cells = dilate_cells(cells, int(np.ceil(dist / self.cell)))
+        rings = int(np.ceil(dist / self.cell))
+        if len(cells) * (2 * rings + 1) ** 2 > DILATE_BUDGET:
+            return self._near_by_tree(cells, rings)
+        cells = dilate_cells(cells, rings)
         key, sid, gen = self._main
         lo = np.searchsorted(key, cells, 'left')
         cnt = np.searchsorted(key, cells, 'right') - lo
@@ -296,6 +313,17 @@ class SegmentGrid:
             hit = in_sorted(tkey, cells) & (tgen == self._gen[tsid])
             found = np.concatenate([found, tsid[hit]])
         return np.unique(found)
+
+    def _near_by_tree(self, cells: np.ndarray, rings: int) -> np.ndarray:
+        """Return ``near`` for a wide reach: live ids within ``rings`` cells (max norm)."""
+        key, sid, gen = (np.concatenate(a) for a in zip(self._main, self._tail))
+        live = gen == self._gen[sid]
+        key, sid = key[live], sid[live]
+        if key.size == 0:
+            return np.zeros(0, dtype=np.intp)
+        tree = cKDTree(_cell_ij(cells))
+        d, _ = tree.query(_cell_ij(key), p=np.inf, distance_upper_bound=rings + 0.5)
+        return np.unique(sid[np.isfinite(d)])
 
 
 def near_points(points: np.ndarray, segs: np.ndarray, dist: float) -> np.ndarray:
