@@ -464,8 +464,7 @@ class MappingSession:
 
     def _convert(self, scan: Scan, pose: PlanarPose, arrived: float) -> list:
         t0 = time.perf_counter()
-        limit = min(float(scan.range_max),
-                    getattr(self.mapper.config, 'max_mapping_range', math.inf))
+        limit = min(float(scan.range_max), self.mapper.config.max_mapping_range)
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 pts = scan_to_points(scan.ranges, pose.beam_angles(scan.angles()), pose.xyz,

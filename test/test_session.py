@@ -227,10 +227,7 @@ def test_reset_forgets_the_map_and_the_queue(office_drive):
 
 
 def test_far_returns_beyond_the_mapping_range_are_dropped_like_invalid_readings(office_drive):
-    config = IncrementalConfig()
-    limit = getattr(config, 'max_mapping_range', None)
-    if limit is None:
-        pytest.skip('IncrementalConfig.max_mapping_range not available')
+    assert IncrementalConfig().max_mapping_range == 100.0
     far, invalid = [], []
     rng = np.random.default_rng(0)
     for i in range(40):
