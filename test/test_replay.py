@@ -294,3 +294,16 @@ def test_replays_of_the_same_input_write_the_same_map_but_for_timing(tmp_path, r
             data['stats'].pop(key, None)
         maps.append(data)
     assert maps[0] == maps[1] and len(maps[0]['segments']) > 5
+
+
+def test_replay_groups_scans_into_updates_like_the_node(tmp_path, rotated, capsys):
+    bag = write_bag(tmp_path / 'grouped', drive_messages(rotated))
+    maps = {}
+    for n in (1, 3):
+        out = tmp_path / f'n{n}.json'
+        assert main(['replay', bag, '-o', str(out), '-q', '--update-every-n-scans', str(n)]) == 0
+        maps[n] = json.loads(out.read_text())
+    assert maps[3]['stats']['updates'] < maps[1]['stats']['updates']
+    assert maps[1]['stats']['scans_used'] == maps[3]['stats']['scans_used']
+    assert main(['replay', bag, '-o', str(tmp_path / 'x.json'), '-q',
+                 '--update-every-n-scans', '0']) == 2
