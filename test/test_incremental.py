@@ -8,7 +8,7 @@ from polyline_mapper.core.geometry import sample_segments
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.index import near_points, PointIndex, SegmentGrid
 from polyline_mapper.core.metrics import twin_fraction
-from polyline_mapper.core.noise import median, percentile
+from polyline_mapper.core.noise import median, percentile, percentiles
 from polyline_mapper.core.split import split_segments
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive, World
 from polyline_mapper.sim.laser import simulate_scan
@@ -295,6 +295,7 @@ def test_running_statistics_equal_numpy():
         if n >= 2:
             for q in (25.0, 50.0, 75.0, 90.0):
                 assert percentile(x, q) == float(np.percentile(x, q))
+            assert percentiles(x, (25.0, 75.0)) == np.percentile(x, [25.0, 75.0]).tolist()
 
 
 @pytest.mark.parametrize('world, noise, stubs', [

@@ -367,8 +367,8 @@ class IncrementalMapper:
         That is ``r_over_sigma`` x sigma, but the square side 2r is never below the point
         spacing of a scan: the running median, over the last ``sigma_window`` scans, of the
         upper quartile of each scan's nearest-neighbour distances (``noise.scan_spacing``: of
-        its dense part when far points make a tail; at most ``SPACING_RANGE_SHARE`` x
-        ``max_mapping_range``).
+        its dense part when far points make a tail, at most 24 x the lower quartile and
+        ``SPACING_RANGE_SHARE`` x ``max_mapping_range``).
         """
         cfg = self.config.smemsf
         r = cfg.r_over_sigma * (self.sigma or cfg.sigma_min)

@@ -67,11 +67,17 @@ SPACING_QUANTILE = 75.0
 """Percentile of a scan's nearest-neighbour distances that ``scan_spacing`` returns."""
 
 SPACING_SPREAD = 24.0
-"""A scan whose upper quartile of nearest-neighbour distances exceeds this many times the lower
-quartile has a far, sparse tail: ``scan_spacing`` then reads the upper quartile of the distances
-up to that bound only. On the shared logs the ratio exceeds 16 on a few campus scans (at most
-68), on the simulated drives never 8; at 24 the rule never changes the running median of the
-incremental mapper on any log or simulated drive (at 16 it did on campus)."""
+"""``scan_spacing`` is at most this many times the lower quartile of the nearest-neighbour
+distances. On the shared logs the upper quartile exceeds 16x the lower one on a few campus
+scans (at most 68x), on the simulated drives never 8x; at 24x the bound never changes the
+running median of the incremental mapper on any log or simulated drive."""
+
+SPACING_TAIL = 100.0
+"""When the upper quartile exceeds this many times the lower one, the scan has a tail of far,
+sparse points (far returns: 87 m between neighbours at 1e4 m and 0.5 degrees, against a few
+centimetres on the walls around): ``scan_spacing`` then reads the upper quartile of the
+distances up to this bound only, the dense part of the scan. No log or simulated scan comes
+near (at most 68x); excluding from 24x on changed the campus map."""
 
 
 def percentiles(x: np.ndarray, qs) -> list:
@@ -107,11 +113,11 @@ def scan_spacing(points: np.ndarray, ordered: bool = False, limit: float = np.in
     Point spacing of one scan (m), robust to far, sparse points.
 
     The upper quartile (``SPACING_QUANTILE``) of each point's nearest-neighbour distance, at
-    most ``limit`` (m). A far return spaces its neighbours by range x beam step (87 m at 1e4 m
-    and 0.5 degrees), so 30 % of them would set the upper quartile, and the incremental mapper's
-    r with it: when the upper quartile exceeds ``SPACING_SPREAD`` x the lower one, it is taken
-    over the distances up to that bound (the dense part of the scan), which holds while fewer
-    than three quarters of the points are far.
+    most ``SPACING_SPREAD`` x the lower quartile and at most ``limit`` (m). A far return spaces
+    its neighbours by range x beam step (87 m at 1e4 m and 0.5 degrees), so 30 % of them would
+    set the upper quartile, and the incremental mapper's r with it: beyond ``SPACING_TAIL`` x
+    the lower quartile, the upper quartile is taken over the distances up to that bound (the
+    dense part of the scan). Both hold while fewer than three quarters of the points are far.
 
     ``ordered``: the points are in beam order, so a point's nearest neighbour in its scan is the
     one before or after it, read off without a k-d tree. Returns nan for fewer than 3 points.
@@ -138,6 +144,6 @@ def scan_spacing(points: np.ndarray, ordered: bool = False, limit: float = np.in
         d, _ = cKDTree(points, balanced_tree=False, compact_nodes=False).query(probe, k=2)
         nearest = d[:, 1]
     lower, upper = percentiles(nearest, (25.0, SPACING_QUANTILE))
-    if upper > SPACING_SPREAD * lower:
-        upper = percentile(nearest[nearest <= SPACING_SPREAD * lower], SPACING_QUANTILE)
-    return min(upper, float(limit))
+    if upper > SPACING_TAIL * lower:
+        upper = percentile(nearest[nearest <= SPACING_TAIL * lower], SPACING_QUANTILE)
+    return min(upper, SPACING_SPREAD * lower, float(limit))
