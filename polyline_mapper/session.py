@@ -403,13 +403,15 @@ class MappingSession:
         self._emit(notes)
         return done
 
-    def flush(self) -> int:
+    def flush(self, final: bool = True) -> int:
         """
-        End of input (or a live pause): give up waiting, map the last, partial group.
+        Map the last, partial update group; at the end of input (``final``) give up waiting.
 
-        Returns the number of update groups processed.
+        Live, after a pause in the scans, the node flushes with ``final=False``: scans still
+        waiting for their pose keep waiting (up to ``wait``). Returns the number of update
+        groups processed.
         """
-        notes = self._pose_waiting(final=True)
+        notes = self._pose_waiting(final=final)
         done = self._run(None, partial=True)
         self._emit(notes)
         return done

@@ -264,3 +264,19 @@ def test_slow_updates_shed_scans_older_than_the_latency_bound_and_keep_the_newes
     assert session.stamp == 10.0 and set(causes(warned)) == {'too_late'}
     session.step(max_updates=1)
     assert session.used == 2 and session.stamp == 11.0
+
+
+def test_a_live_flush_maps_the_partial_group_but_lets_waiting_scans_wait(office_drive):
+    clock = FakeClock()
+    session, warned = live(clock, IncrementalConfig(noise_updates=1), update_every_n_scans=3,
+                           wait=5.0)
+    for i in range(2):
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        session.add(scan_of(office_drive, i, float(i)))
+    session.add(scan_of(office_drive, 2, 2.0))           # its pose has not come yet
+    session.step()
+    clock.t = 1.5                                        # the scans paused
+    assert session.flush(final=False) == 1 and session.used == 2 and not warned
+    session.add(tf(2.0, 'map', 'laser', office_drive.poses[2]))
+    session.step()
+    assert session.flush(final=False) == 1 and session.used == 3 and not warned

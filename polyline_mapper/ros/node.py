@@ -215,7 +215,7 @@ class PolylineMapperNode(Node):
                 if busy:
                     self._dirty = True
                 elif session.has_partial_group() and session.idle_seconds() >= GROUP_IDLE:
-                    if session.flush():         # the scans stopped: map the partial group
+                    if session.flush(final=False):      # the scans paused: map the group
                         self._dirty = True
                 now = time.monotonic()
                 if self._dirty and now - self._last_publish >= self.settings.map_publish_period:
