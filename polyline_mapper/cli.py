@@ -375,7 +375,8 @@ def cmd_convert(args) -> int:
     from .formats.output import check_new_folder
     check_new_folder(args.output, [args.input])
     bar = _progress_factory(not args.quiet, 'convert', 'msg')
-    info = carmen_to_bag(args.input, args.output, args.storage, args.period, progress=bar)
+    info = carmen_to_bag(args.input, args.output, args.storage, args.period, progress=bar,
+                         drift_seed=args.odom_drift)
     if info['skipped']:
         print(f"polyline-mapper: warning: {args.input}: skipped {info['skipped']} malformed "
               f"laser record(s), e.g. {info['skipped_examples'][0]}", file=sys.stderr)
@@ -384,8 +385,11 @@ def cmd_convert(args) -> int:
               f'stamps {args.period:g} s apart, from t = 1 s', file=sys.stderr)
     if not args.quiet:
         off = info['laser_offset']
+        tree = ('odom -> base_link drifting like wheel odometry (seed '
+                f'{args.odom_drift}), no map frame' if args.odom_drift is not None
+                else 'map -> odom -> base_link')
         print(f"wrote {args.output}: rosbag2 ({args.storage}), {info['scans']} scans on /scan "
-              '(frame laser), /tf map -> odom -> base_link, /tf_static base_link -> laser '
+              f'(frame laser), /tf {tree}, /tf_static base_link -> laser '
               f'({off[0]:g}, {off[1]:g}, {np.rad2deg(off[2]):g} deg), /odom')
     return 0
 
@@ -565,6 +569,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='rosbag2 storage (default: sqlite3)')
     c.add_argument('--period', type=POSITIVE, default=1.0,
                    help='seconds between scans when the log times do not increase')
+    c.add_argument('--odom-drift', type=number(0, 2 ** 32 - 1, kind=int), metavar='SEED',
+                   help='write a robot without a localizer: /odom and /tf odom -> base_link '
+                   'drift like wheel odometry (5 %% of each step per axis, 0.02 rad + 1 deg '
+                   'per metre of heading; seeded), no map frame')
     c.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
     c.set_defaults(func=cmd_convert)
     return p

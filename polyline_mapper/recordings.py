@@ -25,7 +25,7 @@ CARMEN logs and simulated drives become messages through one builder, ``robot_me
 """
 
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import dataclass, replace
 import math
 import os
 from typing import Callable, Iterator, Optional
@@ -183,7 +183,54 @@ def _flipped(scan: Scan) -> Scan:
     return replace(scan, ranges=np.ascontiguousarray(scan.ranges[::-1]))
 
 
-def carmen_messages(log, stamps) -> Iterator[tuple]:
+@dataclass(frozen=True)
+class OdometryDrift:
+    """
+    Wheel-odometry-like drift: each step's motion with Gaussian noise (issue 19's model).
+
+    Between consecutive poses the true motion (forward, sideways: d metres in all; turn) gets
+    independent zero-mean Gaussian noise with standard deviations ``translation`` x d on each
+    axis and ``rotation`` + ``rotation_per_m`` x d radians on the heading. The first pose is
+    true; the error then accumulates as on a robot without a localizer.
+    """
+
+    translation: float = 0.05
+    """Std of each axis's error, as a share of the step's length."""
+    rotation: float = 0.02
+    """Std of the heading error of every step, radians."""
+    rotation_per_m: float = float(np.deg2rad(1.0))
+    """Std of the heading error per metre travelled, radians."""
+
+    def apply(self, poses, rng) -> np.ndarray:
+        """
+        Return drifted copies of ``poses`` ((P, 3) x, y, yaw), seeded by ``rng``.
+
+        >>> p = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+        >>> d = OdometryDrift().apply(p, 0)
+        >>> bool(np.array_equal(d[0], p[0])), bool(np.abs(d[1:, :2] - p[1:, :2]).max() < 1.0)
+        (True, True)
+        """
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.ndim != 2 or poses.shape[1] != 3 or not np.isfinite(poses).all():
+            raise ValueError(f'poses must be (P, 3) finite (x, y, yaw), got {poses.shape}')
+        if len(poses) < 2:
+            return poses.copy()
+        rng = np.random.default_rng(rng)
+        steps = se2_compose(se2_inverse(poses[:-1]), poses[1:])        # motion in the robot frame
+        dist = np.hypot(steps[:, 0], steps[:, 1])
+        noisy = steps + rng.normal(size=steps.shape) * np.stack(
+            [self.translation * dist, self.translation * dist,
+             self.rotation + self.rotation_per_m * dist], axis=1)
+        # Chain the noisy steps: headings add up, each step turns with the heading before it.
+        yaw = poses[0, 2] + np.concatenate([[0.0], np.cumsum(noisy[:, 2])])
+        c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
+        moves = np.stack([c * noisy[:, 0] - s * noisy[:, 1], s * noisy[:, 0] + c * noisy[:, 1]],
+                         axis=1)
+        xy = poses[0, :2] + np.concatenate([np.zeros((1, 2)), np.cumsum(moves, axis=0)])
+        return np.column_stack([xy, yaw])
+
+
+def carmen_messages(log, stamps, drift: Optional[tuple] = None) -> Iterator[tuple]:
     """
     Yield ``(log_time, topic, record)`` for a CARMEN log, as ``convert`` writes its bag.
 
@@ -191,11 +238,20 @@ def carmen_messages(log, stamps) -> Iterator[tuple]:
     the record's odometry pose, map -> odom chosen so that the chain gives its corrected laser
     pose), /odom and the /scan in frame ``laser`` (LaserScan precision, no pose); once, first,
     /tf_static base_link -> laser from the log's laser offset. ``log``: a formats.carmen.CarmenLog.
+
+    ``drift``: (OdometryDrift, seed) to write instead a robot without a localizer: /odom and
+    /tf odom -> base_link follow the corrected base poses with that drift added, and there is no
+    map frame (the first pose is true, so the odometry frame starts on the map frame).
     """
     laser = np.array([r.pose for r in log.records])
+    scans = log.scans(stamps, frame_id='laser', with_pose=False)
+    if drift is not None:
+        model, seed = drift
+        mount = np.asarray(log.laser_offset, dtype=np.float64)
+        base = model.apply(se2_compose(laser, se2_inverse(mount)), seed)
+        return robot_messages(stamps, se2_compose(base, mount), scans, mount=mount)
     odometry = np.array([r.odom for r in log.records])
-    return robot_messages(stamps, laser, log.scans(stamps, frame_id='laser', with_pose=False),
-                          mount=log.laser_offset, odom_poses=odometry)
+    return robot_messages(stamps, laser, scans, mount=log.laser_offset, odom_poses=odometry)
 
 
 def make_drive(name: str, seed: int = 1, noise: float = 0.01, beams: int = 541):

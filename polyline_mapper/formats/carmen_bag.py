@@ -25,11 +25,11 @@ import numpy as np
 from .bag import BagWriter
 from .carmen import read_carmen
 from .output import check_new_folder
-from ..recordings import carmen_messages
+from ..recordings import carmen_messages, OdometryDrift
 
 
 def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period: float = 1.0,
-                  progress=None) -> dict:
+                  progress=None, drift_seed: int = None) -> dict:
     """
     Convert a CARMEN log to a new rosbag2 folder ``out_path`` (sqlite3 or mcap storage).
 
@@ -38,6 +38,9 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
     a failure leaves nothing behind. Returns a summary: scans, stamps_made_up, laser_offset,
     skipped (malformed log lines) and examples. Raises ValueError on a bad log, an existing
     output or a bad storage name or period.
+
+    ``drift_seed``: write a robot without a localizer instead (``recordings.OdometryDrift``,
+    seeded): /odom and /tf odom -> base_link drift like wheel odometry, no map frame.
     """
     if storage not in ('sqlite3', 'mcap'):
         raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
@@ -51,7 +54,8 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
     tmp = tempfile.mkdtemp(prefix='.tmp-bag-', dir=parent)
     try:
         bag = os.path.join(tmp, os.path.basename(os.path.abspath(out_path)))
-        messages = carmen_messages(log, stamps)
+        drift = None if drift_seed is None else (OdometryDrift(), int(drift_seed))
+        messages = carmen_messages(log, stamps, drift)
         with BagWriter(bag, storage) as out:
             for t, topic, record in (messages if progress is None else progress(messages)):
                 out.write(topic, record, t)
