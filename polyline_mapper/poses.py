@@ -45,6 +45,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .core.geometry import se2_compose, se2_inverse  # noqa: F401  (re-exported)
 from .formats.records import Transform
 
 
@@ -118,30 +119,6 @@ def mount_quaternion(yaw: float, upside_down: bool = False) -> np.ndarray:
     if not upside_down:
         return quaternion_from_yaw(yaw)
     return np.array([math.cos(0.5 * yaw), math.sin(0.5 * yaw), 0.0, 0.0])
-
-
-def se2_compose(a, b) -> np.ndarray:
-    """
-    Compose planar poses: ``b`` (given in ``a``'s frame) seen from ``a``'s parent frame.
-
-    ``a``, ``b``: (..., 3) arrays of (x, y, yaw), metres and radians, broadcast against each
-    other. Returns (..., 3); the yaw is not wrapped.
-
-    >>> se2_compose((1.0, 0.0, math.pi / 2), (1.0, 0.0, 0.0)).round(12).tolist()
-    [1.0, 1.0, 1.570796326795]
-    """
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
-                     a[..., 1] + s * b[..., 0] + c * b[..., 1], a[..., 2] + b[..., 2]], axis=-1)
-
-
-def se2_inverse(a) -> np.ndarray:
-    """Invert planar poses: (..., 3) arrays of (x, y, yaw) -> (..., 3), se2_compose(a, inv) = 0."""
-    a = np.asarray(a, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
-                    axis=-1)
 
 
 def planar_transform(stamp: float, parent: str, child: str, pose, static: bool = False,

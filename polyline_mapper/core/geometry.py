@@ -8,8 +8,8 @@ Conventions used across the core:
 - pairs: parallel 1-D arrays ``(pt, seg)`` naming a point and a segment that are close.
 
 These are element-wise functions (validation, lengths, directions, projections, sampling, run
-labels); the structures that find what is near what are in ``index.py``. Nothing here loops over
-points in Python.
+labels, SE(2) pose composition); the structures that find what is near what are in
+``index.py``. Nothing here loops over points in Python.
 
 Rows of ``(N, 2)`` and ``(K, 2, 2)`` arrays are gathered with ``np.take(a, i, axis=0)`` (and
 selected with ``np.compress``) rather than ``a[i]``: for thousands of rows NumPy's general
@@ -181,3 +181,27 @@ def group_minmax(values: np.ndarray, groups: np.ndarray, n_groups: int) -> tuple
     np.minimum.at(lo, groups, values)
     np.maximum.at(hi, groups, values)
     return lo, hi
+
+
+def se2_compose(a, b) -> np.ndarray:
+    """
+    Compose planar poses: ``b`` (given in ``a``'s frame) seen from ``a``'s parent frame.
+
+    ``a``, ``b``: (..., 3) arrays of (x, y, yaw), metres and radians, broadcast against each
+    other. Returns (..., 3); the yaw is not wrapped.
+
+    >>> se2_compose((1.0, 0.0, np.pi / 2), (1.0, 0.0, 0.0)).round(12).tolist()
+    [1.0, 1.0, 1.570796326795]
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
+                     a[..., 1] + s * b[..., 0] + c * b[..., 1], a[..., 2] + b[..., 2]], axis=-1)
+
+
+def se2_inverse(a) -> np.ndarray:
+    """Invert planar poses: (..., 3) arrays of (x, y, yaw) -> (..., 3), se2_compose(a, inv) = 0."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], -a[..., 2]],
+                    axis=-1)

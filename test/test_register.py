@@ -1,0 +1,99 @@
+"""Scan-to-map registration: recovery, robustness, the degeneracy guard, refusals."""
+
+import numpy as np
+from polyline_mapper.core.register import match_scan, predict_constant_velocity, transform
+from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
+import pytest
+
+ROOM = np.array([[[0, 0], [8, 0]], [[8, 0], [8, 5]], [[8, 5], [0, 5]], [[0, 5], [0, 0]],
+                 [[3, 0], [3, 2]], [[5, 5], [5, 3.5]]], dtype=float)
+
+
+def cast(segments, pose, beams=360, noise=0.01, rng=0):
+    """Ray-cast a full-circle laser at ``pose`` against ``segments``: laser-frame points."""
+    rng = np.random.default_rng(rng)
+    a = np.linspace(-np.pi, np.pi, beams, endpoint=False) + pose[2]
+    d = np.stack([np.cos(a), np.sin(a)], axis=1)
+    p0, e = segments[:, 0], segments[:, 1] - segments[:, 0]
+    w = p0[None] - np.asarray(pose[:2])[None, None]
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
+        u = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
+    t = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
+    ok = np.isfinite(t)
+    r = t[ok] + rng.normal(0, noise, ok.sum())
+    ang = a[ok] - pose[2]
+    return np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
+
+
+@pytest.mark.parametrize('error', [(0.2, -0.15, 0.08), (-0.3, 0.1, -0.1), (0.05, 0.0, 0.0)])
+def test_a_wrong_prediction_is_pulled_to_the_true_pose(error):
+    truth = np.array([2.0, 3.0, 0.3])
+    pts = cast(ROOM, truth)
+    m = match_scan(pts, truth + error, ROOM, sigma=0.01)
+    assert m.ok and m.degenerate == 0, m.reason
+    assert np.hypot(*(m.pose[:2] - truth[:2])) < 0.01 and abs(m.pose[2] - truth[2]) < 0.005
+    assert m.inliers > 300 and m.residual < 0.02
+    assert np.all(np.linalg.eigvalsh(m.covariance) > 0) and m.covariance[0, 0] < 1e-4
+
+
+def test_people_and_clutter_do_not_pull_the_match():
+    truth = np.array([4.0, 2.5, -0.4])
+    pts = cast(ROOM, truth)
+    rng = np.random.default_rng(1)
+    clutter = rng.uniform(-1.5, 1.5, (80, 2))            # 80 stray returns near the laser
+    m = match_scan(np.vstack([pts, clutter]), truth + (0.15, 0.1, 0.05), ROOM, sigma=0.01)
+    assert m.ok and np.hypot(*(m.pose[:2] - truth[:2])) < 0.02
+
+
+def test_a_featureless_corridor_keeps_the_prediction_along_its_axis():
+    corridor = np.array([[[-50, -1], [50, -1]], [[-50, 1], [50, 1]]], dtype=float)
+    truth = np.array([0.0, 0.0, 0.0])
+    pts = cast(corridor, truth)
+    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < 20]
+    pred = np.array([0.3, 0.12, 0.03])                   # wrong along and across the axis
+    m = match_scan(pts, pred, corridor, sigma=0.01)
+    assert m.ok and m.degenerate == 1
+    assert m.pose[0] == pytest.approx(0.3, abs=1e-6)     # along: the prediction, untouched
+    assert abs(m.pose[1]) < 0.01 and abs(m.pose[2]) < 0.003     # across and heading: fixed
+    assert m.covariance[0, 0] > 100 * m.covariance[1, 1]    # the covariance says so
+
+
+def test_refusals_keep_the_prediction():
+    truth = np.array([2.0, 3.0, 0.3])
+    pts = cast(ROOM, truth)
+    far = truth + (1.0, 1.0, 0.8)                        # nothing lines up: few inliers
+    m = match_scan(pts, far, ROOM, sigma=0.01, gate=0.3)
+    assert not m.ok and m.reason == 'too few inliers' and np.array_equal(m.pose, far)
+    assert match_scan(pts, truth, np.zeros((0, 2, 2)), 0.01).reason == 'no map'
+    m = match_scan(pts, truth + (0.4, 0.0, 0.0), ROOM, sigma=0.01, max_shift=0.1)
+    assert not m.ok and m.reason == 'correction too large'
+
+
+def test_constant_velocity_prediction():
+    a, b = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.1])
+    c = predict_constant_velocity(a, b)
+    assert np.allclose(c[:2], [1.0 + np.cos(0.1), np.sin(0.1)]) and c[2] == pytest.approx(0.2)
+    assert np.array_equal(predict_constant_velocity(None, b), b)
+
+
+def test_matches_the_simulated_office_against_its_walls():
+    drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), step=0.4, rng=7)
+    spec = drive.spec
+    rng = np.random.default_rng(2)
+    errors = []
+    for i in range(0, len(drive.poses), 10):
+        r = drive.ranges[i]
+        ok = np.isfinite(r)
+        a = spec.angles()[ok]
+        pts = np.stack([r[ok] * np.cos(a), r[ok] * np.sin(a)], axis=1)
+        truth = drive.poses[i]
+        pred = truth + rng.normal(0, [0.1, 0.1, 0.03])
+        m = match_scan(pts, pred, np.asarray(drive.world.walls, dtype=float), sigma=0.01)
+        assert m.ok, m.reason
+        if m.degenerate:                 # in a corridor: its axis keeps the prediction
+            continue
+        errors.append(np.hypot(*(transform(np.zeros((1, 2)), m.pose)[0] - truth[:2])))
+    assert len(errors) >= 0.8 * len(range(0, len(drive.poses), 10))
+    assert np.sqrt(np.mean(np.square(errors))) < 0.01
