@@ -295,19 +295,19 @@ def _mount(text: str) -> tuple:
     return (x, y, float(np.deg2rad(yaw))), flip
 
 
-def _replay_options(args, every: int = 1, group: int = 1):
+def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False):
     from .session import SessionOptions
     mount, flip = _mount(args.laser_mount)
     return SessionOptions(pose_source=args.pose_source, fixed_frame=args.fixed_frame,
                           every=every, update_every_n_scans=group, mount=mount,
-                          mount_upside_down=flip)
+                          mount_upside_down=flip, scan_matching=matching)
 
 
 def cmd_replay(args) -> int:
     from .replay import run_replay
     config = load_incremental_config(args.config, args.set)
     check_outputs([args.output, args.plot], [args.input, args.config])
-    options = _replay_options(args, args.every, args.update_every_n_scans)
+    options = _replay_options(args, args.every, args.update_every_n_scans, args.scan_matching)
     t0 = time.perf_counter()
     res = run_replay(args.input, config, options, args.scan_topic, args.odom_topic,
                      progress=not args.quiet)
@@ -497,6 +497,9 @@ def build_parser() -> argparse.ArgumentParser:
     _pose_args(r)
     r.add_argument('--every', type=number(1, kind=int), default=1, metavar='N',
                    help='use every N-th scan')
+    r.add_argument('--scan-matching', action='store_true',
+                   help='refine each scan pose against the map built so far (for odometry '
+                   'that drifts or poorly known poses); the map is in the fixed frame')
     r.add_argument('--update-every-n-scans', type=number(1, 1000, kind=int), default=1,
                    metavar='N', help="one map update per N posed scans, as the node's "
                    'update_every_n_scans parameter (the same map as the node given N)')

@@ -44,8 +44,10 @@ from typing import Callable, Iterable, Optional
 
 import numpy as np
 
+from .core.geometry import se2_compose, se2_inverse
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
+from .core.register import match_scan, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
 from .scan import check_scan, scan_to_points, ScanError
@@ -96,6 +98,10 @@ class SessionOptions:
     """Keep every mapped point (offline: for map metrics and plots). Memory grows with them."""
     mapping: bool = True
     """False: only register the scans (points and counts), leave the map empty."""
+    scan_matching: bool = False
+    """Refine each scan's pose against the map built so far (``core.register.match_scan``),
+    starting from the odometry / TF pose corrected as the last match was: the map is then as
+    consistent as the scans, not as the odometry. Off: the poses are used as given."""
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
@@ -324,6 +330,11 @@ class MappingSession:
         self.update_seconds = deque(maxlen=100000)
         self.latency_seconds = deque(maxlen=100000)
         self._last_add = None
+        self._correction = np.zeros(3)
+        """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
+        self._trajectory = []
+        self.matches = Counter()
+        """Scan matching outcomes: 'matched', 'no map yet', and each refusal reason."""
         self._news = False
         self._estimating_noted = False
 
@@ -467,17 +478,50 @@ class MappingSession:
     def _convert(self, scan: Scan, pose: PlanarPose, arrived: float) -> list:
         t0 = time.perf_counter()
         limit = min(float(scan.range_max), self.mapper.config.max_mapping_range)
+        notes = []
+        xyz = pose.xyz
         try:
             with np.errstate(invalid='ignore', over='ignore'):
-                pts = scan_to_points(scan.ranges, pose.beam_angles(scan.angles()), pose.xyz,
-                                     scan.range_min, limit)
+                angles = pose.beam_angles(scan.angles())
+                if self.options.scan_matching:
+                    local = scan_to_points(scan.ranges, angles, np.zeros(3), scan.range_min,
+                                           limit)
+                    if len(local):
+                        xyz, note = self._match(local, xyz)
+                        notes += [note] if note is not None else []
+                pts = scan_to_points(scan.ranges, angles, xyz, scan.range_min, limit)
         except ValueError as exc:
             return [self._skip('bad scan', 'bad_geometry', str(exc))]
         if len(pts) == 0:
             return [self._skip('bad scan', 'no_valid_points',
                                f'no reading within the mapping range at {scan.stamp:.3f} s')]
-        self._ready.append((scan, pts, pose.xyz[:2], time.perf_counter() - t0, arrived))
-        return []
+        if self.options.keep_points:
+            self._trajectory.append((scan.stamp, *xyz))
+        self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
+        return notes
+
+    def _match(self, local: np.ndarray, given: np.ndarray) -> tuple:
+        """Refine ``given`` (the pose TF or odometry gives) against the map; (pose, note)."""
+        prediction = se2_compose(self._correction, given)
+        sigma = self.mapper.sigma
+        segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
+        if len(segs):                    # the map near the predicted scan (bounding boxes)
+            world = transform(local, prediction)
+            reach = 0.5 + self.mapper.r
+            lo, hi = world.min(axis=0) - reach, world.max(axis=0) + reach
+            box = ((segs.max(axis=1) >= lo) & (segs.min(axis=1) <= hi)).all(axis=1)
+            segs = segs[box]
+        if not len(segs):
+            self.matches['no map yet'] += 1
+            return prediction, None
+        m = match_scan(local, prediction, segs, sigma)
+        if not m.ok:
+            self.matches[m.reason] += 1
+            return prediction, ('match_failed', f'scan matching kept the predicted pose: '
+                                f'{m.reason} ({m.inliers} inliers)')
+        self.matches['matched'] += 1
+        self._correction = se2_compose(m.pose, se2_inverse(given))
+        return m.pose, None
 
     def _run(self, max_updates: Optional[int], partial: bool) -> int:
         n = self.options.update_every_n_scans
@@ -561,8 +605,11 @@ class MappingSession:
         stats = self.stats()
         stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,
                      r=r)
+        with self._lock:
+            traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) \
+                if self.options.keep_points else None
         return MapValue(geo.segments, geo.support, geo.polylines, geo.closed,
-                        self.fixed_frame or 'map', self.stamp, stats)
+                        self.fixed_frame or 'map', self.stamp, stats, traj)
 
     def stats(self) -> dict:
         """Counters, skips by cause, update-time (and live latency) percentiles in ms."""
@@ -571,6 +618,8 @@ class MappingSession:
                    'skipped': dict(sorted(self.skipped.items())),
                    'dropped': sum(v for k, v in self.skipped.items()
                                   if k.startswith('dropped:'))}
+            if self.options.scan_matching:
+                out['scan_matching'] = dict(sorted(self.matches.items()))
             for key, values in (('update_ms', self.update_seconds),
                                 ('latency_ms', self.latency_seconds)):
                 if values:
@@ -584,6 +633,8 @@ class MappingSession:
             self._waiting.clear()
             self._ready.clear()
             self._points.clear()
+            self._trajectory.clear()
+            self._correction = np.zeros(3)
         with self._map_lock:
             dropped = len(self.mapper.segments)
             self.mapper.reset()

@@ -280,3 +280,29 @@ def test_a_live_flush_maps_the_partial_group_but_lets_waiting_scans_wait(office_
     session.add(tf(2.0, 'map', 'laser', office_drive.poses[2]))
     session.step()
     assert session.flush(final=False) == 1 and session.used == 3 and not warned
+
+
+def test_scan_matching_pulls_drifting_odometry_back_onto_the_map(office_drive):
+    # The office drive's odometry drifts (issue 19's model); matched against the map built so
+    # far, the scans land closer to the true walls than with the odometry alone.
+    from polyline_mapper.core.index import nearest_distance
+    from polyline_mapper.recordings import OdometryDrift
+    poses = np.asarray(office_drive.poses, dtype=float)
+    drifted = OdometryDrift().apply(poses, 5)
+    records = []
+    for i in range(len(poses)):
+        records.append(tf(float(i), 'odom', 'laser', drifted[i]))
+        records.append(scan_of(office_drive, i, float(i)))
+    walls = np.asarray(office_drive.world.walls, dtype=float)
+    out = {}
+    for matching in (False, True):
+        options = SessionOptions(scan_matching=matching, keep_points=True)
+        session = replay_records(records, options=options)
+        traj = session.map_value().trajectory
+        assert traj.shape == (len(poses), 4) and np.array_equal(traj[:, 0], np.arange(len(poses)))
+        err = np.hypot(*(traj[:, 1:3] - poses[:, :2]).T)
+        d = nearest_distance(session.points(), walls)[0]
+        out[matching] = (np.sqrt(np.mean(err ** 2)), np.mean(d), session.stats())
+    assert out[True][0] < 0.5 * out[False][0], out
+    assert out[True][1] < 0.5 * out[False][1], out
+    assert out[True][2]['scan_matching']['matched'] > 0.8 * len(poses)

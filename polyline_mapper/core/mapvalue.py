@@ -37,6 +37,9 @@ class MapValue:
     stamp: Optional[float] = None
     """Seconds: the stamp of the newest scan in the map (None for a map of bare points)."""
     stats: dict = field(default_factory=dict)
+    trajectory: Optional[np.ndarray] = None
+    """(P, 4) float: stamp (s), x, y, yaw (m, rad) of the laser in ``frame_id`` for each scan
+    in the map, as the mapper placed it (None when not recorded)."""
 
     def __post_init__(self):
         """Check that the arrays agree (segments and support, polylines and closed flags)."""
@@ -48,6 +51,10 @@ class MapValue:
         if len(self.closed) != len(self.polylines):
             raise ValueError(f'closed has {len(self.closed)} flags for '
                              f'{len(self.polylines)} polylines')
+        if self.trajectory is not None:
+            self.trajectory = np.asarray(self.trajectory, dtype=np.float64).reshape(-1, 4)
+            if not np.isfinite(self.trajectory).all():
+                raise ValueError('trajectory has NaN or inf')
 
     def __len__(self) -> int:
         """Return the number of segments."""

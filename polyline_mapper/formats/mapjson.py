@@ -65,8 +65,13 @@ def map_value_to_dict(value: MapValue, config: dict = None) -> dict:
     stats = dict(value.stats or {})
     if value.stamp is not None and 'stamp' not in stats:
         stats['stamp'] = round(float(value.stamp), 6)
-    return _content(value.segments, value.polylines, value.closed, support if known else None,
-                    stats, config, value.frame_id)
+    out = _content(value.segments, value.polylines, value.closed, support if known else None,
+                   stats, config, value.frame_id)
+    if value.trajectory is not None:            # [t, x, y, yaw] per scan: 1 us, 0.1 mm, 1e-6 rad
+        t = value.trajectory
+        out['trajectory'] = np.column_stack([np.round(t[:, 0], 6), np.round(t[:, 1:3], 4),
+                                             np.round(t[:, 3], 6)]).tolist()
+    return out
 
 
 def map_to_dict(segments, polylines, closed=None, support=None, stats=None, config=None,
@@ -262,8 +267,18 @@ def map_value_from_dict(data) -> MapValue:
     stats = dict(data.get('stats') or {})
     stamp = stats.get('stamp')
     stamp = float(stamp) if type(stamp) in (int, float) else None
+    trajectory = None
+    if 'trajectory' in data:
+        rows = data['trajectory']
+        if not (isinstance(rows, list) and all(
+                isinstance(r, list) and len(r) == 4
+                and all(type(v) in (int, float) for v in r) for r in rows)):
+            raise ValueError('"trajectory" must be a list of [t, x, y, yaw]')
+        trajectory = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+        if not np.isfinite(trajectory).all():
+            raise ValueError('"trajectory" has non-finite numbers')
     return MapValue(segs.reshape(-1, 2, 2), sup, polylines, list(closed), data['frame_id'],
-                    stamp, stats)
+                    stamp, stats, trajectory)
 
 
 def config_dict(config) -> dict:
