@@ -563,7 +563,15 @@ class MappingSession:
                 origin = (group[0][2] if len(group) == 1 else
                           np.repeat(np.array([g[2] for g in group]),
                                     [len(g[1]) for g in group], axis=0))
-                info = self.mapper.update(points, ordered=True, origin=origin)
+                try:
+                    info = self.mapper.update(points, ordered=True, origin=origin)
+                except ValueError as exc:           # e.g. a pose far beyond any real map
+                    with self._lock:
+                        note = self._skip('bad scan', 'bad_points', f'scans up to '
+                                          f'{group[-1][0].stamp:.3f} s not mapped: {exc}')
+                    if self._warn is not None:
+                        self._warn(*note)
+                    return False
                 ran = info.skipped is None
                 estimating = info.skipped == 'estimating noise'
             else:

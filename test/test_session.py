@@ -306,3 +306,16 @@ def test_scan_matching_pulls_drifting_odometry_back_onto_the_map(office_drive):
     assert out[True][0] < 0.5 * out[False][0], out
     assert out[True][1] < 0.5 * out[False][1], out
     assert out[True][2]['scan_matching']['matched'] > 0.8 * len(poses)
+
+
+def test_a_pose_beyond_any_real_map_is_a_counted_skip_not_a_crash(office_drive):
+    clock = FakeClock()
+    session, warned = live(clock, IncrementalConfig(noise_updates=1))
+    for i in range(4):
+        pose = office_drive.poses[i] + ((5e7, 0.0, 0.0) if i == 2 else (0.0, 0.0, 0.0))
+        session.add(tf(float(i), 'map', 'laser', pose))
+        session.add(scan_of(office_drive, i, float(i)))
+        session.step()
+    assert session.stats()['skipped'] == {'bad scan: bad_points': 1}
+    assert causes(warned) == ['bad_points'] and session.used == 3
+    assert np.abs(session.map_value().segments).max() < 100
