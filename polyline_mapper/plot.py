@@ -54,8 +54,8 @@ def plot_map(path, points: np.ndarray, segments: np.ndarray, polylines=None,
 
 
 def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.ndarray,
-                    contradicted: np.ndarray, title: str = '', max_beams: int = 20_000,
-                    dpi: int = 150) -> None:
+                    contradicted: np.ndarray, title: str = '', max_beams: int = 10_000,
+                    dpi: int = 120) -> None:
     """
     Write a PNG of laser beams (thin, light) under a map whose contradicted segments are red.
 
@@ -99,7 +99,8 @@ def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.
     try:
         if len(beams):
             ax.add_collection(LineCollection(beams, colors='tab:blue', linewidths=0.15,
-                                             alpha=0.12, zorder=1, rasterized=True))
+                                             antialiaseds=False, alpha=0.07, zorder=1,
+                                             rasterized=True))     # few grey levels: small PNG
         ax.add_collection(LineCollection(segs[~bad], colors='k', linewidths=1.0, zorder=3))
         ax.add_collection(LineCollection(segs[bad], colors='red', linewidths=2.2, zorder=4))
         length = np.hypot(*(segs[:, 1] - segs[:, 0]).T)
