@@ -2,10 +2,10 @@
 ``polyline-mapper``: the command line, a thin shell over the core.
 
 Subcommands:
-  fit INPUT -o MAP.json [--plot MAP.png] [--config FILE]   fit a map to a point file or CARMEN log
+  fit INPUT -o MAP.json [--plot MAP.png] [--config FILE]   fit a map to points, a log or a bag
   demo -o MAP.json [--plot MAP.png] [--offline]             live node + simulated office drive
   replay INPUT -o MAP.json [--plot MAP.png] ...             map a bag or CARMEN log scan by scan
-  plot MAP.json [--points INPUT] -o MAP.png                 draw a map (over its points)
+  plot MAP.json [--points INPUT [--free-space]] -o MAP.png  draw a map (over points or beams)
   export MAP.json -o OUT.{geojson,svg,csv}                  convert a map for other tools
   convert LOG -o BAG [--storage sqlite3|mcap]               CARMEN log -> rosbag2
   play INPUT [--rate R] [--loop]                            publish a recording on live topics
@@ -16,6 +16,10 @@ why; no output file is left behind by a failed run. Every output goes through
 ``formats.output``: never over an input, a device, a folder or a read-only file; a symlink is
 followed to its target; a replaced file keeps its mode; a map JSON and its PNG are written all or
 nothing. Outputs are checked before the work starts, so a bad ``-o`` fails at once.
+
+Maps are judged two ways in the stats of fit and replay: the distance of the points to the map,
+and, when the input has beams (CARMEN logs, bags, simulated drives), the share of map length
+the beams pass through (``core.freespace``); a bare point file says "no beams".
 """
 
 import argparse
@@ -53,11 +57,15 @@ def load_incremental_config(path: str = None, overrides: list = ()):
 
 
 def read_input(path: str, range_max: float = None, progress: bool = True) -> tuple:
-    """Read an (N, 2) point file or a CARMEN log; return points and a description."""
-    from .recordings import read_points
-    return read_points(path, range_max, _progress_factory(progress, 'register', 'scan'),
-                       warn=lambda line: print(f'polyline-mapper: warning: {line}',
-                                               file=sys.stderr))
+    """
+    Read an (N, 2) point file or a CARMEN log; return points, origins and a description.
+
+    ``origins`` (N, 2) are the laser positions of a log's points, None for a point file.
+    """
+    from .recordings import read_beams
+    return read_beams(path, range_max, _progress_factory(progress, 'register', 'scan'),
+                      warn=lambda line: print(f'polyline-mapper: warning: {line}',
+                                              file=sys.stderr))
 
 
 def _progress_factory(enabled: bool, desc: str, unit: str):
@@ -91,9 +99,15 @@ def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True):
 
 def write_outputs(result, points, config, out_json: str, out_png: str = None,
                   frame_id: str = 'map', title: str = '', truth=None, extra=None,
-                  inputs=()) -> dict:
-    """Write the map JSON (and PNG) of a batch fit, all or nothing; return the stats written."""
+                  inputs=(), origins=None) -> dict:
+    """
+    Write the map JSON (and PNG) of a batch fit, all or nothing; return the stats written.
+
+    ``origins`` (N, 2): the laser position of each point (free space is judged), or None.
+    """
+    from .core.freespace import free_space_stats
     stats = map_metrics(points, result.segments)
+    stats.update(free_space_stats(result.segments, points, origins))
     stats.update(iterations=int(result.iterations), converged=bool(result.converged),
                  seconds=round(float(result.seconds), 3), polylines=len(result.polylines),
                  sigma=float(result.sigma), r=float(result.r))
@@ -151,8 +165,14 @@ def summary_line(path: str, stats: dict) -> str:
     return (f"wrote {path}: {stats['segments']} segments in {stats['polylines']} polylines from "
             f"{stats['points']} points, mean distance {stats['mean_distance'] * 100:.2f} cm, "
             f"p95 {stats['p95_distance'] * 100:.2f} cm, coverage "
-            f"{stats['coverage_0_10m'] * 100:.1f}%, {stats['iterations']} iterations, "
-            f"{stats['seconds']:.1f} s")
+            f"{stats['coverage_0_10m'] * 100:.1f}%{free_space_text(stats)}, "
+            f"{stats['iterations']} iterations, {stats['seconds']:.1f} s")
+
+
+def free_space_text(stats: dict) -> str:
+    """Return the contradicted share for a summary line (or 'no beams: free space not judged')."""
+    from .replay import free_space_text as text
+    return text(stats)
 
 
 def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig) -> None:
@@ -167,7 +187,7 @@ def cmd_fit(args) -> int:
     check_outputs([args.output, args.plot], inputs)
     config = load_config(args.config, args.set)
     t0 = time.perf_counter()
-    points, desc = read_input(args.input, args.range_max, not args.quiet)
+    points, origins, desc = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
         raise CliError(f'{args.input}: {len(points)} usable point(s); need at least 2')
     result = run_fit(points, config, not args.quiet)
@@ -175,7 +195,7 @@ def cmd_fit(args) -> int:
                           title=f'{os.path.basename(args.input)}: {len(result.segments)} segments',
                           extra={'input': os.path.basename(args.input), 'input_type': desc,
                                  'total_seconds': round(time.perf_counter() - t0, 3)},
-                          inputs=inputs)
+                          inputs=inputs, origins=origins)
     _warn_if_empty(args.input, stats, config)
     if not args.quiet:
         print(summary_line(args.output, stats))
@@ -190,13 +210,14 @@ def cmd_demo(args) -> int:
     config = load_config(args.config, args.set)
     world = office_floor()
     drive = simulate_drive(world, LaserSpec(noise=args.noise), rng=args.seed)
-    points = drive.points()
+    from .recordings import drive_beams
+    points, origins = drive_beams(drive)
     result = run_fit(points, config, not args.quiet)
     stats = write_outputs(result, points, config, args.output, args.plot, 'map',
                           title=f'simulated office floor: {len(result.segments)} segments',
                           truth=world.walls, extra={'input': 'simulated office floor',
                                                     'scans': int(len(drive.poses))},
-                          inputs=[args.config])
+                          inputs=[args.config], origins=origins)
     _warn_if_empty('simulated office floor', stats, config)
     if not args.quiet:
         print(summary_line(args.output, stats))
@@ -328,33 +349,74 @@ def cmd_replay(args) -> int:
     return 0
 
 
-def read_points_any(path: str, args) -> np.ndarray:
-    """Points of a point file, a CARMEN log, or a bag (registered like replay, not mapped)."""
+def read_beams_any(path: str, args, range_max: float = None) -> tuple:
+    """
+    Points of a point file, a CARMEN log, a bag or a drive, with their laser positions.
+
+    Returns ``(points, origins, description)``; ``origins`` is None for a point file. Bags and
+    simulated drives are registered as replay does, without mapping (``range_max``: logs only).
+    """
     from .recordings import kind_of
     if kind_of(path) in ('points', 'carmen'):
-        return read_input(path, None, not args.quiet)[0]
+        return read_input(path, range_max, not args.quiet)
+    if range_max is not None:
+        raise CliError('--range-max applies to CARMEN logs only')
     from .replay import run_replay
     options = _replay_options(args)
     res = run_replay(path, None, options, args.scan_topic, args.odom_topic,
                      progress=not args.quiet, mapping=False)
+    for line in res.warnings:
+        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
         raise CliError(f'{path}: {res.nothing_mapped()}')
-    return res.points
+    return res.points, res.session.origins(), res.map_value.stats.get('input_type', 'scans')
+
+
+def read_points_any(path: str, args) -> np.ndarray:
+    """Points of a point file, a CARMEN log, or a bag (registered like replay, not mapped)."""
+    return read_beams_any(path, args)[0]
 
 
 def cmd_plot(args) -> int:
     from .formats.mapjson import read_map
     inputs = [args.map, args.points]
     check_outputs([args.output], inputs)
+    if args.free_space and not args.points:
+        raise CliError('--free-space needs --points INPUT: a CARMEN log or a bag with the beams')
     data = read_map(args.map)
-    points = read_points_any(args.points, args) if args.points else None
     value = data.value
+    if args.free_space:
+        return _plot_free_space(args, value, inputs)
+    points = read_points_any(args.points, args) if args.points else None
     title = args.title or (f'{os.path.basename(args.map)}: {len(value)} segments, '
                            f'{len(value.polylines)} polylines')
     save_map(value, points, None, args.output, title=title, inputs=inputs)
     if not args.quiet:
         print(f'wrote {args.output}: {len(value)} segments'
               + (f' over {len(points)} points' if points is not None else ''))
+    return 0
+
+
+def _plot_free_space(args, value: MapValue, inputs: list) -> int:
+    """``plot --free-space``: beams of ``--points`` under the map, contradicted segments red."""
+    from .core.freespace import judge
+    from .plot import plot_free_space
+    points, origins, _ = read_beams_any(args.points, args)
+    if origins is None:
+        raise CliError(f'{args.points}: a point file has no beams; --free-space needs a CARMEN '
+                       'log or a bag')
+    verdict = judge(value.segments, points, origins)
+    title = args.title or (f'{os.path.basename(args.map)}: {len(value)} segments, '
+                           f'{verdict.share * 100:.1f}% of map length contradicted')
+    png = io.BytesIO()
+    plot_free_space(png, points, origins, value.segments, verdict.contradicted, title=title)
+    with OutputSet(inputs) as out:
+        out.add(args.output)
+        out.put(args.output, png.getvalue())
+    if not args.quiet:
+        print(f'wrote {args.output}: {len(value)} segments, {verdict.beams} beams, '
+              f'{int(verdict.contradicted.sum())} segments contradicted '
+              f'({verdict.share * 100:.1f}% of map length)')
     return 0
 
 
@@ -466,12 +528,14 @@ def build_parser() -> argparse.ArgumentParser:
                         help='override one config key (repeatable), e.g. --set sigma=0.02')
         sp.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
 
-    f = sub.add_parser('fit', help='fit a map to an (N, 2) point file or a CARMEN log')
-    f.add_argument('input', help='.npy/.csv/.txt points (metres) or CARMEN .log/.log.gz')
+    f = sub.add_parser('fit', help='fit a map to an (N, 2) point file, a CARMEN log or a bag')
+    f.add_argument('input', help='.npy/.csv/.txt points (metres), CARMEN .log/.log.gz, or a '
+                   'bag (registered as replay does, then fitted at once)')
     common(f)
     f.add_argument('--frame-id', default='map', help='frame of the points (default: map)')
     f.add_argument('--range-max', type=POSITIVE, default=None,
                    help='for logs: ignore readings beyond this range (m)')
+    _pose_args(f)
     f.set_defaults(func=cmd_fit)
 
     d = sub.add_parser('demo', help='map a simulated office drive with the live node (or '
@@ -510,6 +574,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument('-o', '--output', required=True, help='PNG to write')
     pl.add_argument('--points', metavar='INPUT', help='point file, CARMEN log or bag whose '
                     'points to draw underneath (bags are registered as replay does)')
+    pl.add_argument('--free-space', action='store_true', help='draw the beams of --points '
+                    '(a CARMEN log or bag) and the segments they contradict in red')
     pl.add_argument('--title', help='figure title')
     pl.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
     _pose_args(pl)

@@ -53,6 +53,80 @@ def plot_map(path, points: np.ndarray, segments: np.ndarray, polylines=None,
         plt.close(fig)
 
 
+def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.ndarray,
+                    contradicted: np.ndarray, title: str = '', max_beams: int = 10_000,
+                    dpi: int = 120) -> None:
+    """
+    Write a PNG of laser beams (thin, light) under a map whose contradicted segments are red.
+
+    Parameters
+    ----------
+    path : str or binary file object
+        Where the PNG goes.
+    points, origins : (N, 2) arrays
+        Beam endpoints and laser positions, metres; at most ``max_beams`` beams are drawn
+        (evenly subsampled).
+    segments : (K, 2, 2) array
+        The map, metres.
+    contradicted : (K,) bool array
+        Segments drawn in red (``core.freespace.judge``); the legend gives their share of map
+        length.
+    title : str
+        Figure title.
+    max_beams : int
+        Most beams drawn.
+    dpi : int
+        Resolution.
+
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
+
+    pts, org = np.asarray(points), np.asarray(origins)
+    segs = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
+    bad = np.asarray(contradicted, dtype=bool)
+    step = max(1, int(np.ceil(len(pts) / max(max_beams, 1))))
+    beams = np.stack([org[::step], pts[::step]], axis=1)
+    ext = np.concatenate([pts.reshape(-1, 2), segs.reshape(-1, 2)])
+    lo, hi = (ext.min(axis=0), ext.max(axis=0)) if len(ext) else (np.zeros(2), np.ones(2))
+    span = np.maximum(hi - lo, 1.0)
+    width = 12.0
+    height = float(np.clip(width * span[1] / span[0], 4.0, 16.0))
+    fig, ax = plt.subplots(figsize=(width, height))
+    try:
+        if len(beams):
+            ax.add_collection(LineCollection(beams, colors='tab:blue', linewidths=0.15,
+                                             antialiaseds=False, alpha=0.07, zorder=1,
+                                             rasterized=True))     # few grey levels: small PNG
+        ax.add_collection(LineCollection(segs[~bad], colors='k', linewidths=1.0, zorder=3))
+        ax.add_collection(LineCollection(segs[bad], colors='red', linewidths=2.2, zorder=4))
+        length = np.hypot(*(segs[:, 1] - segs[:, 0]).T)
+        share = length[bad].sum() / length.sum() if length.sum() > 0 else 0.0
+        handles = [Line2D([], [], color='tab:blue', lw=1, alpha=0.5,
+                          label=f'beams ({len(beams)} of {len(pts)} drawn)'),
+                   Line2D([], [], color='k', lw=1, label=f'map ({len(segs)} segments)'),
+                   Line2D([], [], color='red', lw=2.2,
+                          label=f'contradicted: {share * 100:.1f}% of map length '
+                                f'({int(bad.sum())} segments)')]
+        ax.legend(handles=handles, loc='upper right', fontsize=9, framealpha=0.9)
+        pad = 0.03 * span
+        ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+        ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+        ax.set_aspect('equal')
+        ax.set_xlabel('x [m]')
+        ax.set_ylabel('y [m]')
+        _scale_bar(ax, lo - pad, span)
+        if title:
+            ax.set_title(title, fontsize=10)
+        fig.tight_layout()
+        fig.savefig(path, dpi=dpi, format='png')
+    finally:
+        plt.close(fig)
+
+
 def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
     """Draw truth, points, map, scale bar and labels on ``ax``; ``box``: (lo, hi, span)."""
     import matplotlib.pyplot as plt

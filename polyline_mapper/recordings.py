@@ -439,6 +439,64 @@ def read_points(path, range_max: float = None, progress=None,
     return check_coordinates(log.points(range_max=range_max, progress=progress), path), desc
 
 
+def read_beams(path, range_max: float = None, progress=None,
+               warn: Callable[[str], None] = None) -> tuple:
+    """
+    Read a point file or a CARMEN log with the laser position of every point.
+
+    Returns ``(points, origins, description)``: ``points`` as ``read_points`` gives them (the
+    same array for a log), ``origins`` (N, 2) the laser position (corrected pose) of the record
+    each point comes from, metres, or None for a point file (bare points have no beams). Bags
+    and simulated drives: ValueError as in ``read_points``.
+    """
+    if kind_of(path) != 'carmen':
+        points, desc = read_points(path, range_max, progress, warn)
+        return points, None, desc
+    if range_max is not None and not _positive(range_max):
+        raise ValueError(f'range_max must be a number > 0 (m), got {range_max!r}')
+    from .formats.carmen import read_carmen
+    from .formats.points import check_coordinates
+    from .scan import scan_to_points
+    path = str(path)
+    log = read_carmen(path)
+    desc = f'CARMEN log, {len(log.records)} scans'
+    if log.skipped:
+        desc += f', {log.skipped} malformed record(s) skipped'
+        if warn is not None:
+            warn(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
+                 f'{log.skipped_examples[0]}')
+    out, counts = [], []
+    recs = log.records if progress is None else progress(log.records)
+    for rec in recs:                    # as CarmenLog.points, one scan at a time
+        top = log.usable_range(rec)
+        if range_max is not None:
+            top = min(top, range_max)
+        pts = scan_to_points(rec.ranges, rec.angles, rec.pose, 0.0, top)
+        out.append(pts)
+        counts.append(len(pts))
+    points = np.concatenate(out) if out else np.zeros((0, 2))
+    poses = np.array([rec.pose[:2] for rec in log.records]).reshape(-1, 2)
+    origins = np.repeat(poses, counts, axis=0)
+    return check_coordinates(points, path), origins, desc
+
+
+def drive_beams(drive) -> tuple:
+    """
+    Return the points of a simulated drive and their laser positions, two (N, 2) arrays.
+
+    ``points`` equal ``drive.points()`` (true poses); ``origins`` are the scan poses.
+    """
+    from .scan import scan_to_points
+    angles = drive.spec.angles()
+    pts = [scan_to_points(r, angles, p, drive.spec.range_min, drive.spec.range_max)
+           for r, p in zip(drive.ranges, drive.poses)]
+    counts = [len(p) for p in pts]
+    points = np.concatenate(pts) if pts else np.zeros((0, 2))
+    origins = np.repeat(np.asarray(drive.poses, dtype=np.float64)[:, :2].reshape(-1, 2),
+                        counts, axis=0)
+    return points, origins
+
+
 def _positive(value) -> bool:
     """Return whether ``value`` is a real number > 0 (inf included, NaN and bools not)."""
     try:

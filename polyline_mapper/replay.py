@@ -22,6 +22,7 @@ from typing import Optional
 import numpy as np
 
 from .core import map_metrics
+from .core.freespace import free_space_stats
 from .core.incremental import IncrementalConfig
 from .core.mapvalue import MapValue
 from .formats.records import Scan
@@ -104,8 +105,18 @@ class ReplayResult:
                 + (f', mean distance {mean * 100:.2f} cm, p95 '
                    f"{stats['p95_distance'] * 100:.2f} cm, coverage "
                    f"{stats['coverage_0_10m'] * 100:.1f}%" if mean is not None else '')
+                + free_space_text(stats)
                 + (f", update median {ms['p50']:.1f} ms, p99 {ms['p99']:.1f} ms" if ms else '')
                 + f", {stats.get('total_seconds', self.seconds):.1f} s")
+
+
+def free_space_text(stats: dict) -> str:
+    """Return ', contradicted X % of map length (N segments, B beams)' for a summary line."""
+    share = stats.get('contradicted_share')
+    if share is None:
+        return ', no beams: free space not judged' if 'beams' in stats else ''
+    return (f', contradicted {share * 100:.1f}% of map length '
+            f"({stats['contradicted_segments']} segments, {stats['beams']} beams)")
 
 
 def replay_records(records, config: IncrementalConfig = None,
@@ -161,6 +172,7 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     value = session.map_value()
     points = session.points()
     value.stats.update(map_metrics(points, value.segments))
+    value.stats.update(free_space_stats(value.segments, points, session.origins()))
     st = value.stats
     ms = st.get('update_ms')
     st.update(scans_announced=int(source.scan_count),

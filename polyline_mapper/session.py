@@ -318,6 +318,7 @@ class MappingSession:
         self._ready = deque()                   # (scan, points, origin, seconds): posed
         self._generation = 0
         self._points = []
+        self._origins = []                      # (scans' laser positions (S, 2), counts (S,))
         self.received = 0
         self.used = 0
         self.updates = 0
@@ -583,6 +584,8 @@ class MappingSession:
                 self.last_scan = group[-1][0]
                 if self.options.keep_points:
                     self._points.append(points)
+                    self._origins.append((np.array([g[2] for g in group], dtype=np.float64),
+                                          [len(g[1]) for g in group]))
                 if ran:
                     self.updates += 1
                     self.update_seconds.append(seconds)
@@ -604,6 +607,17 @@ class MappingSession:
         """Return every mapped point, (N, 2) fixed frame (``keep_points`` only)."""
         with self._lock:
             return np.concatenate(self._points) if self._points else np.zeros((0, 2))
+
+    def origins(self) -> np.ndarray:
+        """
+        Return the laser position of every mapped point, (N, 2), aligned with ``points()``.
+
+        ``keep_points`` only: each point's beam runs from its origin to it (free-space metrics).
+        """
+        with self._lock:
+            if not self._origins:
+                return np.zeros((0, 2))
+            return np.concatenate([np.repeat(o, c, axis=0) for o, c in self._origins])
 
     def map_value(self) -> MapValue:
         """Return the current map: segments, aligned support, polylines, frame, stamp, stats."""
@@ -643,6 +657,7 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._correction = np.zeros(3)
+            self._origins.clear()
         with self._map_lock:
             dropped = len(self.mapper.segments)
             self.mapper.reset()
