@@ -145,3 +145,22 @@ def test_bad_grid_entries_and_refused_outputs_are_one_line_errors(replayed, tmp_
     assert main(['export', str(src), '-o', str(tmp_path / 'x.pgm'), '--format', 'yaml']) == 2
     assert 'name the map_server YAML' in capsys.readouterr().err
     assert not (tmp_path / 'x.pgm').exists()
+
+
+def test_a_grid_too_large_for_the_file_is_left_out_and_said_so(replayed, monkeypatch, tmp_path,
+                                                                capsys):
+    from polyline_mapper.formats import mapjson
+    _, src = replayed
+    data = read_map(src)
+    monkeypatch.setattr(mapjson, 'MAX_GRID_RUNS', 10)
+    out = mapjson.map_value_to_dict(data.value, None, data.grid)
+    assert 'grid' not in out and 'more than 10' in out['stats']['grid_omitted']
+    # a map without a grid spanning more cells than a grid may hold: one line, nothing written
+    far = tmp_path / 'far.json'
+    far.write_text(json.dumps({'schema_version': 1, 'frame_id': 'map',
+                               'segments': [[0, 0, 1, 0], [9000, 9000, 9001, 9000]],
+                               'polylines': [[[0, 0], [1, 0]], [[9000, 9000], [9001, 9000]]],
+                               'closed': [False, False]}))
+    assert main(['export', str(far), '-o', str(tmp_path / 'far.yaml')]) == 2
+    assert 'too large for a grid export' in capsys.readouterr().err
+    assert not (tmp_path / 'far.yaml').exists() and not (tmp_path / 'far.pgm').exists()

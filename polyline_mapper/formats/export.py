@@ -133,7 +133,10 @@ def planner_grid(data: dict) -> GridMap:
     if data.get('grid') is not None:
         return grid_from_dict(data['grid'])
     segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
-    return rasterise(segs, GRID_RESOLUTION)
+    try:
+        return rasterise(segs, GRID_RESOLUTION)
+    except ValueError as exc:
+        raise ValueError(f'the map is too large for a grid export: {exc}') from None
 
 
 def to_pgm(grid: GridMap) -> bytes:
