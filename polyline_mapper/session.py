@@ -560,6 +560,11 @@ class MappingSession:
 
     # -- readers -------------------------------------------------------------------------------
     @property
+    def generation(self) -> int:
+        """Return how many times the map was reset (a map value is current for one)."""
+        return self._generation
+
+    @property
     def fixed_frame(self) -> Optional[str]:
         """Return the map frame (known once the first scan is posed, unless given)."""
         return self.poses.fixed_frame

@@ -128,5 +128,11 @@ def test_save_map_stores_the_grid_and_the_resolution_is_read_only(grid_run):
                                          grids[0].info.origin.position.y))
     res = peer.set_parameters(grid_resolution=0.2)
     assert res is not None and not res[0].successful
+    # ~/reset forgets the free space too: the next grid has no free cell
+    n = len(grids)
+    assert peer.call('/polyline_mapper_node/reset', Trigger).success
+    late = grid_run[2]
+    assert late.spin_until(lambda: len(grids) > n, 20.0)
+    assert not (_cells(grids[-1]) == 0).any()
     res = peer.set_parameters(grid_publish_period=0.0)
     assert res is not None and res[0].successful

@@ -147,8 +147,7 @@ def test_bad_grid_entries_and_refused_outputs_are_one_line_errors(replayed, tmp_
     assert not (tmp_path / 'x.pgm').exists()
 
 
-def test_a_grid_too_large_for_the_file_is_left_out_and_said_so(replayed, monkeypatch, tmp_path,
-                                                                capsys):
+def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_path, capsys):
     from polyline_mapper.formats import mapjson
     _, src = replayed
     data = read_map(src)

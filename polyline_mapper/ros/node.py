@@ -127,6 +127,7 @@ class PolylineMapperNode(Node):
         self._dirty = True                  # publish the (empty) map at once for late joiners
         self._grid_dirty = True
         self._last_grid = -math.inf
+        self._published = (-1, -1, None)    # (scans used, generation, segments) last published
         self._markers_shown = False
         self._last_publish = -math.inf
         self._last_stats = time.monotonic()
@@ -244,7 +245,9 @@ class PolylineMapperNode(Node):
     def _publish(self) -> None:
         with self._publish_lock:
             self._dirty = False
+            used = self.session.used
             value = self.session.map_value()
+            self._published = (used, self.session.generation, value.segments)
             frame = self.settings.fixed_frame
             stamp = (time_msg(value.stamp) if value.stamp is not None
                      else self.get_clock().now().to_msg())
@@ -264,7 +267,9 @@ class PolylineMapperNode(Node):
         """Publish the planner map (nav_msgs/OccupancyGrid on 'map'), stamped as the map."""
         with self._publish_lock:
             self._grid_dirty = False
-            grid = self.session.occupancy()
+            used, gen, segments = self._published
+            current = used == self.session.used and gen == self.session.generation
+            grid = self.session.occupancy(segments if current else None)  # no 2nd polylines()
             stamp = self.session.stamp
             stamp = (time_msg(stamp) if stamp is not None else self.get_clock().now().to_msg())
             self.grid_pub.publish(grid_to_msg(grid, self.settings.fixed_frame, stamp))
