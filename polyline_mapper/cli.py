@@ -6,7 +6,7 @@ Subcommands:
   demo -o MAP.json [--plot MAP.png] [--offline]             live node + simulated office drive
   replay INPUT -o MAP.json [--plot MAP.png] ...             map a bag or CARMEN log scan by scan
   plot MAP.json [--points INPUT [--free-space]] -o MAP.png  draw a map (over points or beams)
-  export MAP.json -o OUT.{geojson,svg,csv}                  convert a map for other tools
+  export MAP.json -o OUT.{geojson,svg,csv,yaml}             convert a map for other tools
   convert LOG -o BAG [--storage sqlite3|mcap]               CARMEN log -> rosbag2
   play INPUT [--rate R] [--loop]                            publish a recording on live topics
   record-map [TOPIC] -o MAP.json [--plot MAP.png]           save the map a running node publishes
@@ -119,17 +119,18 @@ def write_outputs(result, points, config, out_json: str, out_png: str = None,
 
 
 def save_map(data, points, out_json: str = None, out_png: str = None, title: str = '',
-             truth=None, config: dict = None, inputs=()) -> None:
+             truth=None, config: dict = None, inputs=(), grid=None) -> None:
     """
     Write a map as JSON and/or a PNG over its points, together and all or nothing.
 
-    ``data``: a MapValue (written with ``config``) or a map dict (``map_to_dict``). Both
+    ``data``: a MapValue (written with ``config`` and the planner map ``grid``, if given) or a
+    map dict (``map_to_dict``). Both
     outputs are checked (``formats.output``) against ``inputs`` and each other before the PNG
     is drawn; neither file exists unless both were written.
     """
     if isinstance(data, MapValue):
         segs, polys = data.segments, data.polylines
-        data = map_value_to_dict(data, config)
+        data = map_value_to_dict(data, config, grid)
     else:
         segs = np.asarray(data['segments'], dtype=float).reshape(-1, 2, 2)
         polys = [np.asarray(p, dtype=float).reshape(-1, 2) for p in data['polylines']]
@@ -343,7 +344,7 @@ def cmd_replay(args) -> int:
     save_map(value, res.points, args.output, args.plot,
              title=f'{os.path.basename(os.path.normpath(args.input))} (replay): '
                    f'{len(value.segments)} segments', config=config_dict(config),
-             inputs=[args.input, args.config])
+             inputs=[args.input, args.config], grid=res.session.occupancy(value.segments))
     if not args.quiet:
         print(res.summary(args.output))
     return 0
@@ -426,7 +427,11 @@ def cmd_export(args) -> int:
     check_outputs([args.output], [args.map])
     data = read_map(args.map)
     fmt = export_map(data, args.output, args.format, inputs=[args.map])
-    if not args.quiet:
+    if not args.quiet and fmt == 'yaml':
+        print(f'wrote {args.output} and {os.path.splitext(args.output)[0]}.pgm: the map_server '
+              'pair (' + ('the stored planner map' if data.grid is not None else
+                          'no planner map stored: segments occupied, the rest unknown') + ')')
+    elif not args.quiet:
         print(f'wrote {args.output}: {fmt}, {len(data.value.polylines)} polylines, '
               f'{len(data.value)} segments')
     return 0
@@ -581,10 +586,12 @@ def build_parser() -> argparse.ArgumentParser:
     _pose_args(pl)
     pl.set_defaults(func=cmd_plot)
 
-    e = sub.add_parser('export', help='write a map JSON as GeoJSON, SVG or CSV')
+    e = sub.add_parser('export', help='write a map JSON as GeoJSON, SVG, CSV, or the map_server '
+                       'YAML + PGM pair for planners')
     e.add_argument('map', help='map JSON (from fit or replay)')
-    e.add_argument('-o', '--output', required=True, help='OUT.geojson, OUT.svg or OUT.csv')
-    e.add_argument('--format', choices=('geojson', 'svg', 'csv'),
+    e.add_argument('-o', '--output', required=True, help='OUT.geojson, OUT.svg, OUT.csv or '
+                   'OUT.yaml (writes OUT.pgm beside it)')
+    e.add_argument('--format', choices=('geojson', 'svg', 'csv', 'yaml'),
                    help='format (default: from the output suffix)')
     e.add_argument('-q', '--quiet', action='store_true', help='no summary')
     e.set_defaults(func=cmd_export)

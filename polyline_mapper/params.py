@@ -97,6 +97,14 @@ NODE_PARAMS = (
               0.0, 3600.0, True),
     ParamSpec('publish_markers', True, 'Publish polyline_map/markers (MarkerArray).',
               runtime=True),
+    ParamSpec('grid_resolution', 0.05,
+              "Cell size (m) of the planner map on 'map' (nav_msgs/OccupancyGrid): occupied "
+              'cells from the polylines, free cells from the traced beams, unknown elsewhere.',
+              0.01, 10.0),
+    ParamSpec('grid_publish_period', 1.0,
+              "Least seconds between two publications of the planner map on 'map' (a pending "
+              'change is always published); 0 turns the publication off (the grid is still '
+              'kept, for ~/save_map).', 0.0, 3600.0, True),
     ParamSpec('marker_color', [0.1, 0.5, 1.0, 1.0], 'Marker colour: red, green, blue, alpha in '
               '[0, 1].', runtime=True),
     ParamSpec('marker_width', 0.05, 'Marker line width, metres.', 0.001, 10.0, True),
@@ -219,6 +227,8 @@ class NodeSettings:
     map_output_path: str
     map_publish_period: float
     publish_markers: bool
+    grid_resolution: float
+    grid_publish_period: float
     marker_color: tuple
     marker_width: float
     warning_period: float
@@ -288,7 +298,7 @@ def settings_from(values: dict) -> tuple:
     for name in ('transform_tolerance', 'transform_timeout', 'transform_cache', 'max_scan_latency',
                  'laser_x',
                  'laser_y', 'laser_yaw', 'map_publish_period', 'marker_width', 'warning_period',
-                 'stats_period'):
+                 'stats_period', 'grid_resolution', 'grid_publish_period'):
         node[name] = float(node[name])
     smemsf = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('smemsf.')}
     inc = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('incremental.')}

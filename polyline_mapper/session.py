@@ -45,6 +45,7 @@ from typing import Callable, Iterable, Optional
 import numpy as np
 
 from .core.geometry import se2_compose, se2_inverse
+from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
 from .core.register import match_scan, transform
@@ -102,6 +103,9 @@ class SessionOptions:
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
     consistent as the scans, not as the odometry. Off: the poses are used as given."""
+    grid_resolution: Optional[float] = 0.05
+    """Cell size (m) of the planner map (``occupancy``): the beams of every mapped scan are
+    traced into a free-space grid. None: no grid (and no cost)."""
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
@@ -125,6 +129,8 @@ class SessionOptions:
                 raise ValueError(f'{name} must be a finite number >= 0, got {v!r}')
         if self.fixed_frame is not None and not str(self.fixed_frame).strip():
             raise ValueError('fixed_frame must be a frame name, got an empty string')
+        if self.grid_resolution is not None:
+            check_resolution(self.grid_resolution)
         if self.mount is not None:
             m = np.asarray(self.mount, dtype=float)
             if m.shape != (3,) or not np.isfinite(m).all():
@@ -307,6 +313,11 @@ class MappingSession:
                  info: Optional[Callable[[str], object]] = None):
         self.options = options or SessionOptions()
         self.mapper = IncrementalMapper(config)
+        self.grid = (None if self.options.grid_resolution is None
+                     else FreeSpaceGrid(self.options.grid_resolution))
+        """The free space traced by the mapped scans' beams (None without a grid)."""
+        self.grid_seconds = deque(maxlen=100000)
+        """Seconds each update spent tracing beams into the grid (not in ``update_ms``)."""
         self.poses = PoseSource(self.options)
         self.clock = clock
         self._warn = warn
@@ -578,6 +589,13 @@ class MappingSession:
             else:
                 estimating = False
             seconds = time.perf_counter() - t0 + sum(g[3] for g in group)
+            if self.grid is not None and self.options.mapping:
+                t1 = time.perf_counter()
+                origins = (group[0][2] if len(group) == 1 else
+                           np.repeat(np.array([g[2] for g in group]),
+                                     [len(g[1]) for g in group], axis=0))
+                self.grid.add_beams(origins, points)
+                self.grid_seconds.append(time.perf_counter() - t1)
             with self._lock:
                 self.used += len(group)
                 self.stamp = group[-1][0].stamp
@@ -598,6 +616,11 @@ class MappingSession:
         return ran
 
     # -- readers -------------------------------------------------------------------------------
+    @property
+    def generation(self) -> int:
+        """Return how many times the map was reset (a map value is current for one)."""
+        return self._generation
+
     @property
     def fixed_frame(self) -> Optional[str]:
         """Return the map frame (known once the first scan is posed, unless given)."""
@@ -633,6 +656,21 @@ class MappingSession:
         return MapValue(geo.segments, geo.support, geo.polylines, geo.closed,
                         self.fixed_frame or 'map', self.stamp, stats, traj)
 
+    def occupancy(self, segments=None) -> Optional[GridMap]:
+        """
+        Return the planner map (``core.grid.GridMap``), or None when the session keeps no grid.
+
+        Occupied cells from ``segments`` ((K, 2, 2); default: the current map's), free cells
+        from the traced beams, unknown elsewhere; at ``options.grid_resolution``.
+        """
+        if self.grid is None:
+            return None
+        if segments is None:
+            with self._map_lock:
+                segments = self.mapper.polylines().segments
+        with self._map_lock:
+            return self.grid.occupancy(segments)
+
     def stats(self) -> dict:
         """Counters, skips by cause, update-time (and live latency) percentiles in ms."""
         with self._lock:
@@ -661,6 +699,9 @@ class MappingSession:
         with self._map_lock:
             dropped = len(self.mapper.segments)
             self.mapper.reset()
+            if self.grid is not None:
+                self.grid.reset()
+                self.grid_seconds.clear()
             self.stamp = None
             self.last_scan = None
         return dropped

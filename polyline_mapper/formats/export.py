@@ -8,6 +8,17 @@ Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
 - SVG: the polylines drawn with y up (map y grows towards the top of the picture), 1 m = ``scale``
   pixels, with a 1-2-5 scale bar. Closed polylines are ``polygon`` elements without fill.
 - CSV: one row per segment, ``x1,y1,x2,y2,support`` (support empty when the map has none).
+- YAML + PGM: the map_server pair a planner loads (``nav2_map_server``, ``map_server``):
+  ``NAME.pgm`` (binary P5, 8 bit, first row at the top, i.e. the highest y) beside
+  ``NAME.yaml`` (``image`` relative to the YAML, ``mode: trinary``, ``resolution``,
+  ``origin: [x, y, 0.0]`` of the lower-left pixel, ``negate: 0``, ``occupied_thresh: 0.65``,
+  ``free_thresh: 0.196``). Pixels follow map_saver's trinary convention: occupied 0 (black),
+  free 254, unknown 205. map_server reads a pixel as occupancy p = (255 - value) / 255:
+  p > 0.65 is occupied, p < free_thresh free, else unknown. Unknown 205 gives p = 0.19608, so
+  free_thresh must stay at or below 0.196 (with 0.25, the value map_saver writes, unknown
+  cells would load as free). The grid is the one stored in the map (``replay``, the node's
+  ``~/save_map``); a map without one gives its segments' cells occupied and all else unknown,
+  at ``GRID_RESOLUTION``.
 """
 
 import io
@@ -17,10 +28,15 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .mapjson import map_value_from_dict
-from .output import write_text_atomic
+from .mapjson import grid_from_dict, map_value_from_dict
+from .output import OutputSet, write_text_atomic
+from ..core.grid import FREE, GridMap, OCCUPIED, rasterise
 
-FORMATS = ('geojson', 'svg', 'csv')
+FORMATS = ('geojson', 'svg', 'csv', 'yaml')
+GRID_RESOLUTION = 0.05
+"""Cell size (m) of the grid exported from a map that stores none."""
+PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
+OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
 
 
 def _polylines(data: dict) -> list:
@@ -112,9 +128,43 @@ def to_csv(data: dict) -> str:
     return '\n'.join(rows) + '\n'
 
 
+def planner_grid(data: dict) -> GridMap:
+    """Return the planner map of a map dict: its stored ``grid``, else its segments rasterised."""
+    if data.get('grid') is not None:
+        return grid_from_dict(data['grid'])
+    segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
+    try:
+        return rasterise(segs, GRID_RESOLUTION)
+    except ValueError as exc:
+        raise ValueError(f'the map is too large for a grid export: {exc}') from None
+
+
+def to_pgm(grid: GridMap) -> bytes:
+    """Return the grid as a binary PGM (P5) in map_saver's trinary shades, top row first."""
+    shades = np.full(grid.data.shape, PGM_UNKNOWN, dtype=np.uint8)
+    shades[grid.data == FREE] = PGM_FREE
+    shades[grid.data == OCCUPIED] = PGM_OCCUPIED
+    header = f'P5\n# polyline_mapper planner map, {grid.resolution:g} m/pixel\n' \
+             f'{grid.width} {grid.height}\n255\n'
+    return header.encode('ascii') + np.flipud(shades).tobytes()
+
+
+def to_map_yaml(grid: GridMap, image: str) -> str:
+    """Return the map_server YAML of ``grid`` whose image file is ``image`` (relative name)."""
+    return (f'image: {json.dumps(image)}\n'
+            'mode: trinary\n'
+            f'resolution: {grid.resolution!r}\n'
+            f'origin: [{float(grid.origin[0])!r}, {float(grid.origin[1])!r}, 0.0]\n'
+            'negate: 0\n'
+            f'occupied_thresh: {OCCUPIED_THRESH}\n'
+            f'free_thresh: {FREE_THRESH}\n')
+
+
 def export_map(data: dict, path: str, fmt: str = None, inputs=()) -> str:
     """
-    Write a map to ``path`` as GeoJSON, SVG or CSV (from ``fmt`` or the file suffix).
+    Write a map to ``path`` as GeoJSON, SVG, CSV or a map_server YAML + PGM pair.
+
+    The format comes from ``fmt`` or the file suffix; the PGM goes beside the YAML, same name.
 
     ``data``: a map checked by ``read_map`` (finite coordinates). Written through
     ``formats.output`` (never over one of ``inputs``, a device or a folder; a failure leaves
@@ -122,10 +172,23 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=()) -> str:
     output.
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
+    fmt = 'yaml' if fmt == 'yml' else fmt
     if fmt not in FORMATS:
-        raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg or '
-                         '.csv, or --format)')
+        raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg, '
+                         '.csv or .yaml, or --format)')
     map_value_from_dict(data)          # finite, sane coordinates: no NaN / Infinity written
+    if fmt == 'yaml':
+        pgm = os.path.splitext(path)[0] + '.pgm'
+        if os.path.splitext(path)[1].lower() == '.pgm':
+            raise ValueError(f'{path}: name the map_server YAML (OUT.yaml); its image OUT.pgm '
+                             'is written beside it')
+        with OutputSet(inputs) as out:
+            out.add(path)
+            out.add(pgm)
+            grid = planner_grid(data)
+            out.put(pgm, to_pgm(grid))
+            out.put(path, to_map_yaml(grid, os.path.basename(pgm)))
+        return fmt
     text = {'geojson': lambda d: json.dumps(to_geojson(d), separators=(',', ':'),
                                             allow_nan=False) + '\n',
             'svg': to_svg, 'csv': to_csv}[fmt](data)

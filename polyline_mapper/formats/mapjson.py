@@ -3,9 +3,16 @@ MAP.json: the one writer and the one reader of the map file (schema_version 1).
 
 ``{"schema_version": 1, "frame_id": str, "segments": [[x1, y1, x2, y2], ...],
 "polylines": [[[x, y], ...], ...], "closed": [bool, ...], "support": [float, ...],
-"stats": {...}, "config": {...}}``; metres in ``frame_id``. Coordinates are rounded to 0.1 mm and
-support to 0.01. The file never holds NaN or Infinity: a non-finite stat (the mean distance of
-an empty map) is written as null. One top-level key per line, compact values.
+"stats": {...}, "config": {...}, "grid": {...}}``; metres in ``frame_id``. Coordinates are
+rounded to 0.1 mm and support to 0.01. The file never holds NaN or Infinity: a non-finite stat
+(the mean distance of an empty map) is written as null. One top-level key per line, compact
+values.
+
+``grid`` (optional, written by ``replay`` and the node's ``~/save_map``) is the planner map
+(``core.grid.GridMap``): ``{"resolution": m, "origin": [x, y], "width": W, "height": H,
+"cells": [value, count, ...]}``, the cells (-1 unknown, 0 free, 100 occupied; row-major from
+the lower-left cell, as nav_msgs/OccupancyGrid) run-length encoded. Readers that do not know it
+ignore it; ``read_map`` checks it and returns it as ``MapFile.grid``.
 
 ``write_map`` writes a ``core.mapvalue.MapValue`` through ``formats.output`` (never over an
 input, a device or a folder; all or nothing). ``read_map`` checks a file completely (size,
@@ -22,15 +29,20 @@ import numpy as np
 
 from .output import OutputError, OutputSet, write_text_atomic
 from .points import MAX_COORDINATE
+from ..core.grid import check_resolution, decode_cells, DEFAULT_MAX_CELLS, encode_cells, GridMap
 from ..core.mapvalue import MapValue
 
 SCHEMA_VERSION = 1
 MAX_MAP_BYTES = 64 * 2 ** 20
 """Largest map file read (64 MiB: about 700k segments, far beyond any building or campus)."""
+MAX_GRID_RUNS = 3 * 2 ** 20
+"""Largest run-length grid stored in a map file (about 30 MB of text; fr079 at 5 cm has 19k
+runs, the Freiburg campus 2M). A larger grid is left out (``stats['grid_omitted']`` says so),
+so the file stays readable."""
 
 __all__ = ['SCHEMA_VERSION', 'MapFile', 'map_value_to_dict', 'map_to_dict', 'dumps_map',
            'write_map', 'write_json_atomic', 'write_text_atomic', 'read_map', 'OutputError',
-           'OutputSet', 'json_safe', 'map_value_from_dict']
+           'OutputSet', 'json_safe', 'map_value_from_dict', 'grid_to_dict', 'grid_from_dict']
 
 
 def json_safe(value):
@@ -52,11 +64,12 @@ def json_safe(value):
     return value
 
 
-def map_value_to_dict(value: MapValue, config: dict = None) -> dict:
+def map_value_to_dict(value: MapValue, config: dict = None, grid: GridMap = None) -> dict:
     """
     Return the JSON-ready dict of a map (the file's content, keys in the file's order).
 
-    ``config``: the flat configuration the map was made with (optional). The map's ``stamp``
+    ``config``: the flat configuration the map was made with (optional); ``grid``: its planner
+    map (optional, ``core.grid.GridMap``). The map's ``stamp``
     goes into ``stats['stamp']`` (seconds, unless the stats have one). Support is left out
     when it is unknown (all NaN, e.g. a map read from a file without it).
     """
@@ -71,7 +84,41 @@ def map_value_to_dict(value: MapValue, config: dict = None) -> dict:
         t = value.trajectory
         out['trajectory'] = np.column_stack([np.round(t[:, 0], 6), np.round(t[:, 1:3], 4),
                                              np.round(t[:, 3], 6)]).tolist()
+    if grid is not None:
+        entry = grid_to_dict(grid)
+        if len(entry['cells']) // 2 <= MAX_GRID_RUNS:
+            out['grid'] = entry
+        else:
+            out['stats']['grid_omitted'] = (f"{len(entry['cells']) // 2} runs, more than "
+                                            f'{MAX_GRID_RUNS}')
     return out
+
+
+def grid_to_dict(grid: GridMap) -> dict:
+    """Return the ``grid`` entry of a map JSON: resolution, origin, size, run-length cells."""
+    return {'resolution': float(grid.resolution),
+            'origin': [round(float(v), 6) for v in grid.origin],
+            'width': grid.width, 'height': grid.height, 'cells': encode_cells(grid.data)}
+
+
+def grid_from_dict(entry) -> GridMap:
+    """Check a map JSON's ``grid`` entry; return its GridMap (ValueError names what is wrong)."""
+    if not isinstance(entry, dict):
+        raise ValueError('"grid" must be an object')
+    for key in ('resolution', 'origin', 'width', 'height', 'cells'):
+        if key not in entry:
+            raise ValueError(f'"grid" has no "{key}"')
+    try:
+        res = check_resolution(entry['resolution'])
+    except ValueError as exc:
+        raise ValueError(f'"grid": {exc}') from None
+    w, h = entry['width'], entry['height']
+    if not (type(w) is int and type(h) is int and w >= 1 and h >= 1
+            and w * h <= DEFAULT_MAX_CELLS):
+        raise ValueError(f'"grid" width and height must be integers >= 1 with at most '
+                         f'{DEFAULT_MAX_CELLS} cells, got {w!r} x {h!r}')
+    origin = _coords([entry['origin']], 2, '"grid" origin')[0]
+    return GridMap(decode_cells(entry['cells'], w, h), res, (float(origin[0]), float(origin[1])))
 
 
 def map_to_dict(segments, polylines, closed=None, support=None, stats=None, config=None,
@@ -112,14 +159,17 @@ def dumps_map(data: dict) -> str:
     return '{\n' + ',\n'.join(rows) + '\n}\n'
 
 
-def write_map(path, value, config: dict = None, inputs: Iterable = ()) -> dict:
+def write_map(path, value, config: dict = None, inputs: Iterable = (),
+              grid: GridMap = None) -> dict:
     """
     Write a map (a MapValue, or a dict from ``map_value_to_dict``) to ``path``; return the dict.
+
+    ``grid``: the planner map to store with a MapValue (optional).
 
     Through ``formats.output``: refuses (OutputError, a ValueError) an input, a device, a folder,
     a read-only file; keeps the mode of a file it replaces; all or nothing.
     """
-    data = map_value_to_dict(value, config) if isinstance(value, MapValue) else value
+    data = map_value_to_dict(value, config, grid) if isinstance(value, MapValue) else value
     write_text_atomic(path, dumps_map(data), inputs)
     return data
 
@@ -139,6 +189,8 @@ class MapFile(dict):
     """
 
     value: MapValue
+    grid = None
+    """The planner map stored in the file (``core.grid.GridMap``), or None."""
 
     @property
     def config(self):
@@ -203,7 +255,8 @@ def read_map(path) -> MapFile:
     Read and check a map JSON file; return a MapFile (a dict with ``.value``, a MapValue).
 
     Raises ValueError with one line naming what is wrong: missing file, not JSON, too large or
-    too deeply nested, NaN / Infinity, a missing key, a field of the wrong type or shape,
+    too deeply nested, NaN / Infinity, a missing key, a field of the wrong type or shape, a bad
+    ``grid`` entry (resolution, size, origin, run-length cells that do not add up),
     non-finite or absurd coordinates (beyond +-1e8 m), segments and support of different
     lengths, polylines and closed flags of different lengths.
     """
@@ -213,9 +266,16 @@ def read_map(path) -> MapFile:
         value = map_value_from_dict(data)
     except ValueError as exc:
         raise ValueError(f'{path}: {exc}') from None
+    grid = None
+    if data.get('grid') is not None:
+        try:
+            grid = grid_from_dict(data['grid'])
+        except ValueError as exc:
+            raise ValueError(f'{path}: {exc}') from None
     out = MapFile(data)
     out['segments_array'] = value.segments
     out.value = value
+    out.grid = grid
     return out
 
 

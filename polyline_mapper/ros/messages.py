@@ -3,22 +3,26 @@ Messages <-> plain records (``formats.records``) and the map value (``core.mapva
 
 LaserScan, TFMessage and Odometry in as records (the node feeds them to the mapping session);
 the same records out as messages (play); the MapValue out as PolylineMap and MarkerArray (and
-back, for record-map); DiagnosticArray out.
+back, for record-map); the planner map (``core.grid.GridMap``) out as nav_msgs/OccupancyGrid
+(and back); DiagnosticArray out.
 
 No logic beyond the conversion: checks live in ``scan.check_scan``, the numbers come from
 the core. Coordinates are metres in the map's frame; z is 0.
 """
 
+import array
+
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, TransformStamped
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import OccupancyGrid, Odometry
 import numpy as np
 from polyline_mapper_msgs.msg import Polyline, PolylineMap, Segment
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ..core.grid import GridMap
 from ..core.mapvalue import MapValue
 from ..formats import records
 
@@ -171,6 +175,32 @@ def map_from_msg(msg: PolylineMap) -> dict:
                                    dtype=np.float64).reshape(-1, 2) for pl in msg.polylines],
             'closed': [bool(pl.closed) for pl in msg.polylines],
             'frame_id': msg.header.frame_id, 'stamp': stamp_seconds(msg.header.stamp)}
+
+
+def grid_to_msg(grid: GridMap, frame_id: str, stamp) -> OccupancyGrid:
+    """
+    Build a nav_msgs/OccupancyGrid: -1 unknown, 0 free, 100 occupied, row-major from origin.
+
+    ``stamp`` (builtin_interfaces/Time) goes into the header and ``info.map_load_time``.
+    """
+    msg = OccupancyGrid()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    info = msg.info
+    info.map_load_time = stamp
+    info.resolution = float(grid.resolution)
+    info.width, info.height = grid.width, grid.height
+    info.origin.position.x, info.origin.position.y = (float(v) for v in grid.origin)
+    info.origin.orientation.w = 1.0
+    msg.data = array.array('b', np.ascontiguousarray(grid.data, dtype=np.int8).tobytes())
+    return msg
+
+
+def grid_from_msg(msg: OccupancyGrid) -> GridMap:
+    """Return a nav_msgs/OccupancyGrid as a GridMap (its orientation is taken as identity)."""
+    data = np.asarray(msg.data, dtype=np.int8).reshape(msg.info.height, msg.info.width)
+    return GridMap(data, float(msg.info.resolution),
+                   (float(msg.info.origin.position.x), float(msg.info.origin.position.y)))
 
 
 def diagnostics_msg(name: str, level: int, message: str, values: dict, stamp) -> DiagnosticArray:

@@ -11,6 +11,9 @@ Topics (relative names, remappable):
 - ``polyline_map`` (polyline_mapper_msgs/PolylineMap) and ``polyline_map/markers``
   (visualization_msgs/MarkerArray) out, reliable + transient local, depth 1: a subscriber that
   starts late gets the current map at once.
+- ``map`` (nav_msgs/OccupancyGrid) out, reliable + transient local, depth 1: the planner map
+  (``core.grid``) at ``grid_resolution``, occupied cells from the polylines, free cells from
+  the traced beams, unknown elsewhere; at most every ``grid_publish_period`` s (0: never).
 
 ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period``: scans received,
 used and dropped, map size, sigma, update time and latency percentiles (ms) over the run; WARN
@@ -33,7 +36,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import OccupancyGrid, Odometry
 from polyline_mapper_msgs.msg import PolylineMap
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -50,8 +53,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from . import startup
-from .messages import (diagnostics_msg, map_to_markers, map_to_msg, odometry_from_msg,
-                       scan_from_msg, time_msg, transforms_from_msg)
+from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
+                       odometry_from_msg, scan_from_msg, time_msg, transforms_from_msg)
 from .qos import MAP_QOS, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
@@ -100,6 +103,7 @@ class PolylineMapperNode(Node):
                                       info=log.info)
         self.map_pub = self.create_publisher(PolylineMap, 'polyline_map', MAP_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
+        self.grid_pub = self.create_publisher(OccupancyGrid, 'map', MAP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_map', self._on_save_map)
@@ -121,6 +125,9 @@ class PolylineMapperNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publish_lock = threading.Lock()
         self._dirty = True                  # publish the (empty) map at once for late joiners
+        self._grid_dirty = True
+        self._last_grid = -math.inf
+        self._published = (-1, -1, None)    # (scans used, generation, segments) last published
         self._markers_shown = False
         self._last_publish = -math.inf
         self._last_stats = time.monotonic()
@@ -181,6 +188,8 @@ class PolylineMapperNode(Node):
     def _on_reset(self, request, response):
         dropped = self.session.reset()
         self._publish()
+        if self.settings.grid_publish_period > 0:
+            self._publish_grid()
         response.success = True
         response.message = f'map cleared ({dropped} segments dropped)'
         self.get_logger().info(response.message)
@@ -190,7 +199,8 @@ class PolylineMapperNode(Node):
         path = self.settings.output_path
         value = self.session.map_value()
         try:
-            write_map(path, value, config_dict(self.config))
+            write_map(path, value, config_dict(self.config),
+                      grid=self.session.occupancy(value.segments))
         except (OSError, ValueError) as exc:       # ValueError: formats.output refused it
             response.success = False
             reason = getattr(exc, 'strerror', None) or exc
@@ -213,13 +223,16 @@ class PolylineMapperNode(Node):
             try:
                 busy = session.step(max_updates=1) > 0
                 if busy:
-                    self._dirty = True
+                    self._dirty = self._grid_dirty = True
                 elif session.has_partial_group() and session.idle_seconds() >= GROUP_IDLE:
                     if session.flush(final=False):      # the scans paused: map the group
-                        self._dirty = True
+                        self._dirty = self._grid_dirty = True
                 now = time.monotonic()
                 if self._dirty and now - self._last_publish >= self.settings.map_publish_period:
                     self._publish()
+                period = self.settings.grid_publish_period
+                if self._grid_dirty and period > 0 and now - self._last_grid >= period:
+                    self._publish_grid()
                 period = self.settings.stats_period
                 if period > 0 and now - self._last_stats >= period:
                     self._log_stats(now)
@@ -232,7 +245,9 @@ class PolylineMapperNode(Node):
     def _publish(self) -> None:
         with self._publish_lock:
             self._dirty = False
+            used = self.session.used
             value = self.session.map_value()
+            self._published = (used, self.session.generation, value.segments)
             frame = self.settings.fixed_frame
             stamp = (time_msg(value.stamp) if value.stamp is not None
                      else self.get_clock().now().to_msg())
@@ -247,6 +262,18 @@ class PolylineMapperNode(Node):
                                                        self.settings.marker_color, 0.0))
                 self._markers_shown = False
             self._last_publish = time.monotonic()
+
+    def _publish_grid(self) -> None:
+        """Publish the planner map (nav_msgs/OccupancyGrid on 'map'), stamped as the map."""
+        with self._publish_lock:
+            self._grid_dirty = False
+            used, gen, segments = self._published
+            current = used == self.session.used and gen == self.session.generation
+            grid = self.session.occupancy(segments if current else None)  # no 2nd polylines()
+            stamp = self.session.stamp
+            stamp = (time_msg(stamp) if stamp is not None else self.get_clock().now().to_msg())
+            self.grid_pub.publish(grid_to_msg(grid, self.settings.fixed_frame, stamp))
+            self._last_grid = time.monotonic()
 
     def _log_stats(self, now: float) -> None:
         p = self.session
@@ -315,7 +342,7 @@ def session_options(settings) -> SessionOptions:
         mount_upside_down=settings.laser_upside_down, cache_seconds=settings.transform_cache,
         update_every_n_scans=settings.update_every_n_scans,
         max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
-        max_latency=settings.max_scan_latency or None)
+        max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution)
 
 
 def _cm(sigma) -> str:

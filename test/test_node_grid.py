@@ -1,0 +1,138 @@
+"""The planner map over DDS: nav_msgs/OccupancyGrid on 'map' from the real node."""
+
+import numpy as np
+from polyline_mapper.recordings import drive_messages
+from polyline_mapper.ros.qos import MAP_QOS
+import pytest
+from rosnode import map_segments, NodeProcess, Peer, stamp_of
+from std_srvs.srv import Trigger
+
+pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+pytestmark = pytest.mark.slow
+RATE = 40.0
+TIMEOUT = 60.0
+RES = 0.1
+
+
+def _grids(peer: Peer) -> list:
+    from nav_msgs.msg import OccupancyGrid
+    got = []
+    peer.node.create_subscription(OccupancyGrid, 'map', got.append, MAP_QOS)
+    return got
+
+
+def _cells(msg) -> np.ndarray:
+    return np.asarray(msg.data, dtype=np.int8).reshape(msg.info.height, msg.info.width)
+
+
+def _centres(msg, mask) -> np.ndarray:
+    rows, cols = np.nonzero(mask)
+    origin = np.array([msg.info.origin.position.x, msg.info.origin.position.y])
+    return origin + (np.stack([cols, rows], axis=1) + 0.5) * msg.info.resolution
+
+
+@pytest.fixture(scope='module')
+def grid_run(office_drive, tmp_path_factory):
+    """Run the node on the office drive; a late subscriber takes the grid after the drive."""
+    folder = tmp_path_factory.mktemp('node_grid')
+    node = NodeProcess(folder, {'map_output_path': str(folder / 'map.json'),
+                                'map_publish_period': 0.1, 'grid_resolution': RES,
+                                'grid_publish_period': 0.3, 'transform_timeout': 0.3})
+    peer = Peer('test_peer_grid')
+    late = None
+    try:
+        assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
+        live = _grids(peer)
+        last = peer.play(list(drive_messages(office_drive)), RATE)
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        assert peer.spin_until(lambda: live and stamp_of(live[-1]) == pytest.approx(
+            last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        late = Peer('test_peer_grid_late')
+        grids = _grids(late)
+        assert late.spin_until(lambda: grids, 20.0), 'a late subscriber got no grid'
+        yield node, peer, late, grids, live, last, folder
+    finally:
+        if late is not None:
+            late.close()
+        peer.close()
+        node.stop()
+
+
+def test_a_late_subscriber_gets_the_grid_of_the_map(grid_run):
+    _, peer, _, grids, live, last, _ = grid_run
+    assert len(grids) == 1                       # depth 1, transient local: the newest only
+    msg = grids[0]
+    assert msg.header.frame_id == 'map' and stamp_of(msg) == pytest.approx(last, abs=1e-6)
+    assert msg.info.resolution == pytest.approx(RES)
+    assert msg.info.width * msg.info.height == len(msg.data)
+    assert np.array_equal(_cells(msg), _cells(live[-1]))
+    assert 2 <= len(live) <= 2 + (len(peer.maps)), 'the grid is published at a bounded rate'
+    assert set(np.unique(_cells(msg))) == {-1, 0, 100}
+
+
+def test_occupied_cells_are_the_polylines_and_free_cells_the_traced_beams(grid_run,
+                                                                          office_drive):
+    _, peer, _, grids, _, _, _ = grid_run
+    msg = grids[0]
+    cells = _cells(msg)
+    segs = map_segments(peer.maps[-1])
+    # occupied: within one cell of a map segment, and every segment drawn
+    occ = _centres(msg, cells == 100)
+    a, d = segs[:, 0], segs[:, 1] - segs[:, 0]
+    t = np.clip(np.einsum('nkj,kj->nk', occ[:, None] - a, d) / np.einsum('kj,kj->k', d, d), 0, 1)
+    dist = np.linalg.norm(occ[:, None] - (a + t[..., None] * d), axis=2).min(axis=1)
+    assert dist.max() <= RES * np.sqrt(0.5) + 1e-6
+    assert len(occ) >= np.linalg.norm(d, axis=1).sum() / RES * 0.9
+    # free: every free cell is crossed by a traced beam (laser pose -> reading, map frame)
+    spec = office_drive.spec
+    angles = spec.angle_min + spec.angle_increment * np.arange(office_drive.ranges.shape[1])
+    samples = []
+    step = 0.25 * RES
+    for pose, ranges in zip(office_drive.poses, office_drive.ranges):
+        ok = np.isfinite(ranges) & (ranges > spec.range_min) & (ranges < spec.range_max)
+        n = np.ceil(ranges[ok] / step).astype(int) + 1
+        beam = np.repeat(np.arange(len(n)), n)
+        k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        r = np.minimum(k * step, ranges[ok][beam])
+        ang = pose[2] + angles[ok][beam]
+        samples.append(pose[:2] + r[:, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1))
+    origin = np.array([msg.info.origin.position.x, msg.info.origin.position.y])
+    w, h = msg.info.width, msg.info.height
+    touched = np.zeros((h, w), dtype=bool)          # cells the beams pass (sampled densely)
+    for part in samples:
+        c = np.floor((part - origin) / RES).astype(int)
+        c = c[(c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)]
+        touched[c[:, 1], c[:, 0]] = True
+    free = cells == 0
+    assert free.sum() > 1000
+    assert touched[free].mean() > 0.99              # (a corner clip may escape the samples)
+    near = touched.copy()                           # ... but never by more than a cell
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        near |= np.roll(np.roll(touched, dr, axis=0), dc, axis=1)
+    assert near[free].all()
+    # and the rooms the laser saw are free: most touched cells are (the rest: walls, ends)
+    assert free[touched].mean() > 0.8
+    assert (cells[touched] == -1).mean() < 0.1
+
+
+def test_save_map_stores_the_grid_and_the_resolution_is_read_only(grid_run):
+    from polyline_mapper.formats.mapjson import read_map
+    _, peer, _, grids, _, _, folder = grid_run
+    resp = peer.call('/polyline_mapper_node/save_map', Trigger)
+    assert resp is not None and resp.success, resp
+    grid = read_map(folder / 'map.json').grid
+    assert grid is not None and grid.resolution == pytest.approx(RES)
+    assert np.array_equal(grid.data, _cells(grids[0]))
+    assert grid.origin == pytest.approx((grids[0].info.origin.position.x,
+                                         grids[0].info.origin.position.y))
+    res = peer.set_parameters(grid_resolution=0.2)
+    assert res is not None and not res[0].successful
+    # ~/reset forgets the free space too: the next grid has no free cell
+    n = len(grids)
+    assert peer.call('/polyline_mapper_node/reset', Trigger).success
+    late = grid_run[2]
+    assert late.spin_until(lambda: len(grids) > n, 20.0)
+    assert not (_cells(grids[-1]) == 0).any()
+    res = peer.set_parameters(grid_publish_period=0.0)
+    assert res is not None and res[0].successful

@@ -1,0 +1,165 @@
+"""The planner map in MAP.json and its map_server export (YAML + PGM), parsed back."""
+
+import json
+import os
+
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.core.grid import FREE, OCCUPIED, UNKNOWN
+from polyline_mapper.formats.mapjson import read_map
+import pytest
+import yaml
+
+
+@pytest.fixture(scope='module')
+def replayed(tmp_path_factory):
+    """Replay the simulated office; return the folder and the map JSON path."""
+    folder = tmp_path_factory.mktemp('office')
+    out = folder / 'office.json'
+    assert main(['replay', 'sim:office', '-o', str(out), '-q']) == 0
+    return folder, out
+
+
+def read_pgm(path) -> np.ndarray:
+    """Parse a binary PGM (P5, maxval 255, comment lines allowed); return its rows, top first."""
+    raw = open(path, 'rb').read()
+    fields, pos = [], 0
+    while len(fields) < 4:
+        while raw[pos:pos + 1].isspace():
+            pos += 1
+        if raw[pos:pos + 1] == b'#':
+            pos = raw.index(b'\n', pos) + 1
+            continue
+        end = pos
+        while not raw[end:end + 1].isspace():
+            end += 1
+        fields.append(raw[pos:end].decode('ascii'))
+        pos = end
+    pos += 1                                        # the single whitespace before the pixels
+    assert fields[0] == 'P5' and fields[3] == '255'
+    width, height = int(fields[1]), int(fields[2])
+    assert len(raw) - pos == width * height
+    return np.frombuffer(raw[pos:], dtype=np.uint8).reshape(height, width)
+
+
+def load_like_map_server(yaml_path):
+    """Load the pair as nav2_map_server does (trinary); return (cells row 0 = lowest y, meta)."""
+    meta = yaml.safe_load(open(yaml_path))
+    image = meta['image']
+    if not os.path.isabs(image):
+        image = os.path.join(os.path.dirname(yaml_path), image)
+    shade = read_pgm(image).astype(float) / 255.0
+    occ = shade if meta['negate'] else 1.0 - shade
+    cells = np.where(occ > meta['occupied_thresh'], OCCUPIED,
+                     np.where(occ < meta['free_thresh'], FREE, UNKNOWN))
+    return np.flipud(cells), meta
+
+
+def _distance_to_segments(p, segs):
+    a, d = segs[:, 0], segs[:, 1] - segs[:, 0]
+    t = np.clip(np.einsum('nkj,kj->nk', p[:, None] - a, d) / np.einsum('kj,kj->k', d, d), 0, 1)
+    return np.linalg.norm(p[:, None] - (a + t[..., None] * d), axis=2).min(axis=1)
+
+
+def test_replay_stores_the_grid_and_the_exported_pair_loads_back_unchanged(replayed):
+    folder, src = replayed
+    data = read_map(src)
+    grid = data.grid
+    assert grid is not None and grid.resolution == 0.05
+    assert (grid.data == FREE).sum() > 10 * (grid.data == OCCUPIED).sum() > 0
+    sub = folder / 'maps'
+    sub.mkdir()
+    out = sub / 'office.yaml'
+    assert main(['export', str(src), '-o', str(out), '-q']) == 0
+    cells, meta = load_like_map_server(str(out))
+    assert meta['image'] == 'office.pgm' and (sub / 'office.pgm').is_file()
+    assert meta['mode'] == 'trinary' and meta['resolution'] == grid.resolution
+    assert meta['origin'] == [grid.origin[0], grid.origin[1], 0.0]
+    assert np.array_equal(cells, grid.data)        # every cell, through map_server's rule
+    # occupied pixels are where the segments are, and every segment is drawn
+    segs = data.value.segments
+    res = meta['resolution']
+    rows, cols = np.nonzero(cells == OCCUPIED)
+    centres = np.array(meta['origin'][:2]) + (np.stack([cols, rows], 1) + 0.5) * res
+    # (the file rounds segments to 0.1 mm; the grid was drawn before: allow that much)
+    assert _distance_to_segments(centres, segs).max() <= res * np.sqrt(0.5) + 1e-4
+    t = np.linspace(0, 1, 50)[None, :, None]
+    along = (segs[:, None, 0] + t * (segs[:, None, 1] - segs[:, None, 0])).reshape(-1, 2)
+    rel = (along - np.array(meta['origin'][:2])) / res
+    clear = (np.abs(rel - np.round(rel)) > 2e-3).all(axis=1)      # not within 0.1 mm of a line
+    assert clear.mean() > 0.5          # (the simulated walls lie on cell lines)
+    px = np.floor(rel[clear]).astype(int)
+    assert (cells[px[:, 1], px[:, 0]] == OCCUPIED).all()
+    # free space: the office's rooms, not the outside
+    free = np.array(meta['origin'][:2]) + (np.stack(np.nonzero(cells.T == FREE), 1) + 0.5) * res
+    assert free.min(axis=0)[0] > segs[..., 0].min() - res
+    assert free.max(axis=0)[1] < segs[..., 1].max() + res
+
+
+def test_a_map_without_a_grid_exports_its_segments_occupied_and_the_rest_unknown(tmp_path):
+    segs = [[0.01, 0.01, 4.01, 0.01], [4.01, 0.01, 4.01, 3.01]]   # off the cell lines
+    src = tmp_path / 'old.json'
+    src.write_text(json.dumps({'schema_version': 1, 'frame_id': 'map', 'segments': segs,
+                               'polylines': [[[0.01, 0.01], [4.01, 0.01], [4.01, 3.01]]],
+                               'closed': [False]}))
+    assert read_map(src).grid is None
+    assert main(['export', str(src), '-o', str(tmp_path / 'old.yaml'), '-q']) == 0
+    cells, meta = load_like_map_server(str(tmp_path / 'old.yaml'))
+    assert set(np.unique(cells)) == {OCCUPIED, UNKNOWN}
+    assert meta['resolution'] == 0.05
+    origin = np.array(meta['origin'][:2])
+    for x, y in ((0.02, 0.01), (2.0, 0.01), (4.01, 1.5), (4.01, 2.99), (4.0, 0.02)):
+        c = np.floor((np.array([x, y]) - origin) / 0.05).astype(int)
+        assert cells[c[1], c[0]] == OCCUPIED
+    assert (cells == OCCUPIED).sum() <= (4 + 3) / 0.05 + 4
+
+
+def test_bad_grid_entries_and_refused_outputs_are_one_line_errors(replayed, tmp_path, capsys):
+    _, src = replayed
+    good = json.loads(src.read_text())
+    bad_entries = {
+        'cells': ({'cells': [0, 5]}, 'hold 5 cells'),
+        'values': ({'cells': [7] + good['grid']['cells'][1:]}, '-1, 0 or 100'),
+        'resolution': ({'resolution': -1.0}, 'resolution'),
+        'size': ({'width': 10 ** 6, 'height': 10 ** 6}, 'at most'),
+        'origin': ({'origin': [1.0]}, 'origin'),
+    }
+    for name, (change, message) in bad_entries.items():
+        data = dict(good, grid=dict(good['grid'], **change))
+        path = tmp_path / f'{name}.json'
+        path.write_text(json.dumps(data))
+        with pytest.raises(ValueError, match=message):
+            read_map(path)
+        assert main(['export', str(path), '-o', str(tmp_path / f'{name}.yaml')]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith('polyline-mapper: error: ') and err.count('\n') == 1
+        assert not (tmp_path / f'{name}.yaml').exists() and not (tmp_path / f'{name}.pgm').exists()
+    no_grid = dict(good)
+    del no_grid['grid']
+    (tmp_path / 'plain.json').write_text(json.dumps(no_grid))
+    assert read_map(tmp_path / 'plain.json').grid is None
+    # the YAML would replace the input: refused, and no PGM is left behind
+    before = src.read_bytes()
+    assert main(['export', str(src), '-o', str(src), '--format', 'yaml']) == 2
+    assert src.read_bytes() == before and not src.with_suffix('.pgm').exists()
+    assert main(['export', str(src), '-o', str(tmp_path / 'x.pgm'), '--format', 'yaml']) == 2
+    assert 'name the map_server YAML' in capsys.readouterr().err
+    assert not (tmp_path / 'x.pgm').exists()
+
+
+def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_path, capsys):
+    from polyline_mapper.formats import mapjson
+    _, src = replayed
+    data = read_map(src)
+    monkeypatch.setattr(mapjson, 'MAX_GRID_RUNS', 10)
+    out = mapjson.map_value_to_dict(data.value, None, data.grid)
+    assert 'grid' not in out and 'more than 10' in out['stats']['grid_omitted']
+    # a map without a grid spanning more cells than a grid may hold: one line, nothing written
+    far = tmp_path / 'far.json'
+    far.write_text(json.dumps({'schema_version': 1, 'frame_id': 'map',
+                               'segments': [[0, 0, 1, 0], [9000, 9000, 9001, 9000]],
+                               'polylines': [[[0, 0], [1, 0]], [[9000, 9000], [9001, 9000]]],
+                               'closed': [False, False]}))
+    assert main(['export', str(far), '-o', str(tmp_path / 'far.yaml')]) == 2
+    assert 'too large for a grid export' in capsys.readouterr().err
+    assert not (tmp_path / 'far.yaml').exists() and not (tmp_path / 'far.pgm').exists()
