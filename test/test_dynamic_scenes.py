@@ -5,6 +5,7 @@ import sys
 
 from conftest import end_errors, REPO
 import numpy as np
+from polyline_mapper.core import fit
 from polyline_mapper.core.geometry import sample_segments
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.index import nearest_distance
@@ -123,4 +124,26 @@ def test_static_worlds_keep_every_wall(make, seed):
     segs = run(drive, FREE_SPACE).polylines().segments
     pts, hits = drive.points(with_hits=True)
     scores = B.wall_scores(segs, drive.world.walls, drive.world.distance, points=pts)
+    assert scores['f1'] == 1.0, scores
+
+
+def test_batch_fit_with_beams_drops_what_moved():
+    # The batch fit of the whole dynamic drive: from bare points the door leaf (seen shut in
+    # the first 20 s) closes the doorway; with the beams, everything that moved is cut out and
+    # every wall stays.
+    drive = simulate_drive(office_dynamic(), LaserSpec(noise=0.01), rng=2)
+    world = drive.world
+    pts, hits = drive.points(with_hits=True)
+    origins = drive.origins()
+    assert origins.shape == pts.shape
+    bare = fit(pts)
+    assert bare.beams == 0 and bare.free_squares == 0
+    assert on_object(bare.segments, world, world.dynamic[0]).any()
+    res = fit(pts, origins=origins)
+    assert res.beams == len(pts) and res.free_squares > 0
+    for obj in world.dynamic:
+        left = on_object(res.segments, world, obj)
+        assert not left.any(), f'{obj.name}: {res.segments[left].round(2).tolist()}'
+    scores = B.wall_scores(res.segments, world.walls, world.distance,
+                           points=pts[hits < len(world.walls)])
     assert scores['f1'] == 1.0, scores

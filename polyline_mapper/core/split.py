@@ -46,6 +46,10 @@ EVIDENCE_CAP = 50.0
 """Largest hit or pass count of one square: the evidence a square holds is bounded, so a wall
 seen a thousand times is removed after tens of scans that see through it, not a thousand."""
 
+EVIDENCE_WINDOW = 10
+"""Looks at a square over which its evidence decays in a batch fit with beams (the incremental
+mapper's ``free_space_window`` when that is on)."""
+
 MIN_PASSES = 3.0
 """A square is free only once at least this many (decayed) beams passed through it."""
 

@@ -101,6 +101,12 @@ class SimulatedDrive:
                                for r, h in zip(self.ranges, self.hits)])
         return pts, hits
 
+    def origins(self) -> np.ndarray:
+        """Return the laser position of each point of ``points()``, (N, 2) metres."""
+        n = [np.count_nonzero(np.isfinite(r) & (r >= self.spec.range_min)
+                              & (r < self.spec.range_max)) for r in self.ranges]
+        return np.repeat(self.poses[:, :2], n, axis=0) if n else np.zeros((0, 2))
+
 
 def simulate_drive(world: World, spec: LaserSpec = None, step: float = 0.25, rate: float = 10.0,
                    rng=0, waypoints=None) -> SimulatedDrive:
