@@ -1,6 +1,7 @@
 """Free-space evidence per LSS square: beam counts, the removal rule, the carry through refits."""
 
 import numpy as np
+from polyline_mapper.core import fit
 from polyline_mapper.core.cleanup import beam_evidence
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.split import (accumulate_evidence, carry_evidence, cut_squares,
@@ -118,3 +119,17 @@ def test_the_mapper_cuts_a_doorway_into_a_long_wall_seen_through():
             assert xs[:, 0].min() < 0.6 and xs[:, 1].max() > 5.4      # the wall is kept
             left = xs[xs[:, 1] <= 3.0]
             assert left.size and left[:, 1].max() > 2.3                 # up to the door jamb
+
+
+def test_bad_origins_and_windows_are_rejected_by_name():
+    rng = np.random.default_rng(1)
+    pts = np.c_[rng.uniform(0, 4, 200), rng.normal(0, 0.01, 200)]
+    for bad in (np.zeros((3, 2)), np.full((200, 2), np.nan), np.zeros((200, 3))):
+        with pytest.raises(ValueError, match='origin'):
+            fit(pts, origins=bad)
+    for bad in (-1, 2.5):
+        with pytest.raises(ValueError, match='free_space_window'):
+            IncrementalConfig(free_space_window=bad)
+    # bare points: the fit says that no beam was used
+    res = fit(pts)
+    assert res.beams == 0 and res.free_squares == 0
