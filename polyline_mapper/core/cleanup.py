@@ -7,6 +7,8 @@ see ``incremental.py``), so evidence against it must come from the new scans:
 - ``seen_through``: free-space clearing. The new scan's beams are traced through the short
   segments near them; a segment that beams pass through over much of its length, with returns
   beyond it, is gone (a person who stood still, a door since opened, a moved chair).
+- ``beam_evidence``: the same beam geometry counted per LSS square (hits and passes), the
+  free-space evidence the incremental mapper accumulates per square (``split.free_squares``).
 - ``corner_chords``: a short chord across a corner, kept alive by its own virtual points, is
   dropped when the new points near it all lie on the two longer walls whose corner it cuts.
 
@@ -19,6 +21,9 @@ import numpy as np
 from .geometry import directions, lengths, project
 from .index import in_sorted, PointIndex
 
+
+END_SHARE = 0.25
+"""``beam_evidence`` ignores crossings within min(tol, this share of the length) of an end."""
 
 PAIR_BUDGET = 1 << 16
 """Most candidate pairs one block of ``seen_through`` or ``corner_chords`` holds in memory (a
@@ -160,9 +165,68 @@ def seen_through(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: 
     """
     k_all = len(segs)
     out = np.zeros(k_all, dtype=bool)
-    n = len(points)
-    if k_all == 0 or n == 0:
+    if k_all == 0 or len(points) == 0:
         return out
+    n_through = np.zeros(k_all, dtype=np.intp)
+    n_hit = np.zeros(k_all, dtype=np.intp)
+    lo_s = np.full(k_all, np.inf)                             # spread of the crossings
+    hi_s = np.full(k_all, -np.inf)
+    for c0, c1, k, through, hit, s in _beam_blocks(segs, origin, points, tol, range_tol,
+                                                   min_sin):
+        n_through[c0:c1] = np.bincount(k[through], minlength=c1 - c0)
+        n_hit[c0:c1] = np.bincount(k[hit], minlength=c1 - c0)
+        np.minimum.at(lo_s[c0:c1], k[through], s[through])
+        np.maximum.at(hi_s[c0:c1], k[through], s[through])
+    # the crossings must spread over at least `share` of the segment's length
+    spread = hi_s - lo_s >= share * (lengths(segs) - 2 * tol)
+    return (n_through >= min_beams) & (n_through >= share * (n_through + n_hit)) & spread
+
+
+def beam_evidence(segs: np.ndarray, n_sub: np.ndarray, origin: np.ndarray, points: np.ndarray,
+                  tol: float, range_tol: float = 0.03,
+                  min_sin: float = np.sin(np.deg2rad(20.0))) -> tuple:
+    """
+    Count one scan's beams that end on and that pass through each square of each segment.
+
+    Segment k is cut into ``n_sub[k]`` equal squares (the LSS layout, ``split.square_layout``),
+    flattened in segment order. A beam from ``origin`` to its return in ``points`` *passes*
+    a square when it crosses the segment inside it, more than ``tol`` from the segment's ends
+    (or ``END_SHARE`` of its length, if less: a person's 5 cm segment must be seen through too),
+    at >= asin(``min_sin``) to it, and returns beyond its line by more than ``tol + range_tol x
+    range`` (perpendicular); it *hits* the square when its return lies within ``tol`` of the
+    line where it crosses (the same geometry as ``seen_through``: the noise margin grows with
+    sigma through ``tol`` and with range through ``range_tol``, and is measured perpendicular,
+    so as strict at a slant as head-on). Beams ending before the segment are not counted.
+    Returns (hits, passes), two int arrays of ``n_sub.sum()``.
+
+    Memory: as ``seen_through`` (blocks of at most ``PAIR_BUDGET`` pairs).
+    """
+    total = int(np.sum(n_sub))
+    hits = np.zeros(total, dtype=np.intp)
+    passes = np.zeros(total, dtype=np.intp)
+    if len(segs) == 0 or len(points) == 0:
+        return hits, passes
+    offset = np.cumsum(n_sub) - n_sub
+    sub_len = lengths(segs) / np.maximum(n_sub, 1)
+    for c0, c1, k, through, hit, s in _beam_blocks(segs, origin, points, tol, range_tol,
+                                                   min_sin, END_SHARE):
+        g = k + c0
+        sq = offset[g] + np.clip((s / np.maximum(sub_len[g], 1e-12)).astype(np.intp), 0,
+                                 n_sub[g] - 1)
+        hits += np.bincount(sq[hit], minlength=total)
+        passes += np.bincount(sq[through], minlength=total)
+    return hits, passes
+
+
+def _beam_blocks(segs, origin, points, tol, range_tol, min_sin, end_share=None):
+    """
+    Yield every (segment, beam in its angular span) pair, in blocks of segments.
+
+    Each block is ``(c0, c1, k, through, hit, s)``: segments ``c0:c1``, ``k`` the pair's segment
+    relative to ``c0`` and the outputs of ``_crossings`` per pair.
+    """
+    k_all = len(segs)
+    n = len(points)
     rel = points - origin
     rng = np.hypot(rel[:, 0], rel[:, 1])
     ang = np.arctan2(rel[:, 1], rel[:, 0])
@@ -177,10 +241,6 @@ def seen_through(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: 
     lo, hi = np.where(wrap, hi, lo), np.where(wrap, lo + 2 * np.pi, hi)
     first = np.searchsorted(ang2, lo, 'left')
     count = np.minimum(np.searchsorted(ang2, hi, 'right'), first + n) - first
-    n_through = np.zeros(k_all, dtype=np.intp)
-    n_hit = np.zeros(k_all, dtype=np.intp)
-    lo_s = np.full(k_all, np.inf)                             # spread of the crossings
-    hi_s = np.full(k_all, -np.inf)
     done = np.cumsum(count)
     c0 = 0
     while c0 < k_all:
@@ -191,19 +251,18 @@ def seen_through(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: 
             beam = np.take(order, (np.repeat(first[c0:c1] - (np.cumsum(cnt) - cnt), cnt)
                                    + np.arange(k.size)) % n)
             through, hit, s = _crossings(rel, rng, beam, e[c0:c1], w[c0:c1], k, tol,
-                                         range_tol, min_sin)
-            n_through[c0:c1] = np.bincount(k[through], minlength=c1 - c0)
-            n_hit[c0:c1] = np.bincount(k[hit], minlength=c1 - c0)
-            np.minimum.at(lo_s[c0:c1], k[through], s[through])
-            np.maximum.at(hi_s[c0:c1], k[through], s[through])
+                                         range_tol, min_sin, end_share)
+            yield c0, c1, k, through, hit, s
         c0 = c1
-    # the crossings must spread over at least `share` of the segment's length
-    spread = hi_s - lo_s >= share * (lengths(segs) - 2 * tol)
-    return (n_through >= min_beams) & (n_through >= share * (n_through + n_hit)) & spread
 
 
-def _crossings(rel, rng, beam, e, w, k, tol, range_tol, min_sin) -> tuple:
-    """Beams ``beam`` against segments ``k`` (pair by pair): (passes, hits, crossing in m)."""
+def _crossings(rel, rng, beam, e, w, k, tol, range_tol, min_sin, end_share=None) -> tuple:
+    """
+    Beams ``beam`` against segments ``k`` (pair by pair): (passes, hits, crossing in m).
+
+    Crossings within ``tol`` of a segment's end do not count, or within ``end_share`` x its
+    length when that is less (so a segment shorter than 2 ``tol`` can still be seen through).
+    """
     dx, dy = np.take(rel[:, 0], beam), np.take(rel[:, 1], beam)
     ex, ey = np.take(e[:, 0], k), np.take(e[:, 1], k)
     wx, wy = np.take(w[:, 0], k), np.take(w[:, 1], k)
@@ -216,7 +275,8 @@ def _crossings(rel, rng, beam, e, w, k, tol, range_tol, min_sin) -> tuple:
     t = (wx * ey - wy * ex) / den                             # crossing, in units of the range
     s = (wx * dy - wy * dx) / den * elen                      # crossing, metres from the first end
     past = (1.0 - t) * r * sin                                # return beyond the line (m, perp.)
-    inside = ok & (t > 0) & (s >= tol) & (s <= elen - tol)
+    end = tol if end_share is None else np.minimum(tol, end_share * elen)
+    inside = ok & (t > 0) & (s >= end) & (s <= elen - end)
     through = inside & (past > tol + range_tol * r)
     hit = inside & (np.abs(past) <= tol)
     return through, hit, s

@@ -61,6 +61,16 @@ Every allocation of an update is bounded by the points kept (each scan thinned t
 ``max_scan_points``), the map near them and fixed block sizes (``index.DILATE_BUDGET``,
 ``cleanup.PAIR_BUDGET``), not by how far the points lie.
 
+Free-space evidence (``free_space_window`` > 0, off by default): the beams of every scan are
+counted per LSS square (2r) of the segments near them, hits (the beam ends on the square) and
+passes (it goes through beyond the noise margin of ``cleanup.beam_evidence``), as decaying,
+capped counts that live beside the segments (``self._ev``, one small array per segment) and follow
+them through refits, splits and merges (``split.carry_evidence``). Squares whose passes outweigh
+their hits are cut out (``split.free_squares``, ``split.cut_squares``), whatever the segment's
+length: a doorway splits a wall, a door that opened, a box carried away, a person's track go.
+When on it replaces ``clear_max_length``. The state is bounded by the map: one pair of counts per
+square of a live segment.
+
 A short chord across a corner, once in the map, is kept alive by its own virtual points; it is
 dropped when the new points near it all lie on the two longer walls whose corner it cuts
 (``cleanup.corner_chords``).
@@ -73,12 +83,14 @@ from typing import Optional
 
 import numpy as np
 
-from .cleanup import as_origins, corner_chords, origin_runs, seen_through
+from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
 from .geometry import as_points, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
 from .smemsf import smemsf_iteration, SMEMSFConfig
+from .split import (accumulate_evidence, carry_evidence, cut_squares, free_squares,
+                    square_centres, square_layout)
 from ..scan import scan_to_points
 
 
@@ -117,7 +129,15 @@ class IncrementalConfig:
     clear_max_length: float = 0.9
     """Segments up to this long (m) that the new scan's beams pass through are dropped
     (free-space clearing: people, moved chairs, opened door leaves); 0 turns clearing off. Needs
-    the laser position of each scan (update_scan, replay and the node give it)."""
+    the laser position of each scan (update_scan, replay and the node give it). Not used when
+    ``free_space_window`` > 0 (the evidence per square replaces it)."""
+    free_space_window: int = 0
+    """Free-space evidence per LSS square (0 turns it off): every scan's beams are counted per
+    2r square of the map's segments near them, as hits (the beam ends on the square) and passes
+    (it goes through, beyond the noise margin), decaying over about this many looks at the
+    square and capped; squares whose passes outweigh their hits are removed, whatever the
+    segment's length (doorways, opened doors, moved boxes, people's tracks). When on, it
+    replaces ``clear_max_length``. Needs the laser position of each scan."""
     max_mapping_range: float = 100.0
     """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
     range_max says: far returns set neither r, sigma nor the work of an update. The shared logs
@@ -131,7 +151,8 @@ class IncrementalConfig:
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
         for name, lo in (('buffer_scans', 1), ('iterations', 1), ('noise_updates', 1),
-                         ('sigma_window', 1), ('max_scan_points', 16)):
+                         ('sigma_window', 1), ('max_scan_points', 16),
+                         ('free_space_window', 0)):
             v = getattr(self, name)
             if int(v) != v or v < lo:
                 raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
@@ -204,6 +225,9 @@ class IncrementalMapper:
         self._sigma0 = self.sigma
         self._fit_config = None
         self.updates = 0
+        # Free-space evidence: per slot of self._seg, None or the [hits, passes] of each of the
+        # segment's LSS squares, (n_sub, 2), in order from its first end.
+        self._ev = [None] * len(self._alive)
 
     # -- the map -------------------------------------------------------------------------------
     @property
@@ -263,7 +287,8 @@ class IncrementalMapper:
     def nbytes(self) -> int:
         """Bytes held by the map arrays and the scan buffer."""
         return (self._seg.nbytes + self._sup.nbytes + self._alive.nbytes
-                + sum(p.nbytes for p in self._buffer) + sum(c.nbytes for c in self._cells))
+                + sum(p.nbytes for p in self._buffer) + sum(c.nbytes for c in self._cells)
+                + sum(e.nbytes for e in self._ev if e is not None))
 
     # -- updates -------------------------------------------------------------------------------
     def update_scan(self, ranges, angles, pose, range_min: float = 0.0,
@@ -343,8 +368,12 @@ class IncrementalMapper:
         keep = ~corner_chords(index, segs, cfg.kappa * sigma, 2.0 * sigma, 8.0 * r,
                               np.deg2rad(20.0))
         segs, sup = segs[keep], sup[keep]
+        if self.config.free_space_window > 0:
+            # Free-space evidence per square: the beams of the new scan(s) against the refit
+            # segments and the others they reach; squares seen through are cut out.
+            self._free_space(active, segs, sup, views, pts, r, cfg.kappa * sigma)
         # Free-space clearing: a short segment the new scan sees through is gone.
-        if self.config.clear_max_length > 0:
+        elif self.config.clear_max_length > 0:
             short = lengths(segs) <= self.config.clear_max_length
             for lo, hi, o in views:
                 if short.any():
@@ -353,8 +382,9 @@ class IncrementalMapper:
         if cfg.sigma is None and np.isfinite(info['residual_scale']):
             self._scales.append(info['residual_scale'])
             self.sigma = max(median(self._scales), self._sigma0)
-        cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
-        self._replace(active, segs, np.minimum(sup, cap))
+        if self.config.free_space_window <= 0:
+            cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
+            self._replace(active, segs, np.minimum(sup, cap))
         self.updates += 1
         return UpdateInfo(len(pts), int(active.size), int(self._alive.sum()),
                           time.perf_counter() - t0, None, beyond, thinned)
@@ -433,7 +463,84 @@ class IncrementalMapper:
         w = np.minimum(sup / per, self.config.virtual_cap)
         return pts, w[owner]
 
-    def _replace(self, old_ids: np.ndarray, segs: np.ndarray, sup: np.ndarray) -> None:
+    def _free_space(self, active: np.ndarray, segs: np.ndarray, sup: np.ndarray, views: list,
+                    pts: np.ndarray, r: float, tol: float) -> None:
+        """
+        Count the new beams per square, cut free squares, and put the result in the map.
+
+        The group is the refit segments (replacing ``active``) plus, with beams, every other
+        segment whose bounding box meets that of the scan (its points and laser positions).
+        The refit segments' squares take over the evidence of the old squares
+        (``split.carry_evidence``); the others keep theirs (resampled when r changed their
+        layout). All add each scan's hits and passes (``cleanup.beam_evidence``,
+        ``split.accumulate_evidence``) and lose the squares seen through
+        (``split.free_squares``, ``split.cut_squares``). Other segments that lost no square keep
+        their slot; the refit ones and the others that lost squares are replaced by pieces.
+        """
+        others = np.zeros(0, dtype=np.intp)
+        if views:
+            corners = np.concatenate([pts, np.array([o for _, _, o in views])])
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+            box = (self._alive & np.all(self._seg.min(axis=1) <= hi, axis=1)
+                   & np.all(self._seg.max(axis=1) >= lo, axis=1))
+            box[active] = False
+            others = np.flatnonzero(box)
+        n_new = len(segs)
+        group = np.concatenate([segs, self._seg[others]])
+        gsup = np.concatenate([sup, self._sup[others]])
+        n_sub, _ = square_layout(group, r)
+        k_new = int(n_sub[:n_new].sum())
+        counts = np.zeros((int(n_sub.sum()), 2))
+        ev = self._ev
+        # The refit segments take over the old squares' evidence (moved, split, merged).
+        old = [i for i in active.tolist() if ev[i] is not None]
+        if old:
+            n_old = np.array([len(ev[i]) for i in old])
+            centre, direction = square_centres(self._seg[old], n_old)
+            counts[:k_new] = carry_evidence(centre, direction,
+                                            np.concatenate([ev[i] for i in old]), segs,
+                                            n_sub[:n_new], r)
+        # The others keep theirs, resampled along the segment when r changed its layout.
+        stored = [ev[i] for i in others.tolist()]
+        same = np.array([e is not None and len(e) == n for e, n in zip(stored, n_sub[n_new:])],
+                        dtype=bool)
+        if same.any():
+            at = np.repeat(same, n_sub[n_new:])
+            counts[k_new:][at] = np.concatenate([e for e, ok in zip(stored, same) if ok])
+        redo = [j for j, e in enumerate(stored) if e is not None and not same[j]]
+        if redo:
+            n_old = np.array([len(stored[j]) for j in redo])
+            seg_j = self._seg[others[redo]]
+            centre, direction = square_centres(seg_j, n_old)
+            at = np.repeat(np.isin(np.arange(len(others)), redo), n_sub[n_new:])
+            counts[k_new:][at] = carry_evidence(centre, direction,
+                                                np.concatenate([stored[j] for j in redo]),
+                                                seg_j, n_sub[n_new:][redo], r)
+        for a, b, o in views:
+            hits, passes = beam_evidence(group, n_sub, o, pts[a:b], tol)
+            counts = accumulate_evidence(counts, hits, passes, self.config.free_space_window)
+        pieces, parent, first, last = cut_squares(group, n_sub, ~free_squares(counts))
+        size = last - first + 1
+        whole = (parent >= n_new) & (size == n_sub[parent])
+        for j, f, z in zip((parent[whole] - n_new).tolist(), first[whole].tolist(),
+                           size[whole].tolist()):
+            ev[others[j]] = counts[f:f + z].copy()      # a copy: the group's array goes
+        new = np.flatnonzero(~whole)
+        lost = np.setdiff1d(np.arange(n_new, len(group)), parent[whole]) - n_new
+        length = lengths(pieces[new])
+        psup = gsup[parent[new]] * length / np.maximum(lengths(group)[parent[new]], 1e-12)
+        cap = self.config.virtual_cap * np.maximum(length / (2.0 * r), 1.0)
+        evidence = [counts[f:f + z].copy() for f, z in zip(first[new].tolist(),
+                                                           size[new].tolist())]
+        self._replace(np.concatenate([active, others[lost]]), pieces[new],
+                      np.minimum(psup, cap), evidence)
+
+    def _replace(self, old_ids: np.ndarray, segs: np.ndarray, sup: np.ndarray,
+                 evidence: list = None) -> None:
+        """Put ``segs`` in the map in place of ``old_ids``, with their square evidence."""
+        if self.config.free_space_window > 0:
+            for i in old_ids.tolist():
+                self._ev[i] = None
         self._grid.remove(old_ids)
         self._alive[old_ids] = False
         free = np.flatnonzero(~self._alive)
@@ -442,9 +549,13 @@ class IncrementalMapper:
             self._seg = np.concatenate([self._seg, np.zeros((grow, 2, 2))])
             self._sup = np.concatenate([self._sup, np.zeros(grow)])
             self._alive = np.concatenate([self._alive, np.zeros(grow, dtype=bool)])
+            self._ev.extend([None] * grow)
             free = np.flatnonzero(~self._alive)
         ids = free[:len(segs)]
         self._seg[ids] = segs
         self._sup[ids] = sup
         self._alive[ids] = True
         self._grid.add(ids, segs)
+        if evidence is not None:
+            for i, e in zip(ids.tolist(), evidence):
+                self._ev[i] = e

@@ -31,6 +31,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from .cleanup import as_origins, beam_evidence, origin_runs
 from .emsf import emsf_step, extend_for
 from .geometry import as_points, as_segments, lengths
 from .index import piece_pairs, PointIndex
@@ -38,7 +39,8 @@ from .merge import merge_segments
 from .noise import estimate_noise
 from .polylines import map_geometry
 from .seed import seed_segments
-from .split import split_segments
+from .split import (accumulate_evidence, cut_squares, EVIDENCE_WINDOW, free_squares,
+                    split_segments, square_layout)
 
 
 @dataclass
@@ -177,6 +179,11 @@ class FitResult:
     seconds: float
     history: list = field(default_factory=list)
     """One dict per iteration: sigma, r, segments, mean truncated distance, merges, seeds."""
+    beams: int = 0
+    """Beams (laser origin -> point) whose free-space evidence the fit used; 0 for bare points
+    (``fit`` without ``origins``): then no square was tested against free space."""
+    free_squares: int = 0
+    """LSS squares (2r) cut out because more beams passed through them than ended on them."""
 
 
 def initial_segments(points: np.ndarray, how: str, count: int, rng) -> np.ndarray:
@@ -280,8 +287,40 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     return segments, support, info
 
 
+def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray,
+                   origins: np.ndarray, r: float, tol: float, min_support: float) -> tuple:
+    """
+    Cut out the LSS squares of ``segments`` that the beams see through (batch free space).
+
+    Every beam (``origins[i]`` -> ``points[i]``, one run of equal origins per scan, in the
+    order of the recording) is counted per 2r square as a hit or a pass
+    (``cleanup.beam_evidence``, noise margin ``tol`` plus 3 % of the range), scan after scan
+    into decaying, capped counts exactly as the incremental mapper does
+    (``split.accumulate_evidence`` over ``split.EVIDENCE_WINDOW`` looks), so the map shows the
+    scene as the recording leaves it: a door seen shut and later open is open. Squares whose
+    passes outweigh their hits are removed (``split.free_squares``, ``split.cut_squares``).
+    Pieces keep their share of the support and need ``min_support``. Returns (segments,
+    support, squares cut).
+    """
+    if len(segments) == 0:
+        return segments, support, 0
+    n_sub, _ = square_layout(segments, r)
+    counts = np.zeros((int(n_sub.sum()), 2))
+    for a, b, o in origin_runs(origins):
+        hits, passes = beam_evidence(segments, n_sub, o, points[a:b], tol)
+        counts = accumulate_evidence(counts, hits, passes, EVIDENCE_WINDOW)
+    free = free_squares(counts)
+    if not free.any():
+        return segments, support, 0
+    pieces, parent, _, _ = cut_squares(segments, n_sub, ~free)
+    share = lengths(pieces) / np.maximum(lengths(segments)[parent], 1e-12)
+    sup = support[parent] * share
+    keep = sup >= min_support
+    return pieces[keep], sup[keep], int(free.sum())
+
+
 def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
-        progress: Callable = None) -> FitResult:
+        progress: Callable = None, origins=None) -> FitResult:
     """
     Fit a segment map to 2D points with SMEMSF.
 
@@ -297,6 +336,11 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         Point multiplicities (default 1).
     progress : callable
         ``progress(iteration, info)`` is called after each iteration.
+    origins : (N, 2) array_like
+        Where the laser was for each point (fixed frame, metres), for free-space evidence:
+        after the loop, squares that more beams pass through than end on are cut out
+        (``free_space_cut``: doorways, people's tracks, things moved during the recording).
+        None (bare points): nothing changes, and ``FitResult.beams`` is 0.
 
     Returns
     -------
@@ -326,6 +370,7 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     t0 = time.perf_counter()
     config = config or SMEMSFConfig()
     pts, weights = check_fit_input(points, weights)
+    origins = as_origins(origins, len(pts))
     rng = np.random.default_rng(config.seed)
     index = PointIndex(pts, weights)
     floor = _noise_floor(pts, config, rng)
@@ -355,6 +400,10 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     r = config.r_over_sigma * sigma
     segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                      0.0, r, config.tail_fraction)
+    cut = 0
+    if origins is not None:
+        segments, support, cut = free_space_cut(segments, support, pts, origins, r,
+                                                config.kappa * sigma, config.min_support)
     # Pieces the refit made collinear are joined before chaining.
     segments, support, _ = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
@@ -362,4 +411,5 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     geo = map_geometry(segments, support, sigma, r, config.kappa, config.join_over_r * r)
     return FitResult(segments=geo.segments, support=geo.support, polylines=geo.polylines,
                      closed=geo.closed, iterations=it, converged=converged, sigma=sigma, r=r,
-                     seconds=time.perf_counter() - t0, history=history)
+                     seconds=time.perf_counter() - t0, history=history,
+                     beams=0 if origins is None else len(pts), free_squares=cut)

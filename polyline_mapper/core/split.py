@@ -22,15 +22,141 @@ so neither one global C nor one C per segment works):
 Connected remainders become the new segments; a segment with no survivors disappears.
 
 In incremental mapping (``incremental.py``) squares holding virtual points, the old map, are never
-low: they were tested when observed, and a sparse new look is no evidence that a wall is gone
-(that would need free-space evidence from ray casting). LSS cuts new extensions and new segments.
+low: they were tested when observed, and a sparse new look is no evidence that a wall is gone.
+LSS cuts new extensions and new segments.
+
+Free-space evidence (``IncrementalConfig.free_space_window`` > 0): the same squares also count
+the beams that end on them (hits) and pass through them (passes, ``cleanup.beam_evidence``),
+as bounded, decaying counts (``accumulate_evidence``). A square whose passes outweigh its hits
+(``free_squares``) is removed like a low square (``cut_squares``), whatever the segment's
+length: a wall splits at a doorway, a door leaf or a person's track goes. The counts are kept per
+square and follow the segments through refits, splits and merges (``carry_evidence``: each new
+square takes the counts of the nearest old square, if close and parallel).
 """
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.special import pdtr
 
 from .geometry import directions, group_minmax, label_runs
 from .index import Pairs, PointIndex
+
+
+EVIDENCE_CAP = 50.0
+"""Largest hit or pass count of one square: the evidence a square holds is bounded, so a wall
+seen a thousand times is removed after tens of scans that see through it, not a thousand."""
+
+EVIDENCE_WINDOW = 10
+"""Looks at a square over which its evidence decays in a batch fit with beams (the incremental
+mapper's ``free_space_window`` when that is on)."""
+
+MIN_PASSES = 3.0
+"""A square is free only once at least this many (decayed) beams passed through it."""
+
+
+def square_layout(segments: np.ndarray, r: float) -> tuple:
+    """
+    Return the LSS squares of each segment: ``(n_sub, sub_len)``, (K,) each.
+
+    Segment k is cut into ``n_sub[k] = max(1, round(L / 2r))`` equal squares of length
+    ``sub_len[k]`` (the remainder spread over all of them).
+    """
+    _, length = directions(segments)
+    n_sub = np.maximum(1, np.rint(length / (2.0 * r)).astype(np.intp))
+    return n_sub, length / n_sub
+
+
+def square_centres(segments: np.ndarray, n_sub: np.ndarray) -> tuple:
+    """Return the centre (M, 2) and the unit direction (M, 2) of every square, segment order."""
+    u, length = directions(segments)
+    k = np.repeat(np.arange(len(segments)), n_sub)
+    i = np.arange(k.size) - np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
+    t = ((i + 0.5) * (length / np.maximum(n_sub, 1))[k])[:, None]
+    return segments[k, 0] + t * u[k], u[k]
+
+
+def carry_evidence(centres: np.ndarray, dirs: np.ndarray, counts: np.ndarray,
+                   segments: np.ndarray, n_sub: np.ndarray, r: float,
+                   max_angle: float = np.deg2rad(30.0)) -> np.ndarray:
+    """
+    Carry per-square evidence from old squares to the squares of new segments.
+
+    ``centres`` (M, 2), ``dirs`` (M, 2) and ``counts`` (M, C) describe the old squares (of the
+    segments a refit replaced: moved, split, merged, grown). Each new square takes the counts of
+    the nearest old square centre within 1.5 ``r`` of its own centre (a refit moves a wall by
+    less than r across it and shifts its squares by at most one along it) whose direction is
+    within ``max_angle`` of its segment's; so a merge of twins does not add their counts up and
+    a crossing wall's squares are not taken. New squares with no such old square (a wall's new
+    extension) start at 0. Returns (n_sub.sum(), C).
+    """
+    total = int(np.sum(n_sub))
+    out = np.zeros((total, counts.shape[1]))
+    if total == 0 or len(centres) == 0:
+        return out
+    mine, u = square_centres(segments, n_sub)
+    dist, j = cKDTree(centres).query(mine, k=1, distance_upper_bound=1.5 * r)
+    ok = np.flatnonzero(np.isfinite(dist))
+    ok = ok[np.abs(np.sum(dirs[j[ok]] * u[ok], axis=1)) >= np.cos(max_angle)]
+    out[ok] = counts[j[ok]]
+    return out
+
+
+def accumulate_evidence(counts: np.ndarray, hits: np.ndarray, passes: np.ndarray,
+                        window: float, cap: float = EVIDENCE_CAP) -> np.ndarray:
+    """
+    Add one scan's beams to the per-square counts: returns the new (M, 2) [hits, passes].
+
+    Squares the scan observed (a hit or a pass) first forget 1 / ``window`` of what they held,
+    then add the scan's counts, each capped at ``cap``; unobserved squares keep theirs (a wall
+    out of view is not forgotten). So evidence is bounded and reflects about the last
+    ``window`` looks at a square, and a square hit many times (up to the cap) needs many passes,
+    over several scans, before it is free: a person walking in front of a wall adds nothing to
+    it (beams ending before a square say nothing), a door that opened is free after a few looks.
+    """
+    seen = (hits + passes) > 0
+    keep = np.where(seen, 1.0 - 1.0 / window, 1.0)[:, None]
+    return np.minimum(counts * keep + np.stack([hits, passes], axis=1), cap)
+
+
+def free_squares(counts: np.ndarray, min_passes: float = MIN_PASSES) -> np.ndarray:
+    """Squares whose pass evidence outweighs their hits: passes >= min_passes and > hits."""
+    return (counts[:, 1] >= min_passes) & (counts[:, 1] > counts[:, 0])
+
+
+def cut_squares(segments: np.ndarray, n_sub: np.ndarray, keep: np.ndarray) -> tuple:
+    """
+    Remove squares from segments: every run of kept squares becomes a piece.
+
+    ``keep`` is a (n_sub.sum(),) mask in segment order. Returns ``(pieces (P, 2, 2), parent
+    (P,), first (P,), last (P,))``: each piece's segment, and its first and last square as
+    indices into the flat square order. A segment keeping all its squares comes back unchanged
+    (bit for bit); one keeping none is gone.
+    """
+    k = len(segments)
+    sub_seg = np.repeat(np.arange(k), n_sub)
+    sub_k = np.arange(sub_seg.size) - np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
+    run, n_runs = label_runs(keep, sub_seg)
+    if not keep.any():
+        e = np.zeros(0, dtype=np.intp)
+        return np.zeros((0, 2, 2)), e, e, e
+    kept_runs = run[keep]
+    kept_runs = kept_runs[np.append(True, kept_runs[1:] != kept_runs[:-1])]
+    first = np.full(n_runs, sub_seg.size, dtype=np.intp)
+    last = np.full(n_runs, -1, dtype=np.intp)
+    idx = np.arange(sub_seg.size)
+    np.minimum.at(first, run, idx)
+    np.maximum.at(last, run, idx)
+    first, last = first[kept_runs], last[kept_runs]
+    parent = sub_seg[first]
+    u, length = directions(segments)
+    sub_len = length / np.maximum(n_sub, 1)
+    a = segments[parent, 0]
+    whole = (sub_k[first] == 0) & (sub_k[last] == n_sub[parent] - 1)
+    t0 = (sub_k[first] * sub_len[parent])[:, None]
+    t1 = ((sub_k[last] + 1) * sub_len[parent])[:, None]
+    pieces = np.stack([a + t0 * u[parent], a + t1 * u[parent]], axis=1)
+    pieces[whole] = segments[parent[whole]]
+    return pieces, parent, first, last
 
 
 def _flank_level(support, group, pos, n, flank):

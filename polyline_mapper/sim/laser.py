@@ -54,9 +54,9 @@ class LaserSpec:
         return self.angle_min + self.angle_increment * np.arange(self.beams)
 
 
-def simulate_scan(world: World, pose, spec: LaserSpec, rng) -> tuple:
+def simulate_scan(world: World, pose, spec: LaserSpec, rng, t: float = None) -> tuple:
     """
-    One scan from ``pose`` = (x, y, yaw).
+    One scan from ``pose`` = (x, y, yaw), at time ``t`` (s) for a world with dynamic objects.
 
     Returns
     -------
@@ -66,7 +66,7 @@ def simulate_scan(world: World, pose, spec: LaserSpec, rng) -> tuple:
     """
     ang = spec.angles() + pose[2]
     d = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    true, hit = world.cast(pose[:2], d)
+    true, hit = world.cast(pose[:2], d, t)
     ranges = true + rng.normal(0.0, spec.noise, size=true.shape)
     ranges[(true >= spec.range_max) | ~np.isfinite(true)] = np.inf
     hit = np.where(np.isfinite(ranges), hit, -1)
@@ -101,18 +101,27 @@ class SimulatedDrive:
                                for r, h in zip(self.ranges, self.hits)])
         return pts, hits
 
+    def origins(self) -> np.ndarray:
+        """Return the laser position of each point of ``points()``, (N, 2) metres."""
+        n = [np.count_nonzero(np.isfinite(r) & (r >= self.spec.range_min)
+                              & (r < self.spec.range_max)) for r in self.ranges]
+        return np.repeat(self.poses[:, :2], n, axis=0) if n else np.zeros((0, 2))
+
 
 def simulate_drive(world: World, spec: LaserSpec = None, step: float = 0.25, rate: float = 10.0,
                    rng=0, waypoints=None) -> SimulatedDrive:
     """
     Drive along ``waypoints`` (default: the world's path), one scan every ``step`` metres.
 
-    ``rate`` (Hz) only sets the time stamps. ``rng`` is a seed or a numpy Generator.
+    ``rate`` (Hz) sets the time stamps, and with them what the world's dynamic objects (people
+    walking, a door that opens, a box carried away) do while the scans are taken: scan i sees the
+    world at time i / rate. ``rng`` is a seed or a numpy Generator.
     """
     spec = spec or LaserSpec()
     rng = np.random.default_rng(rng)
     poses = path_poses(world.path if waypoints is None else waypoints, step)
-    scans = [simulate_scan(world, p, spec, rng) for p in poses]
+    stamps = np.arange(len(poses)) / rate
+    scans = [simulate_scan(world, p, spec, rng, t) for p, t in zip(poses, stamps)]
     ranges = np.array([s[0] for s in scans])
     hits = np.array([s[1] for s in scans])
-    return SimulatedDrive(world, spec, poses, ranges, hits, np.arange(len(poses)) / rate)
+    return SimulatedDrive(world, spec, poses, ranges, hits, stamps)

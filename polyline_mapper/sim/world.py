@@ -3,6 +3,12 @@ Worlds of straight walls and circular arcs, with exact ray casting.
 
 A world is a set of zero-thickness walls (segments) and arcs (a circle between two angles; a
 full circle is a round pillar). Ray casting is exact and vectorised over beams and walls.
+
+A world may also change with time (``World.dynamic``): walls that are there until some time and
+then gone (``Removed``: a door leaf that opens, a box carried away) and people walking
+(``Walker``: a circle moving along a path). ``World.cast`` with a time ``t`` casts against the
+static walls and arcs plus whatever is there at ``t``; without ``t`` (or with no dynamic
+objects) it is exactly the static cast, so static drives stay bit for bit what they were.
 """
 
 from dataclasses import dataclass, field
@@ -28,6 +34,90 @@ class Arc:
 
 
 @dataclass
+class Removed:
+    """Walls (W, 2, 2) that stand until time ``until`` (s) and are gone from then on."""
+
+    walls: np.ndarray
+    until: float
+    name: str = 'removed'
+
+    def walls_at(self, t: float) -> np.ndarray:
+        """Return the walls standing at time ``t``: all of them before ``until``, else none."""
+        return self.walls if t < self.until else self.walls[:0]
+
+
+@dataclass
+class Walker:
+    """
+    A person: a circle of ``radius`` m walking back and forth along ``path`` at ``speed`` m/s.
+
+    The walk starts at the first waypoint at time 0 and turns round at either end of the path;
+    from time ``until`` (s) on the person has left the scene.
+    """
+
+    path: list
+    speed: float = 1.0
+    radius: float = 0.25
+    until: float = np.inf
+    name: str = 'walker'
+
+    def centre(self, t: float) -> np.ndarray:
+        """Return the walker's position at time ``t`` (s), metres, shape (2,)."""
+        wp = np.asarray(self.path, dtype=np.float64)
+        step = np.hypot(*np.diff(wp, axis=0).T)
+        total = float(step.sum())
+        if total == 0:
+            return wp[0].copy()
+        s = np.mod(self.speed * t, 2 * total)
+        s = 2 * total - s if s > total else s          # back on the way home
+        cum = np.concatenate([[0.0], np.cumsum(step)])
+        i = int(np.clip(np.searchsorted(cum, s, 'right') - 1, 0, len(step) - 1))
+        f = (s - cum[i]) / step[i] if step[i] > 0 else 0.0
+        return wp[i] + f * (wp[i + 1] - wp[i])
+
+    def track(self, step: float = 0.05) -> np.ndarray:
+        """Return points along the walked path, at most ``step`` m apart, (M, 2)."""
+        return path_poses(self.path, step)[:, :2]
+
+
+def _cast_walls(walls: np.ndarray, o: np.ndarray, d: np.ndarray) -> tuple:
+    """Nearest hit of each ray on ``walls``: (dist (B,), index (B,), -1 and inf for none)."""
+    b = len(d)
+    a = walls[:, 0]
+    e = walls[:, 1] - a
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    w = a[None, :, :] - o
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
+        s = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
+    ok = (np.abs(den) > 1e-12) & (t > 1e-9) & (s >= 0) & (s <= 1)
+    t = np.where(ok, t, np.inf)
+    j = np.argmin(t, axis=1)
+    best = t[np.arange(b), j]
+    return best, np.where(np.isfinite(best), j, -1)
+
+
+def _cast_arc(arc: Arc, o: np.ndarray, d: np.ndarray, best: np.ndarray, hit: np.ndarray,
+              index: int) -> tuple:
+    """Rays against one arc: the nearer of ``best`` and the arc, ``hit`` set to ``index``."""
+    oc = o - np.asarray(arc.centre, dtype=np.float64)
+    # Element-wise, not BLAS (d @ oc): BLAS kernels differ by CPU in the last bit, and a
+    # drive simulated on one machine must be bit for bit the drive on another.
+    bq = d[:, 0] * oc[0] + d[:, 1] * oc[1]
+    cq = oc[0] * oc[0] + oc[1] * oc[1] - arc.radius ** 2
+    disc = bq ** 2 - cq
+    root = np.sqrt(np.maximum(disc, 0.0))
+    for t in (-bq - root, -bq + root):
+        p = oc + t[:, None] * d
+        ang = np.mod(np.arctan2(p[:, 1], p[:, 0]) - arc.start, 2 * np.pi)
+        on = (disc >= 0) & (t > 1e-9) & (ang <= arc.end - arc.start + 1e-12)
+        closer = on & (t < best)
+        best = np.where(closer, t, best)
+        hit = np.where(closer, index, hit)
+    return best, hit
+
+
+@dataclass
 class World:
     """Walls (W, 2, 2) and arcs; ``path`` is a list of (x, y) waypoints for a drive through it."""
 
@@ -36,14 +126,27 @@ class World:
     path: list = field(default_factory=list)
     name: str = 'world'
 
-    def cast(self, origin, directions: np.ndarray) -> tuple:
+    dynamic: list = field(default_factory=list)
+    """Objects that change with time (``Removed``, ``Walker``); ``cast`` sees them at ``t``."""
+
+    def dynamic_ids(self) -> list:
+        """Return the hit ids of each dynamic object, in order: a list of int arrays."""
+        out, n = [], len(self.walls) + len(self.arcs)
+        for obj in self.dynamic:
+            k = len(obj.walls) if isinstance(obj, Removed) else 1
+            out.append(np.arange(n, n + k))
+            n += k
+        return out
+
+    def cast(self, origin, directions: np.ndarray, t: float = None) -> tuple:
         """
-        Cast rays from one origin.
+        Cast rays from one origin, at time ``t`` (s) when the world has dynamic objects.
 
         Returns
         -------
         dist : (B,) metres to the first hit (inf for no hit).
-        hit : (B,) index of the hit object: walls are 0..W-1, arcs W..W+A-1; -1 for no hit.
+        hit : (B,) index of the hit object: walls are 0..W-1, arcs W..W+A-1, then the dynamic
+            objects' parts in order (``dynamic_ids``); -1 for no hit.
 
         """
         o = np.asarray(origin, dtype=np.float64)
@@ -52,33 +155,22 @@ class World:
         best = np.full(b, np.inf)
         hit = np.full(b, -1, dtype=np.intp)
         if len(self.walls):
-            a = self.walls[:, 0]
-            e = self.walls[:, 1] - a
-            den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
-            w = a[None, :, :] - o
-            with np.errstate(divide='ignore', invalid='ignore'):
-                t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
-                s = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
-            ok = (np.abs(den) > 1e-12) & (t > 1e-9) & (s >= 0) & (s <= 1)
-            t = np.where(ok, t, np.inf)
-            j = np.argmin(t, axis=1)
-            best = t[np.arange(b), j]
-            hit = np.where(np.isfinite(best), j, -1)
+            best, hit = _cast_walls(self.walls, o, d)
         for k, arc in enumerate(self.arcs):
-            oc = o - np.asarray(arc.centre, dtype=np.float64)
-            # Element-wise, not BLAS (d @ oc): BLAS kernels differ by CPU in the last bit, and a
-            # drive simulated on one machine must be bit for bit the drive on another.
-            bq = d[:, 0] * oc[0] + d[:, 1] * oc[1]
-            cq = oc[0] * oc[0] + oc[1] * oc[1] - arc.radius ** 2
-            disc = bq ** 2 - cq
-            root = np.sqrt(np.maximum(disc, 0.0))
-            for t in (-bq - root, -bq + root):
-                p = oc + t[:, None] * d
-                ang = np.mod(np.arctan2(p[:, 1], p[:, 0]) - arc.start, 2 * np.pi)
-                on = (disc >= 0) & (t > 1e-9) & (ang <= arc.end - arc.start + 1e-12)
-                closer = on & (t < best)
-                best = np.where(closer, t, best)
-                hit = np.where(closer, len(self.walls) + k, hit)
+            best, hit = _cast_arc(arc, o, d, best, hit, len(self.walls) + k)
+        if t is None or not self.dynamic:
+            return best, hit
+        for obj, ids in zip(self.dynamic, self.dynamic_ids()):
+            if isinstance(obj, Removed):
+                walls = obj.walls_at(t)
+                if len(walls):
+                    dist, j = _cast_walls(walls, o, d)
+                    closer = dist < best
+                    best = np.where(closer, dist, best)
+                    hit = np.where(closer, ids[0] + j, hit)
+            elif t < obj.until:
+                best, hit = _cast_arc(Arc(tuple(obj.centre(t)), obj.radius), o, d, best, hit,
+                                      int(ids[0]))
         return best, hit
 
     def distance(self, points: np.ndarray) -> np.ndarray:
@@ -175,3 +267,28 @@ def corridor_loop(width: float = 2.0, side: float = 30.0) -> World:
     h = w / 2
     path = [(h, h), (s - h, h), (s - h, s - h), (h, s - h), (h, h)]
     return World(walls=walls, arcs=[], path=path, name='corridor_loop')
+
+
+def office_dynamic() -> World:
+    """
+    Build the office floor with things that change while the robot drives (10 scans/s).
+
+    - A person walks up and down the corridor (y = 6.4, x from 2 to 12) at 1 m/s, past its
+      north wall and the robot, and leaves at t = 22 s; another one walks to and fro across the
+      top-left room until t = 28 s (circles of radius 0.25 m). The robot sees where they
+      walked again after they left.
+    - The door of the top-left room (x 4.5-5.5 on the corridor's north wall) is shut until
+      t = 20 s and open (gone) from then on, before the robot drives through it.
+    - A 0.6 m x 0.4 m box stands in the corridor by its north wall (x 11.5-12.1) until
+      t = 15 s and is carried away then; the robot drives past it before and after.
+    """
+    world = office_floor()
+    door = Removed(_segs((4.5, 7.0, 5.5, 7.0)), until=20.0, name='door')
+    box = Removed(_segs((11.5, 6.55, 12.1, 6.55), (12.1, 6.55, 12.1, 6.95),
+                        (12.1, 6.95, 11.5, 6.95), (11.5, 6.95, 11.5, 6.55)),
+                  until=15.0, name='box')
+    world.dynamic = [door, box,
+                     Walker([(2.0, 6.4), (12.0, 6.4)], until=22.0, name='corridor walker'),
+                     Walker([(1.5, 8.0), (3.0, 11.0)], until=28.0, name='room walker')]
+    world.name = 'office_dynamic'
+    return world
