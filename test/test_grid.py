@@ -153,3 +153,19 @@ def test_the_session_traces_every_mapped_scan_and_reset_forgets():
     assert MappingSession(options=SessionOptions(grid_resolution=None)).occupancy() is None
     with pytest.raises(ValueError, match='resolution'):
         SessionOptions(grid_resolution=-0.05)
+
+
+def test_grouped_updates_trace_each_scan_from_its_own_origin():
+    grids = []
+    for n in (1, 3):
+        rng = np.random.default_rng(2)
+        session = MappingSession(options=SessionOptions(grid_resolution=0.1,
+                                                        update_every_n_scans=n))
+        for i in range(9):
+            session.add(_scan(float(i), (0.5 * i, 0.2 * (i % 2), 0.1 * i), rng))
+            session.step()
+        session.flush()
+        grids.append(session.occupancy(np.zeros((0, 2, 2))))
+    assert grids[0].origin == grids[1].origin
+    assert np.array_equal(grids[0].data, grids[1].data)
+    assert (grids[0].data == FREE).sum() > 500

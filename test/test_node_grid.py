@@ -22,7 +22,8 @@ def _grids(peer: Peer) -> list:
 
 
 def _cells(msg) -> np.ndarray:
-    return np.asarray(msg.data, dtype=np.int8).reshape(msg.info.height, msg.info.width)
+    from polyline_mapper.ros.messages import grid_from_msg
+    return grid_from_msg(msg).data
 
 
 def _centres(msg, mask) -> np.ndarray:
