@@ -112,15 +112,7 @@ def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.
                           label=f'contradicted: {share * 100:.1f}% of map length '
                                 f'({int(bad.sum())} segments)')]
         ax.legend(handles=handles, loc='upper right', fontsize=9, framealpha=0.9)
-        pad = 0.03 * span
-        ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
-        ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
-        ax.set_aspect('equal')
-        ax.set_xlabel('x [m]')
-        ax.set_ylabel('y [m]')
-        _scale_bar(ax, lo - pad, span)
-        if title:
-            ax.set_title(title, fontsize=10)
+        _frame(ax, lo, hi, span, title)
         fig.tight_layout()
         fig.savefig(path, dpi=dpi, format='png')
     finally:
@@ -148,6 +140,12 @@ def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
     elif len(segments):
         ax.add_collection(LineCollection(segments, colors='tab:red', linewidths=1.6, zorder=3))
         ax.scatter(segments[:, :, 0].ravel(), segments[:, :, 1].ravel(), s=6, c='k', zorder=4)
+    _frame(ax, lo, hi, span, title)
+    ax.grid(True, lw=0.3, alpha=0.5)
+
+
+def _frame(ax, lo, hi, span, title) -> None:
+    """Set equal axes over the box (3 % margin), metre labels, a scale bar and the title."""
     pad = 0.03 * span
     ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
     ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
@@ -157,7 +155,6 @@ def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
     _scale_bar(ax, lo - pad, span)
     if title:
         ax.set_title(title, fontsize=10)
-    ax.grid(True, lw=0.3, alpha=0.5)
 
 
 def _scale_bar(ax, corner, span) -> None:

@@ -427,16 +427,8 @@ def read_points(path, range_max: float = None, progress=None,
     if kind == 'points':
         from .formats.points import read_points as read_file
         return read_file(path), 'point file'
-    from .formats.carmen import read_carmen
-    log = read_carmen(path)
-    desc = f'CARMEN log, {len(log.records)} scans'
-    if log.skipped:
-        desc += f', {log.skipped} malformed record(s) skipped'
-        if warn is not None:
-            warn(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
-                 f'{log.skipped_examples[0]}')
-    from .formats.points import check_coordinates
-    return check_coordinates(log.points(range_max=range_max, progress=progress), path), desc
+    points, _, desc = _read_log(path, range_max, progress, warn)
+    return points, desc
 
 
 def read_beams(path, range_max: float = None, progress=None,
@@ -454,10 +446,13 @@ def read_beams(path, range_max: float = None, progress=None,
         return points, None, desc
     if range_max is not None and not _positive(range_max):
         raise ValueError(f'range_max must be a number > 0 (m), got {range_max!r}')
+    return _read_log(str(path), range_max, progress, warn)
+
+
+def _read_log(path: str, range_max, progress, warn) -> tuple:
+    """Read a CARMEN log's points and their laser positions; warn of malformed records."""
     from .formats.carmen import read_carmen
     from .formats.points import check_coordinates
-    from .scan import scan_to_points
-    path = str(path)
     log = read_carmen(path)
     desc = f'CARMEN log, {len(log.records)} scans'
     if log.skipped:
@@ -465,18 +460,7 @@ def read_beams(path, range_max: float = None, progress=None,
         if warn is not None:
             warn(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
                  f'{log.skipped_examples[0]}')
-    out, counts = [], []
-    recs = log.records if progress is None else progress(log.records)
-    for rec in recs:                    # as CarmenLog.points, one scan at a time
-        top = log.usable_range(rec)
-        if range_max is not None:
-            top = min(top, range_max)
-        pts = scan_to_points(rec.ranges, rec.angles, rec.pose, 0.0, top)
-        out.append(pts)
-        counts.append(len(pts))
-    points = np.concatenate(out) if out else np.zeros((0, 2))
-    poses = np.array([rec.pose[:2] for rec in log.records]).reshape(-1, 2)
-    origins = np.repeat(poses, counts, axis=0)
+    points, origins = log.beams(range_max, progress)
     return check_coordinates(points, path), origins, desc
 
 

@@ -90,14 +90,25 @@ class CarmenLog:
 
         ``range_max`` additionally limits the usable range (m).
         """
-        out = []
+        return self.beams(range_max, progress)[0]
+
+    def beams(self, range_max: float = None, progress=None) -> tuple:
+        """
+        Return ``(points, origins)``: ``points()`` and the laser position of each, (N, 2) m.
+
+        The origin of a point is the (corrected) pose of the record it comes from.
+        """
+        out, counts = [], []
         recs = self.records if progress is None else progress(self.records)
         for rec in recs:
             top = self.usable_range(rec)
             if range_max is not None:
                 top = min(top, range_max)
             out.append(scan_to_points(rec.ranges, rec.angles, rec.pose, 0.0, top))
-        return np.concatenate(out) if out else np.zeros((0, 2))
+            counts.append(len(out[-1]))
+        points = np.concatenate(out) if out else np.zeros((0, 2))
+        poses = np.array([rec.pose[:2] for rec in self.records], dtype=np.float64).reshape(-1, 2)
+        return points, np.repeat(poses, counts, axis=0)
 
 
 def _flaser_step(n: int) -> float:
