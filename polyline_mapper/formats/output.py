@@ -90,17 +90,23 @@ def check_output(path, inputs: Iterable = ()) -> str:
     for src in _inputs(inputs):
         if st is not None and os.path.samefile(src, target):
             raise OutputError(f'{name}: is an input of this run; refusing to write over it')
+    _check_place(name, target, inputs)
+    return target
+
+
+def _check_place(name, target: str, inputs: Iterable) -> None:
+    """Refuse a target inside an input folder, or whose first existing ancestor is no folder."""
+    for src in _inputs(inputs):
         if os.path.isdir(src):
             folder = os.path.realpath(src)
             if os.path.commonpath([folder, target]) == folder:
                 raise OutputError(f'{name}: lies inside the input folder {src}; refusing to '
                                   'write into it')
     folder = os.path.dirname(target)
-    while not os.path.exists(folder):          # the first existing ancestor must be a folder
+    while not os.path.exists(folder):
         folder = os.path.dirname(folder)
     if not os.path.isdir(folder):
         raise OutputError(f'{name}: {folder} is not a folder')
-    return target
 
 
 def check_outputs(paths: Iterable, inputs: Iterable = ()) -> list:
@@ -138,17 +144,7 @@ def check_new_folder(path, inputs: Iterable = ()) -> str:
     if os.path.lexists(path):
         raise OutputError(f'{path}: exists already (a bag is written to a new folder)')
     target = os.path.realpath(path)
-    for src in _inputs(inputs):
-        if os.path.isdir(src):
-            folder = os.path.realpath(src)
-            if os.path.commonpath([folder, target]) == folder:
-                raise OutputError(f'{path}: lies inside the input folder {src}; refusing to '
-                                  'write into it')
-    folder = os.path.dirname(target)
-    while not os.path.exists(folder):
-        folder = os.path.dirname(folder)
-    if not os.path.isdir(folder):
-        raise OutputError(f'{path}: {folder} is not a folder')
+    _check_place(path, target, inputs)
     return target
 
 
