@@ -326,7 +326,7 @@ class MappingSession:
         self._map_lock = threading.Lock()       # the mapper
         self._cv = threading.Condition(self._lock)
         self._waiting = deque()                 # (scan, arrival): checked, waiting for a pose
-        self._ready = deque()                   # (scan, points, origin, seconds): posed
+        self._ready = deque()                   # (scan, points, origin, seconds, arrival)
         self._generation = 0
         self._points = []
         self._origins = []                      # (scans' laser positions (S, 2), counts (S,))
@@ -337,8 +337,6 @@ class MappingSession:
         self.examples = {}
         self.stamp = None
         """Stamp (s) of the newest scan in the map."""
-        self.last_scan = None
-        """The newest Scan record in the map (the node reads its message header)."""
         self.update_seconds = deque(maxlen=100000)
         self.latency_seconds = deque(maxlen=100000)
         self._last_add = None
@@ -599,7 +597,6 @@ class MappingSession:
             with self._lock:
                 self.used += len(group)
                 self.stamp = group[-1][0].stamp
-                self.last_scan = group[-1][0]
                 if self.options.keep_points:
                     self._points.append(points)
                     self._origins.append((np.array([g[2] for g in group], dtype=np.float64),
@@ -703,5 +700,4 @@ class MappingSession:
                 self.grid.reset()
                 self.grid_seconds.clear()
             self.stamp = None
-            self.last_scan = None
         return dropped
