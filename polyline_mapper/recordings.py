@@ -470,15 +470,7 @@ def drive_beams(drive) -> tuple:
 
     ``points`` equal ``drive.points()`` (true poses); ``origins`` are the scan poses.
     """
-    from .scan import scan_to_points
-    angles = drive.spec.angles()
-    pts = [scan_to_points(r, angles, p, drive.spec.range_min, drive.spec.range_max)
-           for r, p in zip(drive.ranges, drive.poses)]
-    counts = [len(p) for p in pts]
-    points = np.concatenate(pts) if pts else np.zeros((0, 2))
-    origins = np.repeat(np.asarray(drive.poses, dtype=np.float64)[:, :2].reshape(-1, 2),
-                        counts, axis=0)
-    return points, origins
+    return drive.points(), drive.origins()
 
 
 def _positive(value) -> bool:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .world import path_poses, World
-from ..scan import scan_to_points
+from ..scan import scan_to_points, valid_ranges
 
 
 @dataclass
@@ -96,15 +96,14 @@ class SimulatedDrive:
         pts = np.concatenate(pts) if pts else np.zeros((0, 2))
         if not with_hits:
             return pts
-        hits = np.concatenate([h[np.isfinite(r) & (r >= self.spec.range_min)
-                                 & (r < self.spec.range_max)]
+        hits = np.concatenate([h[valid_ranges(r, self.spec.range_min, self.spec.range_max)]
                                for r, h in zip(self.ranges, self.hits)])
         return pts, hits
 
     def origins(self) -> np.ndarray:
         """Return the laser position of each point of ``points()``, (N, 2) metres."""
-        n = [np.count_nonzero(np.isfinite(r) & (r >= self.spec.range_min)
-                              & (r < self.spec.range_max)) for r in self.ranges]
+        n = [np.count_nonzero(valid_ranges(r, self.spec.range_min, self.spec.range_max))
+             for r in self.ranges]
         return np.repeat(self.poses[:, :2], n, axis=0) if n else np.zeros((0, 2))
 
 
