@@ -18,16 +18,13 @@ and split a group of scans into one run of points per position.
 
 import numpy as np
 
+from .freespace import PAIR_BUDGET, run_bounds, span_pairs
 from .geometry import directions, lengths, project
 from .index import in_sorted, PointIndex
 
 
 END_SHARE = 0.25
 """``beam_evidence`` ignores crossings within min(tol, this share of the length) of an end."""
-
-PAIR_BUDGET = 1 << 16
-"""Most candidate pairs one block of ``seen_through`` or ``corner_chords`` holds in memory (a
-few MB per array); larger inputs are processed in blocks with the same result."""
 
 
 def as_origins(origin, n: int):
@@ -56,11 +53,8 @@ def origin_runs(origins) -> list:
     """
     if origins is None or len(origins) == 0:
         return []
-    o = origins
-    n = len(o)
-    starts = np.concatenate([[0], np.flatnonzero(np.any(o[1:] != o[:-1], axis=1)) + 1])
-    stops = np.append(starts[1:], n)
-    return [(int(a), int(b), np.array(o[a])) for a, b in zip(starts, stops)]
+    starts, stops = run_bounds(origins)
+    return [(int(a), int(b), np.array(origins[a])) for a, b in zip(starts, stops)]
 
 
 def corner_chords(index: PointIndex, segs: np.ndarray, reach: float, near: float,
@@ -223,37 +217,17 @@ def _beam_blocks(segs, origin, points, tol, range_tol, min_sin, end_share=None):
     Yield every (segment, beam in its angular span) pair, in blocks of segments.
 
     Each block is ``(c0, c1, k, through, hit, s)``: segments ``c0:c1``, ``k`` the pair's segment
-    relative to ``c0`` and the outputs of ``_crossings`` per pair.
+    relative to ``c0`` and the outputs of ``_crossings`` per pair (``freespace.span_pairs``
+    picks the pairs, as for the map -> beams metric).
     """
-    k_all = len(segs)
-    n = len(points)
     rel = points - origin
     rng = np.hypot(rel[:, 0], rel[:, 1])
-    ang = np.arctan2(rel[:, 1], rel[:, 0])
-    order = np.argsort(ang)
-    ang2 = np.concatenate([ang[order], ang[order] + 2 * np.pi])
     w = segs[:, 0] - origin                                   # (K, 2) first end from the laser
     e = segs[:, 1] - segs[:, 0]
-    ea = np.arctan2(w[:, 1], w[:, 0])
-    eb = np.arctan2(w[:, 1] + e[:, 1], w[:, 0] + e[:, 0])
-    lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
-    wrap = hi - lo > np.pi                                    # the span crosses +-pi
-    lo, hi = np.where(wrap, hi, lo), np.where(wrap, lo + 2 * np.pi, hi)
-    first = np.searchsorted(ang2, lo, 'left')
-    count = np.minimum(np.searchsorted(ang2, hi, 'right'), first + n) - first
-    done = np.cumsum(count)
-    c0 = 0
-    while c0 < k_all:
-        c1 = max(c0 + 1, int(np.searchsorted(done, done[c0] - count[c0] + PAIR_BUDGET, 'right')))
-        cnt = count[c0:c1]
-        k = np.repeat(np.arange(c1 - c0), cnt)
-        if k.size:
-            beam = np.take(order, (np.repeat(first[c0:c1] - (np.cumsum(cnt) - cnt), cnt)
-                                   + np.arange(k.size)) % n)
-            through, hit, s = _crossings(rel, rng, beam, e[c0:c1], w[c0:c1], k, tol,
-                                         range_tol, min_sin, end_share)
-            yield c0, c1, k, through, hit, s
-        c0 = c1
+    for c0, c1, k, beam in span_pairs(w, e, rel):
+        through, hit, s = _crossings(rel, rng, beam, e[c0:c1], w[c0:c1], k, tol, range_tol,
+                                     min_sin, end_share)
+        yield c0, c1, k, through, hit, s
 
 
 def _crossings(rel, rng, beam, e, w, k, tol, range_tol, min_sin, end_share=None) -> tuple:

@@ -37,7 +37,8 @@ MIN_ANGLE = np.deg2rad(20.0)
 MIN_PASSES = 5
 """Least passing beams that can contradict a segment."""
 PAIR_BUDGET = 1 << 16
-"""Most (segment, beam) pairs tested in one block (a few MB per array)."""
+"""Most (segment, beam) pairs tested in one block (a few MB per array), here and in
+``cleanup`` (clearing, corner chords); larger inputs are processed in blocks, same result."""
 MAX_RUN = 1 << 15
 """Most beams taken from one origin at a time (longer runs are split; counts add up)."""
 
@@ -123,22 +124,76 @@ def free_space_stats(segments, points, origins, every: int = 1) -> dict:
     return judge(segments, points, origins, every).stats()
 
 
+def run_bounds(origins: np.ndarray) -> tuple:
+    """Return (starts, stops) of the runs of equal consecutive rows of (N, 2) ``origins``."""
+    n = len(origins)
+    starts = np.concatenate([[0], np.flatnonzero(np.any(origins[1:] != origins[:-1], axis=1))
+                             + 1]) if n else np.zeros(0, dtype=np.intp)
+    return starts, np.append(starts[1:], n) if n else starts
+
+
 def runs(origins: np.ndarray) -> list:
     """
     Split (N, 2) beam origins into runs of equal consecutive rows: ``[(start, stop), ...]``.
 
     Each run holds at most ``MAX_RUN`` beams (a longer one is cut into pieces).
     """
-    n = len(origins)
-    if n == 0:
-        return []
-    starts = np.concatenate([[0], np.flatnonzero(np.any(origins[1:] != origins[:-1], axis=1))
-                             + 1])
-    stops = np.append(starts[1:], n)
     out = []
-    for a, b in zip(starts.tolist(), stops.tolist()):
+    for a, b in zip(*(v.tolist() for v in run_bounds(origins))):
         out.extend((c, min(c + MAX_RUN, b)) for c in range(a, b, MAX_RUN))
     return out
+
+
+def span_pairs(w: np.ndarray, e: np.ndarray, rel: np.ndarray, widen: float = 0.0,
+               all_beams: np.ndarray = None):
+    """
+    Yield the (segment, beam) pairs that can meet, in blocks: ``(c0, c1, k, beam)``.
+
+    Seen from a laser, segment i runs from ``w[i]`` to ``w[i] + e[i]`` ((K, 2), metres relative
+    to the laser); the beams end at ``rel`` ((N, 2), relative too). A beam can cross a segment
+    only when its direction lies in the segment's angular span, so the beams are sorted by
+    angle once and each segment takes the run of them inside its span, widened by
+    asin(``widen`` / distance of its nearer end) (discs of radius ``widen`` at its ends);
+    segments flagged in ``all_beams`` (K,) take every beam. Blocks of consecutive segments
+    ``c0:c1`` hold at most ``PAIR_BUDGET`` pairs (or one segment's beams); ``k`` is each pair's
+    segment relative to ``c0``, ``beam`` its row of ``rel``.
+    """
+    n, m = len(rel), len(w)
+    if n == 0 or m == 0:
+        return
+    ang = np.arctan2(rel[:, 1], rel[:, 0])
+    order = np.argsort(ang, kind='stable')
+    a_sorted = ang[order]
+    ang3 = np.concatenate([a_sorted, a_sorted + 2 * np.pi, a_sorted + 4 * np.pi])
+    wb = w + e
+    ea = np.arctan2(w[:, 1], w[:, 0])
+    eb = np.arctan2(wb[:, 1], wb[:, 0])
+    lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
+    wrap = hi - lo > np.pi                                    # the span crosses +-pi
+    lo, hi = np.where(wrap, hi, lo), np.where(wrap, lo + 2 * np.pi, hi)
+    if widen > 0:
+        dmin = np.minimum(np.hypot(w[:, 0], w[:, 1]), np.hypot(wb[:, 0], wb[:, 1]))
+        grow = np.arcsin(np.clip(widen / np.maximum(dmin, 1e-12), 0.0, 1.0))
+        lo, hi = lo - grow, hi + grow
+    if all_beams is not None:
+        lo = np.where(all_beams, -np.pi, lo)
+        hi = np.where(all_beams, 3 * np.pi, hi)
+    shift = np.floor((lo + np.pi) / (2 * np.pi)) * 2 * np.pi  # lo into [-pi, pi)
+    lo, hi = lo - shift, hi - shift
+    first = np.searchsorted(ang3, lo, 'left')
+    count = np.minimum(np.searchsorted(ang3, hi, 'right') - first, n)
+    done = np.cumsum(count)
+    c0 = 0
+    while c0 < m:
+        c1 = max(c0 + 1, int(np.searchsorted(done, done[c0] - count[c0] + PAIR_BUDGET,
+                                             'right')))
+        cnt = count[c0:c1]
+        k = np.repeat(np.arange(c1 - c0), cnt)
+        if k.size:
+            beam = order[(np.repeat(first[c0:c1] - (np.cumsum(cnt) - cnt), cnt)
+                          + np.arange(k.size)) % n]
+            yield c0, c1, k, beam
+        c0 = c1
 
 
 def scan_counts(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: float = TOL,
@@ -162,43 +217,12 @@ def scan_counts(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: f
     if sid.size == 0:
         return passes, ends
     w, e, near = w_all[sid], e_all[sid], near[sid]
-    ang = np.arctan2(rel[:, 1], rel[:, 0])
-    order = np.argsort(ang, kind='stable')
-    a_sorted = ang[order]
-    ang3 = np.concatenate([a_sorted, a_sorted + 2 * np.pi, a_sorted + 4 * np.pi])
-    # angular span of each segment seen from the laser, widened by the tol discs at its ends
-    wb = w + e
-    ea = np.arctan2(w[:, 1], w[:, 0])
-    eb = np.arctan2(wb[:, 1], wb[:, 0])
-    lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
-    wrap = hi - lo > np.pi                                    # the span crosses +-pi
-    lo, hi = np.where(wrap, hi, lo), np.where(wrap, lo + 2 * np.pi, hi)
-    dmin = np.minimum(np.hypot(w[:, 0], w[:, 1]), np.hypot(wb[:, 0], wb[:, 1]))
-    widen = np.arcsin(np.clip(tol / np.maximum(dmin, 1e-12), 0.0, 1.0))
-    lo, hi = lo - widen, hi + widen
-    every_beam = near <= tol                                  # the laser is within tol of it
-    lo = np.where(every_beam, -np.pi, lo)
-    hi = np.where(every_beam, 3 * np.pi, hi)
-    shift = np.floor((lo + np.pi) / (2 * np.pi)) * 2 * np.pi  # lo into [-pi, pi)
-    lo, hi = lo - shift, hi - shift
-    first = np.searchsorted(ang3, lo, 'left')
-    count = np.minimum(np.searchsorted(ang3, hi, 'right') - first, n)
-    done = np.cumsum(count)
-    m = sid.size
     min_sin = np.sin(min_angle)
-    c0 = 0
-    while c0 < m:
-        c1 = max(c0 + 1, int(np.searchsorted(done, done[c0] - count[c0] + PAIR_BUDGET,
-                                             'right')))
-        cnt = count[c0:c1]
-        kk = np.repeat(np.arange(c0, c1), cnt)
-        if kk.size:
-            beam = order[(np.repeat(first[c0:c1] - (np.cumsum(cnt) - cnt), cnt)
-                          + np.arange(kk.size)) % n]
-            through, end = pair_tests(rel[beam], rng[beam], w[kk], e[kk], tol, min_sin)
-            passes[sid[c0:c1]] += np.bincount(kk[through] - c0, minlength=c1 - c0)
-            ends[sid[c0:c1]] += np.bincount(kk[end] - c0, minlength=c1 - c0)
-        c0 = c1
+    # every beam can end on a segment the laser stands within tol of
+    for c0, c1, k, beam in span_pairs(w, e, rel, tol, near <= tol):
+        through, end = pair_tests(rel[beam], rng[beam], w[k + c0], e[k + c0], tol, min_sin)
+        passes[sid[c0:c1]] += np.bincount(k[through], minlength=c1 - c0)
+        ends[sid[c0:c1]] += np.bincount(k[end], minlength=c1 - c0)
     return passes, ends
 
 
