@@ -100,11 +100,13 @@ def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate:
     """
     if len(turns) < 2:
         return 0.0
-    scores = np.empty(len(turns))
-    for i, dt in enumerate(turns):               # a handful of candidates, each vectorised
-        d, _ = near.tree.query(transform(pts, (pose[0], pose[1], pose[2] + dt)), k=1,
-                               distance_upper_bound=gate)
-        scores[i] = np.sum(np.clip(1.0 - (d / gate) ** 2, 0.0, None))
+    ang = pose[2] + np.asarray(turns, dtype=np.float64)[:, None]          # (T, 1)
+    c, s = np.cos(ang), np.sin(ang)
+    xs = pose[0] + c * pts[:, 0] - s * pts[:, 1]                            # (T, N)
+    ys = pose[1] + s * pts[:, 0] + c * pts[:, 1]
+    d, _ = near.tree.query(np.stack([xs.ravel(), ys.ravel()], axis=1), k=1,
+                           distance_upper_bound=gate)
+    scores = np.clip(1.0 - (d.reshape(xs.shape) / gate) ** 2, 0.0, None).sum(axis=1)
     best = int(np.argmax(scores))
     at_zero = scores[int(np.argmin(np.abs(turns)))]
     # The prediction wins ties: a turn is taken only when it explains clearly more points.
