@@ -13,7 +13,7 @@ import pytest
 
 
 def drifted(log, scans: int, seed: int) -> list:
-    """Records of the first ``scans`` scans with drifting odometry and no map frame."""
+    """Return the records of the first ``scans`` scans with drifting odometry, no map frame."""
     stamps, _ = log.stamps(1.0)
     log.records = log.records[:scans]
     out = []
