@@ -273,7 +273,9 @@ class BagReader:
         if topic == self.scan_topic:
             return Scan(_stamp(msg.header), clean_frame(msg.header.frame_id),
                         float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
-                        float(msg.range_max), np.array(msg.ranges, dtype=np.float32))
+                        float(msg.range_max), np.array(msg.ranges, dtype=np.float32),
+                        time_increment=float(msg.time_increment),
+                        scan_time=float(msg.scan_time))
         if topic == self.odom_topic:
             pose = msg.pose.pose
             return Odometry(_stamp(msg.header), clean_frame(msg.header.frame_id),
