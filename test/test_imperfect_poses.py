@@ -138,6 +138,24 @@ def test_motion_compensation_places_each_beam_where_the_laser_was():
     assert out[True] < 0.012 and out[True] < 0.4 * out[False], out
 
 
+@pytest.mark.parametrize('ros1', [False, True])
+def test_a_moving_sensor_survives_a_bag_and_is_compensated_from_it(tmp_path, ros1):
+    from bag_helpers import write_bag, write_ros1_bag
+    from polyline_mapper.replay import run_replay
+    drive = make_drive('sim:hall,moving_sensor=1', 4)
+    messages = [(topic, rec, t) for t, topic, rec in drive_messages(drive)]
+    path = (write_ros1_bag(tmp_path / 'moving.bag', messages) if ros1
+            else write_bag(tmp_path / 'moving', messages))
+    with open_recording(path) as rec:
+        scans = [r for r in rec.records() if isinstance(r, Scan)]
+    assert len(scans) == len(drive.poses)
+    assert all(s.time_increment == np.float32(drive.time_increment)
+               and s.scan_time == np.float32(0.1) for s in scans)
+    res = run_replay(path)
+    assert res.used == len(drive.poses)
+    assert drive.world.distance(res.points).mean() < 0.012
+
+
 def test_a_scan_waits_for_the_pose_of_its_last_beam():
     drive = make_drive('sim:hall,moving_sensor=1', 4)
     recs = records(drive)

@@ -375,7 +375,8 @@ class BagWriter:
             msgtype = SCAN_TYPE
             msg = t[SCAN_TYPE](self._header(record.stamp, record.frame_id),
                                record.angle_min, record.angle_min + record.angle_increment
-                               * (len(record.ranges) - 1), record.angle_increment, 0.0, 0.0,
+                               * (len(record.ranges) - 1), record.angle_increment,
+                               float(record.time_increment), float(record.scan_time),
                                record.range_min, record.range_max,
                                np.asarray(record.ranges, dtype=np.float32),
                                np.zeros(0, dtype=np.float32))
