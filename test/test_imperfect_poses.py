@@ -296,3 +296,18 @@ def test_scan_only_needs_no_pose_data_and_starts_at_the_origin():
     assert np.hypot(*(traj[:, 1:3] - truth[:, :2]).T).max() < 0.05
     with pytest.raises(ValueError, match='pose_source must be tf, odom or scan'):
         SessionOptions(pose_source='lidar')
+
+
+def test_replay_pose_source_scan_from_the_command_line(tmp_path):
+    from polyline_mapper.cli import main
+    from polyline_mapper.formats.mapjson import read_map
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:hall,step=0.1,turn=0.1', '--pose-source', 'scan', '-o',
+                 str(out), '-q']) == 0
+    data = read_map(out)
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 1)
+    traj = data.value.trajectory
+    assert data.value.frame_id == 'map' and len(traj) == len(drive.poses)
+    assert np.array_equal(traj[0, 1:], [0.0, 0.0, 0.0])
+    truth = se2_compose(se2_inverse(drive.poses[0]), drive.poses)
+    assert np.sqrt(np.mean(np.sum((traj[:, 1:3] - truth[:, :2]) ** 2, axis=1))) < 0.05
