@@ -311,3 +311,34 @@ def test_replay_pose_source_scan_from_the_command_line(tmp_path):
     assert np.array_equal(traj[0, 1:], [0.0, 0.0, 0.0])
     truth = se2_compose(se2_inverse(drive.poses[0]), drive.poses)
     assert np.sqrt(np.mean(np.sum((traj[:, 1:3] - truth[:, :2]) ** 2, axis=1))) < 0.05
+
+
+@pytest.mark.slow
+def test_the_node_maps_scans_alone(tmp_path):
+    # Over DDS: pose_source scan subscribes to the scans only (no /tf, no odometry) and
+    # publishes a map whose walls, seen from the first scan's laser pose, are the world's.
+    pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+    from rosnode import map_segments, NodeProcess, Peer, stamp_of
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    node = NodeProcess(tmp_path, {'pose_source': 'scan', 'map_publish_period': 0.0,
+                                  'stats_period': 0.0})
+    peer = Peer('test_peer_scan_only')
+    try:
+        assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
+                               and peer.node.count_publishers('/polyline_map') > 0, 60.0)
+        peer.spin_for(0.5)
+        assert peer.tf_pub.get_subscription_count() == 0
+        assert peer.odom_pub.get_subscription_count() == 0
+        last = peer.play(list(drive_messages(drive)), 25.0, mode='scan')
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            last, abs=1e-6), 60.0), node.stderr()[-3000:]
+        msg = peer.maps[-1]
+        assert msg.header.frame_id == 'map'
+        segs = map_segments(msg)
+        world = transform(segs.reshape(-1, 2), drive.poses[0]).reshape(-1, 2, 2)
+        scores = B.wall_scores(world, drive.world.walls, drive.world.distance,
+                               points=drive.points())
+        assert scores['recall'] == 1.0 and scores['precision'] == 1.0, scores
+    finally:
+        peer.close()
+        assert node.stop() == 0
