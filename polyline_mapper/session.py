@@ -76,10 +76,14 @@ PREVIOUS_SCANS = 5
 
 def beam_span(scan: Scan) -> float:
     """Return the seconds from the scan's first beam to its last (0: no usable time_increment)."""
-    ti, n = scan.time_increment, len(scan.ranges)
-    if not (isinstance(ti, (int, float)) and math.isfinite(ti) and ti > 0) or n < 2:
+    try:
+        ti = float(scan.time_increment)
+    except (TypeError, ValueError):
         return 0.0
-    span = float(ti) * (n - 1)
+    n = len(scan.ranges)
+    if isinstance(scan.time_increment, bool) or not (math.isfinite(ti) and ti > 0) or n < 2:
+        return 0.0
+    span = ti * (n - 1)
     return span if span <= MAX_SCAN_SPAN else 0.0
 
 
@@ -650,7 +654,7 @@ class MappingSession:
         span = beam_span(scan)
         if span == 0.0:
             ti = scan.time_increment
-            if ti != 0 and len(scan.ranges) > 1:
+            if ti is not None and ti != 0 and len(scan.ranges) > 1:
                 notes.append(('time_increment', f'time_increment {ti!r} s ignored (no motion '
                               'compensation): expected 0, or > 0 with the beams spanning at '
                               f'most {MAX_SCAN_SPAN:g} s'))
