@@ -514,9 +514,12 @@ POSITIVE = number(0.0, lo_open=True)
 
 def _pose_args(sp) -> None:
     sp.add_argument('--scan-topic', help='sensor_msgs/LaserScan topic (default: the only one)')
-    sp.add_argument('--pose-source', choices=('tf', 'odom'), default='tf',
+    sp.add_argument('--pose-source', choices=('tf', 'odom', 'scan'), default='tf',
                     help='tf: laser pose in the fixed frame from /tf and /tf_static (default); '
-                    'odom: nav_msgs/Odometry plus the laser mount, map in the odometry frame')
+                    'odom: nav_msgs/Odometry plus the laser mount, map in the odometry frame; '
+                    'scan: no pose data, each scan predicted at constant velocity and refined '
+                    'by scan matching (implies --scan-matching; the first scan at the origin '
+                    "of the map frame, 'map' unless --fixed-frame)")
     sp.add_argument('--fixed-frame', help="map frame with --pose-source tf (default: 'map' "
                     "when the scan's TF tree has it, else the tree's root)")
     sp.add_argument('--odom-topic', help='nav_msgs/Odometry topic for --pose-source odom '

@@ -59,8 +59,10 @@ NODE_PARAMS = (
               '(nav_msgs/Odometry header.frame_id).'),
     ParamSpec('pose_source', 'tf',
               "Where scan poses come from: 'tf' (fixed_frame <- scan frame from /tf and "
-              "/tf_static) or 'odom' (nav_msgs/Odometry on 'odom' plus the laser_* mount).",
-              choices=('tf', 'odom')),
+              "/tf_static), 'odom' (nav_msgs/Odometry on 'odom' plus the laser_* mount) or "
+              "'scan' (no pose data: each scan predicted at constant velocity and refined by "
+              'scan matching, which this implies; the first scan at the origin of fixed_frame).',
+              choices=('tf', 'odom', 'scan')),
     ParamSpec('transform_tolerance', 0.1,
               'Seconds a scan stamp may lie outside the stored transforms (or odometry) and '
               'still use the nearest one (held, never extrapolated).', 0.0, 10.0, True),

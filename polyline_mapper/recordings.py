@@ -7,15 +7,18 @@ Every input the tools read, opened in one place: point files, CARMEN logs, bags,
 - ``carmen``: a CARMEN log, .log / .clf / .carmen, gzipped or not;
 - ``bag``: a rosbag2 folder (with metadata.yaml), a .db3 or .mcap storage file, a ROS 1 .bag;
 - ``sim``: a built-in simulated drive, ``sim:office`` (the office floor with its curved wall),
-  ``sim:hall`` or ``sim:corridors``, made at run time from a seed.
+  ``sim:hall`` or ``sim:corridors``, made at run time from a seed, with options after commas
+  (``SIM_OPTIONS``), e.g. ``sim:office,odom_drift=3,moving_sensor=1``: wheel odometry that
+  drifts (``OdometryDrift`` seeded 3; no map frame) and a lidar whose beams are taken over the
+  scan time (``time_increment`` set).
 
 ``read_points`` reads the points of a point file or a CARMEN log (each scan at its corrected
 pose). ``open_recording`` opens a log, a bag or a drive as a ``Recording``: timed messages
 ``(log_time, topic, record)``, ``record`` being a ``Scan``, an ``Odometry``, a list of
 ``Transform`` (one TFMessage) or, for a bag message that does not decode, a ``Skipped``
 (``formats.records``). Only what the mapper uses is kept: other topics of a bag, and the
-LaserScan fields the records do not hold (intensities, scan and time increments) and Odometry's
-twist and covariances, are not.
+LaserScan fields the records do not hold (intensities, angle_max, which the other fields give)
+and Odometry's twist and covariances, are not.
 
 One message order for every kind, the one a robot records and ``polyline-mapper convert``
 writes: /tf_static with the laser mount first, then per scan /tf (map -> odom, odom ->
@@ -45,6 +48,16 @@ SUFFIXES = {
 """File name endings (lower case) of each kind; a rosbag2 folder is known by its metadata.yaml."""
 SIM_PREFIX = 'sim:'
 SIM_WORLDS = ('office', 'hall', 'corridors')
+SIM_OPTIONS = {
+    'odom_drift': 'seed: /odom and odom -> base_link drift like wheel odometry (OdometryDrift), '
+                  'no map frame',
+    'moving_sensor': '1: beams taken over the scan time (time_increment set), 0: at once',
+    'step': 'metres between scans (default 0.25)',
+    'rate': 'scans per second (default 10)',
+    'turn': 'turn in place at the waypoints, at most this many radians per scan',
+    'beams': 'beams per scan (default 541 over 270 degrees)',
+}
+"""Options of a ``sim:`` drive, ``sim:WORLD,KEY=VALUE,...``; none given: today's drive."""
 SIM_START = 1000.0
 """Stamp of a simulated drive's first scan, seconds (non-zero: ROS reads time 0 as unset)."""
 SIM_MOUNT = (0.2, 0.0, 0.0)
@@ -73,9 +86,7 @@ def kind_of(path) -> str:
     """
     name = os.fspath(path) if isinstance(path, os.PathLike) else str(path)
     if name.startswith(SIM_PREFIX):
-        if name[len(SIM_PREFIX):] not in SIM_WORLDS:
-            raise ValueError(f'{name}: unknown simulated drive (expected one of '
-                             f'{", ".join(SIM_PREFIX + w for w in SIM_WORLDS)})')
+        sim_options(name)
         return 'sim'
     if not os.path.exists(name):
         raise ValueError(f'{name}: no such file or folder')
@@ -254,35 +265,95 @@ def carmen_messages(log, stamps, drift: Optional[tuple] = None) -> Iterator[tupl
     return robot_messages(stamps, laser, scans, mount=log.laser_offset, odom_poses=odometry)
 
 
+def sim_options(name: str) -> tuple:
+    """
+    Parse ``sim:WORLD[,KEY=VALUE,...]``: return (world, options dict) (``SIM_OPTIONS``).
+
+    Raises ValueError with one line for an unknown world, an unknown key or a bad value.
+
+    >>> sim_options('sim:office,odom_drift=3,moving_sensor=1,turn=0.2')
+    ('office', {'odom_drift': 3, 'moving_sensor': True, 'turn': 0.2})
+    """
+    text = str(name)
+    world, *items = (text[len(SIM_PREFIX):] if text.startswith(SIM_PREFIX) else text).split(',')
+    if world not in SIM_WORLDS:
+        raise ValueError(f'{text}: unknown simulated drive (expected one of '
+                         f'{", ".join(SIM_PREFIX + w for w in SIM_WORLDS)}, options after '
+                         'commas)')
+    out = {}
+    for item in items:
+        key, eq, value = (v.strip() for v in item.partition('='))
+        if key not in SIM_OPTIONS or not eq:
+            raise ValueError(f'{text}: unknown simulated drive option {item!r} (expected '
+                             f'KEY=VALUE, KEY one of {", ".join(SIM_OPTIONS)})')
+        try:
+            if key in ('odom_drift', 'beams'):
+                v = int(value)
+                ok = 0 <= v < 2 ** 32 if key == 'odom_drift' else 2 <= v <= 100000
+            elif key == 'moving_sensor':
+                v = {'0': False, '1': True}[value]
+                ok = True
+            else:
+                v = float(value)
+                ok = math.isfinite(v) and v > 0 and (key != 'step' or v <= 10)
+        except (KeyError, ValueError):
+            ok = False
+        if not ok:
+            want = {'odom_drift': 'an integer seed >= 0', 'beams': 'an integer >= 2',
+                    'moving_sensor': '0 or 1', 'step': 'a number of metres in (0, 10]'}
+            raise ValueError(f'{text}: {key} must be {want.get(key, "a number > 0")}, got '
+                             f'{value!r}')
+        out[key] = v
+    return world, out
+
+
 def make_drive(name: str, seed: int = 1, noise: float = 0.01, beams: int = 541):
-    """Return the SimulatedDrive of ``sim:<name>`` (or ``<name>``); ValueError if unknown."""
+    """
+    Return the SimulatedDrive of ``sim:<name>`` (or ``<name>``); ValueError if unknown.
+
+    ``name`` may carry options (``sim_options``); its ``beams`` replaces the argument. The
+    odometry drift is not part of the drive (``drive_messages`` adds it).
+    """
     from .sim import corridor_loop, hall_with_arc, LaserSpec, office_floor, simulate_drive
     worlds = {'office': office_floor, 'hall': hall_with_arc, 'corridors': corridor_loop}
-    world = name[len(SIM_PREFIX):] if str(name).startswith(SIM_PREFIX) else name
-    if world not in worlds:
-        raise ValueError(f'{name}: unknown simulated drive (expected one of '
-                         f'{", ".join(SIM_PREFIX + w for w in SIM_WORLDS)})')
+    world, opts = sim_options(name)
     if not (np.isfinite(noise) and noise >= 0):
         raise ValueError(f'noise must be a finite number >= 0 (m), got {noise!r}')
-    return simulate_drive(worlds[world](), LaserSpec(beams=beams, noise=noise), rng=seed)
+    rate = opts.get('rate', 10.0)
+    kw = {k: opts[k] for k in ('step', 'turn') if k in opts}
+    return simulate_drive(worlds[world](), LaserSpec(beams=opts.get('beams', beams), noise=noise),
+                          rng=seed, rate=rate,
+                          scan_time=1.0 / rate if opts.get('moving_sensor') else 0.0, **kw)
 
 
 def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down: bool = False,
-                   map_to_odom=SIM_MAP_TO_ODOM, **options) -> Iterator[tuple]:
+                   map_to_odom=SIM_MAP_TO_ODOM, odom_drift: Optional[int] = None,
+                   **options) -> Iterator[tuple]:
     """
     Yield ``(log_time, topic, record)`` for a SimulatedDrive, as a robot would record it.
 
     The drive's poses are laser poses in the map frame and its stamps start at 0: the messages
     are stamped ``start`` + those. The laser sits at ``mount`` on base_link (rolled when
-    ``upside_down``), odom at ``map_to_odom`` in map. ``options`` go to ``robot_messages``.
+    ``upside_down``), odom at ``map_to_odom`` in map. ``odom_drift`` (a seed): instead, a robot
+    without a localizer, as ``carmen_messages`` writes one: /odom and /tf odom -> base_link
+    follow the true base poses with ``OdometryDrift`` added, and there is no map frame (the
+    first pose is true). A moving sensor's scans carry the drive's ``time_increment`` and
+    ``scan_time``. ``options`` go to ``robot_messages``.
     """
     spec = drive.spec
     stamps = start + np.asarray(drive.stamps, dtype=np.float64)
     laser_frame = options.get('frames', FRAMES)[3]
+    extra = ({'time_increment': drive.time_increment, 'scan_time': drive.scan_time}
+             if drive.time_increment > 0 else {})
     scans = (Scan(t, laser_frame, spec.angle_min, spec.angle_increment, spec.range_min,
-                  spec.range_max, np.asarray(ranges, dtype=np.float32))
+                  spec.range_max, np.asarray(ranges, dtype=np.float32), **extra)
              for t, ranges in zip(stamps.tolist(), drive.ranges))
-    return robot_messages(stamps, drive.poses, scans, mount=mount, upside_down=upside_down,
+    laser = drive.poses
+    if odom_drift is not None:
+        m = np.asarray(mount, dtype=np.float64)
+        base = OdometryDrift().apply(se2_compose(laser, se2_inverse(m)), odom_drift)
+        laser, map_to_odom = se2_compose(base, m), None
+    return robot_messages(stamps, laser, scans, mount=mount, upside_down=upside_down,
                           map_to_odom=map_to_odom, **options)
 
 
@@ -345,9 +416,12 @@ def open_recording(path, scan_topic: str = None, odom_topic: str = None, period:
         raise ValueError(f"odometry must be None, 'auto', True or False, got {odometry!r}")
     if kind == 'sim':
         drive = make_drive(path, seed, noise)
-        yield Recording(lambda: drive_messages(drive), len(drive.poses),
+        drift = sim_options(path)[1].get('odom_drift')
+        how = ('' if drift is None else f', odometry drifting (seed {drift}), no map frame') + (
+            ', moving sensor' if drive.time_increment > 0 else '')
+        yield Recording(lambda: drive_messages(drive, odom_drift=drift), len(drive.poses),
                         f'simulated drive {path}, {len(drive.poses)} scans of '
-                        f'{drive.spec.beams} beams', kind, drive=drive)
+                        f'{drive.spec.beams} beams{how}', kind, drive=drive)
     elif kind == 'carmen':
         log, stamps, warnings = read_log(path, period)
         desc = f'CARMEN log, {len(log.records)} scans'

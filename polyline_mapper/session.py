@@ -16,9 +16,15 @@ from ``recordings``. The session does, in this order:
    frame's /tf_static mount when none is given), the map being in the odometry frame. Like a tf2
    message filter, a scan waits, in order, until pose data stamped at or after it has come (so
    its pose is interpolated, not held), or until its pose is known to be impossible; it gives up
-   after ``wait`` seconds and is counted under ``no pose: <cause>``.
+   after ``wait`` seconds and is counted under ``no pose: <cause>``. ``'scan'`` needs no pose
+   data at all: each scan's pose is predicted at constant velocity from the last two poses
+   and refined by scan matching (the first scan sits at the fixed frame's origin).
 3. **Convert** it to fixed-frame points (``scan_to_points``; ranges beyond
-   ``IncrementalConfig.max_mapping_range`` are dropped with the invalid readings).
+   ``IncrementalConfig.max_mapping_range`` are dropped with the invalid readings). When the
+   scan's ``time_increment`` is set, each beam is placed at the pose interpolated at its own
+   time (motion compensation: from TF / odometry, waiting for the pose data that covers the
+   last beam; in scan mode, or when that data is missing, from the matched motion), relative
+   to the pose at the stamp, so scan matching then moves the scan as one rigid body.
 4. **Update** the incremental mapper once per ``update_every_n_scans`` posed scans (their
    points in one update); ``update_ms`` is the time of steps 3 and 4 together.
 5. **Publish**: ``map_value()`` returns the one ``MapValue`` (segments, support, polylines, closed,
@@ -51,9 +57,13 @@ from .core.mapvalue import MapValue
 from .core.register import match_scan, scan_chords, spread, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
-from .scan import check_scan, scan_to_points, ScanError
+from .scan import check_scan, scan_to_points, ScanError, valid_ranges
 
-POSE_SOURCES = ('tf', 'odom')
+POSE_SOURCES = ('tf', 'odom', 'scan')
+MAX_SCAN_SPAN = 1.0
+"""Seconds the beams of one scan may span for motion compensation (longer: taken as bad)."""
+MAX_MOTION_GAP = 1.0
+"""Seconds between the last two poses beyond which their motion is not extrapolated."""
 MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
 
@@ -66,6 +76,35 @@ MATCH_SIGMA = 0.03
 """Scan matching: the noise scale (m) used before the map has estimated its own sigma."""
 
 
+def beam_span(scan: Scan) -> float:
+    """Return the seconds from the scan's first beam to its last (0: no usable time_increment)."""
+    try:
+        ti = float(scan.time_increment)
+    except (TypeError, ValueError):
+        return 0.0
+    n = len(scan.ranges)
+    if isinstance(scan.time_increment, bool) or not (math.isfinite(ti) and ti > 0) or n < 2:
+        return 0.0
+    span = ti * (n - 1)
+    return span if span <= MAX_SCAN_SPAN else 0.0
+
+
+def beam_points(ranges, angles, motion: np.ndarray, range_min: float,
+                range_max: float) -> np.ndarray:
+    """
+    Return the usable readings as points in the frame of the laser at the scan's stamp.
+
+    ``motion`` (B, 3): each beam's laser pose (x, y, yaw; m, rad) relative to that frame, so
+    beam i is cast from where the laser was when it took it. Returns (M, 2) metres, M <= B.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    ok = valid_ranges(r, range_min, range_max) & np.isfinite(a)
+    p = motion[ok]
+    ang = a[ok] + p[:, 2]
+    return np.stack([p[:, 0] + r[ok] * np.cos(ang), p[:, 1] + r[ok] * np.sin(ang)], axis=1)
+
+
 class SessionError(ValueError):
     """A problem that makes the whole session meaningless (not one skipped record)."""
 
@@ -75,9 +114,11 @@ class SessionOptions:
     """How scans get their poses and are grouped into updates."""
 
     pose_source: str = 'tf'
+    """'tf', 'odom' or 'scan' (no pose data: constant velocity refined by scan matching; sets
+    ``scan_matching``)."""
     fixed_frame: Optional[str] = None
     """Map frame. tf: default 'map' when the scan frame's tree has it, else its root; odom: the
-    odometry frame (odometry in another frame is skipped and counted)."""
+    odometry frame (odometry in another frame is skipped and counted); scan: default 'map'."""
     tolerance: float = 0.1
     """Seconds a stamp may lie outside the stored transforms and still use the nearest."""
     wait: float = 0.5
@@ -118,7 +159,9 @@ class SessionOptions:
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
         if self.pose_source not in POSE_SOURCES:
-            raise ValueError(f'pose_source must be tf or odom, got {self.pose_source!r}')
+            raise ValueError(f'pose_source must be tf, odom or scan, got {self.pose_source!r}')
+        if self.pose_source == 'scan':
+            self.scan_matching = True       # the scans are the only source of poses
         for name in ('every', 'update_every_n_scans', 'max_waiting'):
             v = getattr(self, name)
             if isinstance(v, bool) or int(v) != v or v < 1:
@@ -178,6 +221,8 @@ class PoseSource:
         """
         odom_mode = self.options.pose_source == 'odom'
         note = None
+        if self.options.pose_source == 'scan':
+            return None             # scan mode: poses come from the scans alone
         if isinstance(record, Transform):
             if odom_mode and not record.static:
                 return None         # odom mode: the odometry topic is the only moving edge
@@ -223,8 +268,18 @@ class PoseSource:
         return ('time_jump', f'pose data stamped {stamp:.3f}, {gap:.1f} s before the newest: '
                 'the clock jumped back, dropping the stored dynamic transforms')
 
-    def pose(self, scan: Scan) -> PlanarPose:
-        """Return the laser pose of ``scan``; TransformLookupError (with ``cause``) if none."""
+    def pose(self, scan: Scan, stamp: Optional[float] = None,
+             tolerance: Optional[float] = None) -> PlanarPose:
+        """
+        Return the laser pose of ``scan``; TransformLookupError (with ``cause``) if none.
+
+        ``stamp`` (s): at that time instead of the scan's stamp (a beam's time); ``tolerance``
+        (s): instead of the options'. Scan mode: the origin (the session predicts the pose from
+        the matched motion).
+        """
+        if self.options.pose_source == 'scan':
+            self.fixed_frame = self.fixed_frame or 'map'
+            return PlanarPose(0.0, 0.0, 0.0, False)
         if scan.pose is not None:
             x, y, yaw = (float(v) for v in scan.pose)
             return PlanarPose(x, y, yaw, False)
@@ -242,7 +297,9 @@ class PoseSource:
                 frame = MOUNT_FRAME
         else:
             target = self.fixed_frame or self._default_fixed(frame)
-        pose = self.buffer.lookup_planar(target, frame, scan.stamp, self.options.tolerance)
+        pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
+                                         self.options.tolerance if tolerance is None
+                                         else tolerance)
         self.fixed_frame = target
         return pose
 
@@ -353,6 +410,8 @@ class MappingSession:
         self._recent = deque(maxlen=RECENT_SCANS)
         """Scan matching: chords of the last matched scans (fixed frame), the map's newest edge."""
         self._trajectory = []
+        self._motion = deque(maxlen=2)
+        """(stamp, (x, y, yaw)) of the last two posed scans: the matched motion."""
         self.matches = Counter()
         """Scan matching outcomes: 'matched', 'no map yet', and each refusal reason."""
         self._news = False
@@ -475,6 +534,8 @@ class MappingSession:
                 if (scan.pose is None and not give_up and math.isfinite(latest)
                         and latest < scan.stamp):
                     break           # pose data at or after the scan's stamp may still come
+                if not give_up and not self._last_beam_posed(scan):
+                    break           # motion compensation: the last beam's pose may still come
                 try:
                     pose = self.poses.pose(scan)
                 except TransformLookupError as exc:
@@ -495,30 +556,114 @@ class MappingSession:
                         f'the scan rate (queue of {opts.max_queue} scans)'))
         return notes
 
+    def _last_beam_posed(self, scan: Scan) -> bool:
+        """Whether the pose data covers the scan's last beam (or none is needed or can come)."""
+        span = beam_span(scan)
+        if span == 0.0 or scan.pose is not None or self.options.pose_source == 'scan':
+            return True
+        try:
+            self.poses.pose(scan, scan.stamp + span, tolerance=0.0)
+        except TransformLookupError as exc:
+            return exc.cause != 'too_new'
+        return True
+
     def _convert(self, scan: Scan, pose: PlanarPose, arrived: float) -> list:
         t0 = time.perf_counter()
         limit = min(float(scan.range_max), self.mapper.config.max_mapping_range)
         notes = []
         xyz = pose.xyz
+        scan_mode = self.options.pose_source == 'scan'
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
+                if scan_mode:
+                    xyz = self._predict(scan.stamp)
+                motion = self._beam_motion(scan, pose, notes)
+                if motion is not None:
+                    local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)
                 if self.options.scan_matching:
-                    local = scan_to_points(scan.ranges, angles, np.zeros(3), scan.range_min,
-                                           limit)
+                    if motion is None:
+                        local = scan_to_points(scan.ranges, angles, np.zeros(3),
+                                               scan.range_min, limit)
                     if len(local):
                         xyz, note = self._match(local, xyz)
                         notes += [note] if note is not None else []
-                pts = scan_to_points(scan.ranges, angles, xyz, scan.range_min, limit)
+                pts = (scan_to_points(scan.ranges, angles, xyz, scan.range_min, limit)
+                       if motion is None else transform(local, xyz))
         except ValueError as exc:
             return [self._skip('bad scan', 'bad_geometry', str(exc))]
         if len(pts) == 0:
             return [self._skip('bad scan', 'no_valid_points',
                                f'no reading within the mapping range at {scan.stamp:.3f} s')]
+        if self._motion and scan.stamp <= self._motion[-1][0]:
+            self._motion.clear()            # time went back: the old motion means nothing
+        self._motion.append((scan.stamp, xyz))
         if self.options.keep_points:
             self._trajectory.append((scan.stamp, *xyz))
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
+
+    def _velocity(self, stamp: float) -> Optional[np.ndarray]:
+        """Return the matched motion per second (body frame, (3,)) usable at ``stamp``, or None."""
+        if len(self._motion) < 2:
+            return None
+        (t0, p0), (t1, p1) = self._motion
+        if not (0 < t1 - t0 <= MAX_MOTION_GAP and 0 <= stamp - t1 <= MAX_MOTION_GAP):
+            return None
+        step = se2_compose(se2_inverse(p0), p1)
+        step[2] = (step[2] + math.pi) % (2 * math.pi) - math.pi
+        return step / (t1 - t0)
+
+    def _predict(self, stamp: float) -> np.ndarray:
+        """
+        Scan mode: the given pose whose correction is the constant-velocity prediction.
+
+        The prediction is the last pose moved on by the last motion (``_velocity``), the
+        origin for the first scan; returned as ``correction^-1 * prediction`` so that the
+        matcher's prediction (correction * given) is it.
+        """
+        if not self._motion:
+            return se2_inverse(self._correction)
+        velocity = self._velocity(stamp)
+        last = self._motion[-1][1]
+        guess = last if velocity is None else se2_compose(
+            last, velocity * (stamp - self._motion[-1][0]))
+        return se2_compose(se2_inverse(self._correction), guess)
+
+    def _beam_motion(self, scan: Scan, pose: PlanarPose, notes: list) -> Optional[np.ndarray]:
+        """
+        Return each beam's laser pose relative to the pose at the stamp, (B, 3), or None.
+
+        None when the scan's beams are taken at once (``time_increment`` 0) or no motion is
+        known. From the pose source (first, middle and last beam, interpolated between them)
+        unless in scan mode or when it has no pose at those times; else the matched motion.
+        """
+        span = beam_span(scan)
+        if span == 0.0:
+            ti = scan.time_increment
+            if ti is not None and ti != 0 and len(scan.ranges) > 1:
+                notes.append(('time_increment', f'time_increment {ti!r} s ignored (no motion '
+                              'compensation): expected 0, or > 0 with the beams spanning at '
+                              f'most {MAX_SCAN_SPAN:g} s'))
+            return None
+        n = len(scan.ranges)
+        times = float(scan.time_increment) * np.arange(n)
+        knots = np.array([0.0, 0.5 * span, span])
+        rel = None
+        if self.options.pose_source != 'scan':
+            try:
+                at = np.array([self.poses.pose(scan, scan.stamp + k).xyz for k in knots[1:]])
+                rel = se2_compose(se2_inverse(pose.xyz), at)
+            except TransformLookupError:
+                rel = None
+        if rel is None:
+            velocity = self._velocity(scan.stamp)
+            if velocity is None:
+                return None
+            rel = velocity[None] * knots[1:, None]
+        rel = np.vstack([np.zeros(3), rel])
+        rel[:, 2] = np.unwrap((rel[:, 2] + math.pi) % (2 * math.pi) - math.pi)
+        return np.column_stack([np.interp(times, knots, rel[:, k]) for k in range(3)])
 
     def _match(self, local: np.ndarray, given: np.ndarray) -> tuple:
         """Refine ``given`` (the pose TF or odometry gives) against the map; (pose, note)."""
@@ -527,22 +672,21 @@ class MappingSession:
         sigma = self.mapper.sigma
         segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
         sigma = sigma or MATCH_SIGMA
-        if self._recent:
-            segs = np.concatenate([segs] + list(self._recent))
-        if len(segs):                    # the map near the predicted scan (bounding boxes)
-            world = transform(local, prediction)
-            reach = 0.5 + self.mapper.r
-            lo, hi = world.min(axis=0) - reach, world.max(axis=0) + reach
-            box = ((segs.max(axis=1) >= lo) & (segs.min(axis=1) <= hi)).all(axis=1)
-            segs = segs[box]
-        if not len(segs):
+        recent = np.concatenate(list(self._recent)) if self._recent else np.zeros((0, 2, 2))
+        world = transform(local, prediction)
+        reach = 0.5 + self.mapper.r
+        lo, hi = world.min(axis=0) - reach, world.max(axis=0) + reach
+        segs, recent = (s[((s.max(axis=1) >= lo) & (s.min(axis=1) <= hi)).all(axis=1)]
+                        for s in (segs, recent))   # near the predicted scan (bounding boxes)
+        if not len(segs) and not len(recent):
             self.matches['no map yet'] += 1
             self._recent.append(scan_chords(transform(local, prediction)))
             return prediction, None
-        m = match_scan(local, prediction, segs, sigma)
+        m = match_scan(local, prediction, np.concatenate([segs, recent]), sigma)
         if not m.ok:
             self.matches[m.reason] += 1
-            self._recent.append(scan_chords(transform(local, prediction)))
+            if m.reason == 'too few inliers':      # new ground: the prediction is all there is
+                self._recent.append(scan_chords(transform(local, prediction)))
             return prediction, ('match_failed', f'scan matching kept the predicted pose: '
                                 f'{m.reason} ({m.inliers} inliers)')
         self.matches['matched'] += 1
@@ -708,6 +852,7 @@ class MappingSession:
             self._ready.clear()
             self._points.clear()
             self._trajectory.clear()
+            self._motion.clear()
             self._correction = np.zeros(3)
             self._recent.clear()
             self._origins.clear()

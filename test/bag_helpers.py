@@ -114,7 +114,8 @@ def write_ros1_bag(path, messages, frame_prefix='/', chunk_bytes=None, compressi
                 n = len(rec.ranges)
                 msg = t[typ](header(rec.stamp, rec.frame_id), rec.angle_min,
                              rec.angle_min + rec.angle_increment * (n - 1), rec.angle_increment,
-                             0.0, 0.0, rec.range_min, rec.range_max, rec.ranges,
+                             rec.time_increment, rec.scan_time, rec.range_min, rec.range_max,
+                             rec.ranges,
                              np.zeros(0, np.float32))
             elif isinstance(rec, Odometry):
                 typ = 'nav_msgs/msg/Odometry'

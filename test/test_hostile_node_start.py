@@ -25,7 +25,7 @@ CASES = [
      ['layout.yaml: Cannot have a value before ros__parameters']),
     (['--params-file', '{dir}/empty_frame.yaml'],
      ['fixed_frame must not be empty: it must be a frame name']),
-    (['-p', 'pose_source:='], ['pose_source must be one of tf, odom, got an empty value']),
+    (['-p', 'pose_source:='], ['pose_source must be one of tf, odom, scan, got an empty value']),
     (['-p', 'fixed_frame:='], ['fixed_frame must be a frame name']),
     (['-p', 'smemsf.init:='], ['smemsf.init must be one of diagonals, single, random']),
     (['-p', 'map_output_path:='], ['map_output_path must not be empty']),

@@ -32,6 +32,11 @@ class Scan:
     """(B,) float32 metres; NaN / inf / out-of-range readings are dropped later (REP 117)."""
     pose: Optional[np.ndarray] = None
     """(x, y, yaw) of the laser in the fixed frame, metres and radians, or None (look it up)."""
+    time_increment: float = 0.0
+    """Seconds between beams (LaserScan.time_increment): beam i is taken at stamp + i x this.
+    0: all beams at the stamp (the mapper then does no motion compensation)."""
+    scan_time: float = 0.0
+    """Seconds between scans (LaserScan.scan_time), 0 when unknown."""
 
     def angles(self) -> np.ndarray:
         """Return each beam's angle, radians in the laser frame, (B,); ValueError if not finite."""

@@ -52,6 +52,8 @@ def scan_msg(scan: records.Scan, stamp: float = None) -> LaserScan:
                                      * max(len(scan.ranges) - 1, 0)))
     msg.range_min = float(scan.range_min)
     msg.range_max = float(scan.range_max)
+    msg.time_increment = float(scan.time_increment)
+    msg.scan_time = float(scan.scan_time)
     msg.ranges = np.asarray(scan.ranges, dtype=np.float32)
     return msg
 
@@ -85,7 +87,9 @@ def scan_from_msg(msg) -> records.Scan:
     """Return a sensor_msgs/LaserScan as a records.Scan (float32 fields, as the message has)."""
     return records.Scan(stamp_seconds(msg.header.stamp), records.clean_frame(msg.header.frame_id),
                         float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
-                        float(msg.range_max), np.asarray(msg.ranges, dtype=np.float32))
+                        float(msg.range_max), np.asarray(msg.ranges, dtype=np.float32),
+                        time_increment=float(msg.time_increment),
+                        scan_time=float(msg.scan_time))
 
 
 def transforms_from_msg(msg, static: bool) -> list:

@@ -116,7 +116,7 @@ class PolylineMapperNode(Node):
             self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      TF_STATIC_QOS)
-        else:
+        elif self.settings.pose_source == 'odom':
             self.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
         overrides = QoSOverridingOptions.with_default_policies()   # reliability, depth, history
         self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data,

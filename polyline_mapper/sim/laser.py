@@ -58,15 +58,18 @@ def simulate_scan(world: World, pose, spec: LaserSpec, rng, t: float = None) -> 
     """
     One scan from ``pose`` = (x, y, yaw), at time ``t`` (s) for a world with dynamic objects.
 
+    ``pose`` may also be (beams, 3): each beam cast from its own pose (a moving sensor).
+
     Returns
     -------
     ranges : (beams,) metres with +inf for no return and NaN for dropouts.
     hit : (beams,) index of the object hit (see ``World.cast``), -1 for none.
 
     """
-    ang = spec.angles() + pose[2]
+    pose = np.asarray(pose, dtype=np.float64)
+    ang = spec.angles() + pose[..., 2]
     d = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    true, hit = world.cast(pose[:2], d, t)
+    true, hit = world.cast(pose[..., :2], d, t)
     ranges = true + rng.normal(0.0, spec.noise, size=true.shape)
     ranges[(true >= spec.range_max) | ~np.isfinite(true)] = np.inf
     hit = np.where(np.isfinite(ranges), hit, -1)
@@ -79,7 +82,13 @@ def simulate_scan(world: World, pose, spec: LaserSpec, rng, t: float = None) -> 
 
 @dataclass
 class SimulatedDrive:
-    """Scans along a path: poses (P, 3), ranges (P, B), hit ids (P, B), and the laser."""
+    """
+    Scans along a path: poses (P, 3), ranges (P, B), hit ids (P, B), and the laser.
+
+    ``poses`` are the laser poses at the scans' stamps. With a moving sensor
+    (``time_increment`` > 0) beam i of a scan is taken ``i * time_increment`` s after its
+    stamp, from the pose interpolated at that time (``beam_poses``), as a spinning lidar does.
+    """
 
     world: World
     spec: LaserSpec
@@ -87,12 +96,25 @@ class SimulatedDrive:
     ranges: np.ndarray
     hits: np.ndarray
     stamps: np.ndarray
+    time_increment: float = 0.0
+    """Seconds between beams (0: every beam at the scan's stamp)."""
+    scan_time: float = 0.0
+    """Seconds between scans, as LaserScan.scan_time (0 for a sensor taken as not moving)."""
+
+    def beam_poses(self, index: int) -> np.ndarray:
+        """Return the laser pose of each beam of scan ``index``, (B, 3), at the beam's time."""
+        return _interpolate(self.poses, self.stamps, self.stamps[index]
+                            + self.time_increment * np.arange(self.spec.beams))
 
     def points(self, with_hits: bool = False):
         """All valid readings registered with the true poses, (N, 2) metres (and hit ids)."""
         angles = self.spec.angles()
-        pts = [scan_to_points(r, angles, p, self.spec.range_min, self.spec.range_max)
-               for r, p in zip(self.ranges, self.poses)]
+        if self.time_increment > 0:
+            pts = [_beam_points(r, angles, self.beam_poses(k), self.spec)
+                   for k, r in enumerate(self.ranges)]
+        else:
+            pts = [scan_to_points(r, angles, p, self.spec.range_min, self.spec.range_max)
+                   for r, p in zip(self.ranges, self.poses)]
         pts = np.concatenate(pts) if pts else np.zeros((0, 2))
         if not with_hits:
             return pts
@@ -102,25 +124,62 @@ class SimulatedDrive:
 
     def origins(self) -> np.ndarray:
         """Return the laser position of each point of ``points()``, (N, 2) metres."""
-        n = [np.count_nonzero(valid_ranges(r, self.spec.range_min, self.spec.range_max))
-             for r in self.ranges]
+        ok = [valid_ranges(r, self.spec.range_min, self.spec.range_max) for r in self.ranges]
+        if self.time_increment > 0:
+            return (np.concatenate([self.beam_poses(k)[m, :2] for k, m in enumerate(ok)])
+                    if ok else np.zeros((0, 2)))
+        n = [np.count_nonzero(m) for m in ok]
         return np.repeat(self.poses[:, :2], n, axis=0) if n else np.zeros((0, 2))
 
 
+def _interpolate(poses: np.ndarray, stamps: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Poses (P, 3) at ``stamps`` (P,) linearly interpolated at ``times``, held at the ends."""
+    yaw = np.unwrap(poses[:, 2])
+    return np.column_stack([np.interp(times, stamps, poses[:, 0]),
+                            np.interp(times, stamps, poses[:, 1]),
+                            np.interp(times, stamps, yaw)])
+
+
+def _beam_points(ranges, angles, poses, spec: LaserSpec) -> np.ndarray:
+    """Points of one scan whose beams are taken from their own poses (B, 3), (M, 2) metres."""
+    ok = valid_ranges(ranges, spec.range_min, spec.range_max)
+    r = np.asarray(ranges, dtype=np.float64)[ok]
+    p = poses[ok]
+    a = angles[ok] + p[:, 2]
+    return np.stack([p[:, 0] + r * np.cos(a), p[:, 1] + r * np.sin(a)], axis=1)
+
+
 def simulate_drive(world: World, spec: LaserSpec = None, step: float = 0.25, rate: float = 10.0,
-                   rng=0, waypoints=None) -> SimulatedDrive:
+                   rng=0, waypoints=None, turn: float = None,
+                   scan_time: float = 0.0) -> SimulatedDrive:
     """
     Drive along ``waypoints`` (default: the world's path), one scan every ``step`` metres.
 
     ``rate`` (Hz) sets the time stamps, and with them what the world's dynamic objects (people
     walking, a door that opens, a box carried away) do while the scans are taken: scan i sees the
-    world at time i / rate. ``rng`` is a seed or a numpy Generator.
+    world at time i / rate. ``rng`` is a seed or a numpy Generator. ``turn`` (rad): turn in
+    place at the waypoints, at most this much per scan (``path_poses``).
+
+    ``scan_time`` (s) > 0: a moving sensor, a lidar spinning once in that time: beam i is taken
+    ``i * time_increment`` s after the scan's stamp (``time_increment`` = ``scan_time`` x
+    angle increment / 2 pi, float32 as in a LaserScan), cast from the pose interpolated
+    (linearly, between the scans' poses) at that time. 0: every beam from the scan's pose.
     """
     spec = spec or LaserSpec()
+    if not (np.isfinite(scan_time) and scan_time >= 0):
+        raise ValueError(f'scan_time must be a finite number >= 0 (s), got {scan_time!r}')
     rng = np.random.default_rng(rng)
-    poses = path_poses(world.path if waypoints is None else waypoints, step)
+    poses = path_poses(world.path if waypoints is None else waypoints, step, turn)
     stamps = np.arange(len(poses)) / rate
-    scans = [simulate_scan(world, p, spec, rng, t) for p, t in zip(poses, stamps)]
+    if scan_time > 0:
+        dt = float(np.float32(scan_time * spec.angle_increment / (2 * np.pi)))
+        beams = dt * np.arange(spec.beams)
+        scans = [simulate_scan(world, _interpolate(poses, stamps, t + beams), spec, rng, t)
+                 for t in stamps]
+    else:
+        dt = 0.0
+        scans = [simulate_scan(world, p, spec, rng, t) for p, t in zip(poses, stamps)]
     ranges = np.array([s[0] for s in scans])
     hits = np.array([s[1] for s in scans])
-    return SimulatedDrive(world, spec, poses, ranges, hits, stamps)
+    return SimulatedDrive(world, spec, poses, ranges, hits, stamps, dt,
+                          float(np.float32(scan_time)))

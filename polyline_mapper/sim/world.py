@@ -81,12 +81,16 @@ class Walker:
 
 
 def _cast_walls(walls: np.ndarray, o: np.ndarray, d: np.ndarray) -> tuple:
-    """Nearest hit of each ray on ``walls``: (dist (B,), index (B,), -1 and inf for none)."""
+    """
+    Nearest hit of each ray on ``walls``: (dist (B,), index (B,), -1 and inf for none).
+
+    ``o``: one origin (2,) or one per ray (B, 2).
+    """
     b = len(d)
     a = walls[:, 0]
     e = walls[:, 1] - a
     den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
-    w = a[None, :, :] - o
+    w = a[None, :, :] - (o[:, None, :] if o.ndim == 2 else o)
     with np.errstate(divide='ignore', invalid='ignore'):
         t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
         s = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
@@ -103,8 +107,8 @@ def _cast_arc(arc: Arc, o: np.ndarray, d: np.ndarray, best: np.ndarray, hit: np.
     oc = o - np.asarray(arc.centre, dtype=np.float64)
     # Element-wise, not BLAS (d @ oc): BLAS kernels differ by CPU in the last bit, and a
     # drive simulated on one machine must be bit for bit the drive on another.
-    bq = d[:, 0] * oc[0] + d[:, 1] * oc[1]
-    cq = oc[0] * oc[0] + oc[1] * oc[1] - arc.radius ** 2
+    bq = d[:, 0] * oc[..., 0] + d[:, 1] * oc[..., 1]
+    cq = oc[..., 0] * oc[..., 0] + oc[..., 1] * oc[..., 1] - arc.radius ** 2
     disc = bq ** 2 - cq
     root = np.sqrt(np.maximum(disc, 0.0))
     for t in (-bq - root, -bq + root):
@@ -140,7 +144,9 @@ class World:
 
     def cast(self, origin, directions: np.ndarray, t: float = None) -> tuple:
         """
-        Cast rays from one origin, at time ``t`` (s) when the world has dynamic objects.
+        Cast rays, at time ``t`` (s) when the world has dynamic objects.
+
+        ``origin``: one for every ray (2,), or one per ray (B, 2) (a moving sensor).
 
         Returns
         -------
@@ -190,9 +196,13 @@ class World:
         return d
 
 
-def path_poses(waypoints, step: float) -> np.ndarray:
+def path_poses(waypoints, step: float, turn: float = None) -> np.ndarray:
     """
     Poses every ``step`` metres along a polyline of waypoints, heading along the path.
+
+    ``turn`` (rad): at each waypoint the robot stops and turns in place towards the next leg,
+    at most this much per pose (a robot rotating in place); None: it takes the new heading in
+    one pose, without stopping.
 
     Returns
     -------
@@ -200,6 +210,8 @@ def path_poses(waypoints, step: float) -> np.ndarray:
 
     """
     wp = np.asarray(waypoints, dtype=np.float64)
+    if turn is not None and not (np.isfinite(turn) and turn > 0):
+        raise ValueError(f'turn must be a number > 0 (rad), got {turn!r}')
     out = []
     for a, b in zip(wp[:-1], wp[1:]):
         v = b - a
@@ -209,6 +221,13 @@ def path_poses(waypoints, step: float) -> np.ndarray:
         n = max(1, int(np.ceil(length / step)))
         s = np.arange(n) / n
         yaw = np.arctan2(v[1], v[0])
+        if turn is not None and out:
+            before = out[-1][-1, 2]
+            change = (yaw - before + np.pi) % (2 * np.pi) - np.pi
+            k = np.arange(int(np.ceil(abs(change) / turn)))     # arrive, then turn
+            turning = (before + change * k / max(len(k), 1) + np.pi) % (2 * np.pi) - np.pi
+            out.append(np.column_stack([np.full(len(k), a[0]), np.full(len(k), a[1]),
+                                        turning]))
         out.append(np.column_stack([a[0] + s * v[0], a[1] + s * v[1], np.full(n, yaw)]))
     last = wp[-1]
     yaw = out[-1][-1, 2] if out else 0.0

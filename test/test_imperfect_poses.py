@@ -1,0 +1,344 @@
+"""
+Imperfect poses (issue 19): drifting wheel odometry, a moving sensor, scans without poses.
+
+Simulated drives (``sim:`` options) with odometry that drifts like wheel odometry
+(``OdometryDrift``, seeded; no map frame) and a lidar whose beams are taken over the scan time,
+replayed through the mapping session with scan matching, motion compensation and the
+scan-only pose source; scored against the simulator's true poses and walls.
+"""
+
+import dataclasses
+import importlib
+import sys
+
+from conftest import REPO
+import numpy as np
+from polyline_mapper.core.geometry import se2_compose, se2_inverse
+from polyline_mapper.core.register import transform
+from polyline_mapper.formats.records import Odometry, Scan, Transform
+from polyline_mapper.recordings import (drive_messages, make_drive, OdometryDrift, open_recording,
+                                        sim_options)
+from polyline_mapper.replay import replay_records
+from polyline_mapper.session import MappingSession, SessionOptions
+from polyline_mapper.sim import corridor_loop, LaserSpec, simulate_drive
+import pytest
+
+sys.path.insert(0, str(REPO / 'benchmarks'))
+B = importlib.import_module('baselines')
+
+
+def records(drive, drift=None, compensate=True, scans_only=False):
+    """Return a drive's records, the laser on base_link (so rows compare with its poses)."""
+    out = []
+    for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift):
+        for r in (rec if isinstance(rec, list) else [rec]):
+            if isinstance(r, Scan) and not compensate:
+                r = dataclasses.replace(r, time_increment=0.0)
+            if not scans_only or isinstance(r, Scan):
+                out.append(r)
+    return out
+
+
+def score(drive, session, origin=None):
+    """Trajectory errors (per scan: metres, radians) and the map's scores against the truth."""
+    value = session.map_value()
+    traj = value.trajectory.copy()
+    points, segments = session.points(), value.segments
+    if origin is not None:              # scan mode: the map frame is the first scan's laser
+        traj[:, 1:] = se2_compose(origin, traj[:, 1:])
+        points = transform(points, origin)
+        segments = transform(segments.reshape(-1, 2), origin).reshape(-1, 2, 2)
+    i = np.searchsorted(1000.0 + drive.stamps, traj[:, 0] - 1e-6)
+    err = np.hypot(*(traj[:, 1:3] - drive.poses[i, :2]).T)
+    yaw = np.abs(np.angle(np.exp(1j * (traj[:, 3] - drive.poses[i, 2]))))
+    world = drive.world
+    walls = B.wall_scores(segments, world.walls, world.distance, points=drive.points())
+    return {'rms': float(np.sqrt(np.mean(err ** 2))), 'err': err, 'yaw': yaw, 'index': i,
+            'mean_distance': float(world.distance(points).mean()), 'walls': walls,
+            'used': session.used}
+
+
+def replay(spec, seed=1, drift=None, compensate=True, pose_source='tf', matching=True):
+    drive = make_drive(spec, seed)
+    scans_only = pose_source == 'scan'
+    session = replay_records(records(drive, drift, compensate, scans_only),
+                             options=SessionOptions(pose_source=pose_source,
+                                                    scan_matching=matching, keep_points=True))
+    return drive, score(drive, session, drive.poses[0] if scans_only else None)
+
+
+# -- the simulator ------------------------------------------------------------------------------
+def test_sim_options_give_drifting_odometry_and_a_moving_sensor():
+    with open_recording('sim:hall,odom_drift=3,moving_sensor=1,step=0.5', seed=2) as rec:
+        drive = rec.drive
+        recs = list(rec.records())
+        assert 'odometry drifting (seed 3), no map frame, moving sensor' in rec.description
+    scans = [r for r in recs if isinstance(r, Scan)]
+    odom = np.array([[o.translation[0], o.translation[1]] for o in recs
+                     if isinstance(o, Odometry)])
+    assert len(scans) == len(drive.poses) == len(odom)
+    # no map frame; odometry starts true and drifts (reproducibly: seeded)
+    assert not any(r.parent == 'map' for r in recs if isinstance(r, Transform))
+    base = drive.poses[:, :2] - 0.2 * np.column_stack([np.cos(drive.poses[:, 2]),
+                                                       np.sin(drive.poses[:, 2])])
+    drift = np.hypot(*(odom - base).T)
+    assert drift[0] < 1e-9 and 0.05 < drift.max() < 5.0
+    with open_recording('sim:hall,odom_drift=3,moving_sensor=1,step=0.5', seed=2) as again:
+        assert np.array_equal(odom, [o.translation[:2] for o in again.records()
+                                     if isinstance(o, Odometry)])
+    # a lidar spinning once per scan (10 Hz): beams 1/3600 s apart over 541 of 720 steps
+    ti = scans[0].time_increment
+    assert ti == pytest.approx(0.1 / 720, rel=1e-6) and scans[0].scan_time == pytest.approx(0.1)
+    assert drive.time_increment == ti and all(s.time_increment == ti for s in scans)
+    # each beam from where the laser was at its own time: the first beam from the scan's
+    # pose, the last one 0.075 s later, a quarter of a step further
+    last = drive.beam_poses(3)[-1]
+    expected = drive.poses[3] + 0.75 * (drive.poses[4] - drive.poses[3])
+    np.testing.assert_allclose(last, expected, atol=1e-9)
+    np.testing.assert_allclose(drive.beam_poses(3)[0], drive.poses[3], atol=1e-12)
+
+
+def test_default_drives_have_no_time_increment_and_options_are_checked():
+    with open_recording('sim:hall', seed=2) as rec:
+        scans = [r for r in rec.records() if isinstance(r, Scan)]
+        assert all(s.time_increment == 0.0 and s.scan_time == 0.0 for s in scans)
+        assert any(r.parent == 'map' for r in rec.records() if isinstance(r, Transform))
+    assert sim_options('sim:office,turn=0.2,step=0.1,rate=20') == (
+        'office', {'turn': 0.2, 'step': 0.1, 'rate': 20.0})
+    for bad, text in (('sim:office,drift=1', "unknown simulated drive option 'drift=1'"),
+                      ('sim:office,moving_sensor=yes', 'moving_sensor must be 0 or 1'),
+                      ('sim:office,step=0', 'step must be a number of metres in (0, 10]'),
+                      ('sim:office,turn=nan', 'turn must be a number > 0'),
+                      ('sim:office,odom_drift=-1', 'odom_drift must be an integer seed')):
+        with pytest.raises(ValueError) as info:
+            make_drive(bad)
+        assert text in str(info.value) and '\n' not in str(info.value)
+
+
+def test_turning_in_place_keeps_the_position_and_bounds_the_turn():
+    drive = make_drive('sim:office,turn=0.2')
+    step = np.diff(drive.poses, axis=0)
+    turn = np.abs(np.angle(np.exp(1j * step[:, 2])))
+    moved = np.hypot(step[:, 0], step[:, 1])
+    assert turn.max() <= 0.2 + 1e-9
+    assert np.all(moved[turn > 1e-9] < 1e-12)          # it turns standing still
+    assert len(drive.poses) > len(make_drive('sim:office').poses)
+
+
+# -- motion compensation -------------------------------------------------------------------------
+def test_motion_compensation_places_each_beam_where_the_laser_was():
+    # Poses true (TF), no scan matching: a moving sensor smears the walls; with each beam
+    # placed at the pose of its own time, they are as thin as a still sensor's.
+    drive = make_drive('sim:hall,moving_sensor=1', 4)
+    out = {}
+    for compensate in (True, False):
+        session = replay_records(records(drive, compensate=compensate),
+                                 options=SessionOptions(keep_points=True))
+        out[compensate] = score(drive, session)['mean_distance']
+    assert out[True] < 0.012 and out[True] < 0.4 * out[False], out
+
+
+@pytest.mark.parametrize('ros1', [False, True])
+def test_a_moving_sensor_survives_a_bag_and_is_compensated_from_it(tmp_path, ros1):
+    from bag_helpers import write_bag, write_ros1_bag
+    from polyline_mapper.replay import run_replay
+    drive = make_drive('sim:hall,moving_sensor=1', 4)
+    messages = [(topic, rec, t) for t, topic, rec in drive_messages(drive)]
+    path = (write_ros1_bag(tmp_path / 'moving.bag', messages) if ros1
+            else write_bag(tmp_path / 'moving', messages))
+    with open_recording(path) as rec:
+        scans = [r for r in rec.records() if isinstance(r, Scan)]
+    assert len(scans) == len(drive.poses)
+    assert all(s.time_increment == np.float32(drive.time_increment)
+               and s.scan_time == np.float32(0.1) for s in scans)
+    res = run_replay(path)
+    assert res.used == len(drive.poses)
+    assert drive.world.distance(res.points).mean() < 0.012
+
+
+def test_a_scan_waits_for_the_pose_of_its_last_beam():
+    drive = make_drive('sim:hall,moving_sensor=1', 4)
+    recs = records(drive)
+    session = MappingSession(options=SessionOptions(keep_points=True))
+    first = next(i for i, r in enumerate(recs) if isinstance(r, Scan))
+    for r in recs[:first + 1]:
+        session.add(r)
+    session.step()
+    assert session.used == 0 and session.skipped == {}      # its last beam: 0.075 s later
+    nxt = next(i for i, r in enumerate(recs) if i > first and isinstance(r, Scan))
+    for r in recs[first + 1:nxt]:
+        session.add(r)
+    session.step()
+    session.flush(final=False)
+    assert session.used == 1
+
+
+def test_a_bad_time_increment_is_ignored_with_a_warning():
+    drive = make_drive('sim:hall', 4)
+    warned = []
+    session = MappingSession(options=SessionOptions(keep_points=True),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    for r in records(drive)[:30]:
+        if isinstance(r, Scan):
+            r = dataclasses.replace(r, time_increment=float('nan') if r.stamp < 1000.35
+                                    else 0.01)
+        session.add(r)
+        session.step()
+    session.flush()
+    assert session.used > 5 and session.skipped == {}
+    assert warned and {c for c, _ in warned} == {'time_increment'}
+    assert all('ignored (no motion compensation)' in t for _, t in warned)
+
+
+# -- drifting odometry, a moving sensor, scan matching -------------------------------------------
+@pytest.fixture(scope='module')
+def office_drifting():
+    """Replay the office drive turning in place, odometry drifting (seed 1), a still sensor."""
+    return replay('sim:office,turn=0.2', drift=1)
+
+
+def test_drifting_odometry_is_corrected_by_scan_matching(office_drifting):
+    drive, s = office_drifting
+    assert s['rms'] <= 0.05 and s['walls']['f1'] == 1.0, (s['rms'], s['walls'])
+    _, raw = replay('sim:office,turn=0.2', drift=1, matching=False)
+    assert raw['rms'] > 10 * s['rms'] and raw['walls']['f1'] < 0.5
+
+
+def test_a_rotation_in_place_and_a_doorway_passage_hold(office_drifting):
+    drive, s = office_drifting
+    step = np.diff(drive.poses, axis=0)
+    turning = np.flatnonzero(np.abs(np.angle(np.exp(1j * step[:, 2]))) > 1e-9) + 1
+    turning = np.isin(s['index'], turning)
+    assert turning.sum() > 100
+    assert s['err'][turning].max() < 0.05 and s['yaw'][turning].max() < 0.01
+    # the door of the bottom-left room: corridor wall y = 5 open for x in 2.5 .. 3.5
+    p = drive.poses[s['index']]
+    door = (np.abs(p[:, 0] - 3.0) < 0.3) & (np.abs(p[:, 1] - 5.0) < 0.75)
+    assert door.sum() >= 6
+    assert s['err'][door].max() < 0.05 and s['yaw'][door].max() < 0.01
+
+
+def test_a_featureless_corridor_does_not_slide():
+    # One side of a 60 m corridor loop (2 m wide, the laser's range 12 m): in its middle the
+    # scans see two parallel walls and nothing along the axis. The matcher keeps the odometry's
+    # motion along the axis (no slide: a scan never moves along it by itself) and corrects
+    # what the scans see: across the axis and the heading.
+    world = corridor_loop(side=60.0)
+    drive = simulate_drive(world, LaserSpec(noise=0.01), rng=5, waypoints=[(1, 1), (59, 1)])
+    out = {}
+    for matching in (True, False):
+        session = replay_records(records(drive, drift=6),
+                                 options=SessionOptions(scan_matching=matching,
+                                                        keep_points=True))
+        traj = session.map_value().trajectory
+        assert len(traj) == len(drive.poses)
+        out[matching] = traj[:, 1:]
+    odom = OdometryDrift().apply(drive.poses, 6)        # what drive_messages sent (mount 0)
+    assert np.allclose(out[False], odom)
+    # along the axis each matched step is the odometry's step (turned by the matched heading)
+    est = out[True]
+    step = se2_compose(se2_inverse(odom[:-1]), odom[1:])
+    c, s = np.cos(est[:-1, 2]), np.sin(est[:-1, 2])
+    expected = c * step[:, 0] - s * step[:, 1]
+    middle = (drive.poses[1:, 0] > 14) & (drive.poses[1:, 0] < 46)
+    slide = np.abs(np.diff(est[:, 0]) - expected)[middle]
+    assert middle.sum() > 100 and slide.max() < 0.003, slide.max()
+    across = np.abs(est[:, 1] - drive.poses[:, 1])
+    yaw = np.abs(np.angle(np.exp(1j * (est[:, 2] - drive.poses[:, 2]))))
+    # (the map starts 0.002 rad off, from the first scans: 10 cm across after 58 m)
+    assert across.max() < 0.15 and yaw.max() < 0.01, (across.max(), yaw.max())
+    assert np.abs(odom[:, 1] - drive.poses[:, 1]).max() > 1.0   # the odometry drifts across
+    assert np.abs(np.angle(np.exp(1j * (odom[:, 2] - drive.poses[:, 2])))).max() > 0.05
+
+
+@pytest.mark.parametrize('spec, seed', [('sim:office,moving_sensor=1,turn=0.2', 1),
+                                        ('sim:corridors,moving_sensor=1,turn=0.2', 1)])
+@pytest.mark.xfail(strict=True, reason='matcher, issue 19: trajectory 3.8 cm / walls F1 0.97 '
+                   '(office), 21 cm / F1 0.19 (corridors) with the matcher of 2026-11-24')
+def test_drifting_odometry_and_a_moving_sensor_map_as_true_poses_do(spec, seed):
+    # with true poses (and motion compensation) every wall is found: F1 1.0
+    drive, s = replay(spec, seed, drift=1)
+    assert s['rms'] <= 0.05 and s['walls']['f1'] == 1.0, (s['rms'], s['walls'])
+
+
+# -- scans only ----------------------------------------------------------------------------------
+def test_scan_only_drive_maps_every_wall_within_10cm():
+    # No odometry, no TF: constant velocity from the last two matched poses, refined against
+    # the map (and, before the map starts, against the previous scans). 10 Hz, 1 m/s, turning
+    # in place at 1 rad/s.
+    drive, s = replay('sim:hall,step=0.1,turn=0.1', seed=3, pose_source='scan')
+    assert s['used'] == len(drive.poses)
+    assert s['walls']['recall'] == 1.0 and s['walls']['precision'] == 1.0, s['walls']
+    assert s['rms'] < 0.05
+
+
+@pytest.mark.xfail(strict=True, reason='matcher, issue 19: scan only, the office corridor '
+                   '(door gaps only along its axis) slides: 6.3 m RMS with the matcher of '
+                   '2026-11-24')
+def test_scan_only_office_drive_maps_every_wall_within_10cm():
+    drive, s = replay('sim:office,step=0.1,turn=0.1', seed=1, pose_source='scan')
+    assert s['walls']['recall'] == 1.0 and s['walls']['precision'] == 1.0, s['walls']
+
+
+def test_scan_only_needs_no_pose_data_and_starts_at_the_origin():
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    session = MappingSession(options=SessionOptions(pose_source='scan', keep_points=True))
+    assert session.options.scan_matching
+    scans = records(drive, scans_only=True)
+    for scan in scans[:20]:
+        session.add(scan)
+        session.step()                  # never waits: each scan is posed as it comes
+        assert session.used == scans.index(scan) + 1
+    traj = session.map_value().trajectory
+    assert np.array_equal(traj[0, 1:], [0.0, 0.0, 0.0]) and session.fixed_frame == 'map'
+    # relative to the first scan, the poses follow the drive
+    truth = se2_compose(se2_inverse(drive.poses[0]), drive.poses[:20])
+    assert np.hypot(*(traj[:, 1:3] - truth[:, :2]).T).max() < 0.05
+    with pytest.raises(ValueError, match='pose_source must be tf, odom or scan'):
+        SessionOptions(pose_source='lidar')
+
+
+def test_replay_pose_source_scan_from_the_command_line(tmp_path):
+    from polyline_mapper.cli import main
+    from polyline_mapper.formats.mapjson import read_map
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:hall,step=0.1,turn=0.1', '--pose-source', 'scan', '-o',
+                 str(out), '-q']) == 0
+    data = read_map(out)
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 1)
+    traj = data.value.trajectory
+    assert data.value.frame_id == 'map' and len(traj) == len(drive.poses)
+    assert np.array_equal(traj[0, 1:], [0.0, 0.0, 0.0])
+    truth = se2_compose(se2_inverse(drive.poses[0]), drive.poses)
+    assert np.sqrt(np.mean(np.sum((traj[:, 1:3] - truth[:, :2]) ** 2, axis=1))) < 0.05
+
+
+@pytest.mark.slow
+def test_the_node_maps_scans_alone(tmp_path):
+    # Over DDS: pose_source scan subscribes to the scans only (no /tf, no odometry) and
+    # publishes a map whose walls, seen from the first scan's laser pose, are the world's.
+    pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+    from rosnode import map_segments, NodeProcess, Peer, stamp_of
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    node = NodeProcess(tmp_path, {'pose_source': 'scan', 'map_publish_period': 0.0,
+                                  'stats_period': 0.0})
+    peer = Peer('test_peer_scan_only')
+    try:
+        assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
+                               and peer.node.count_publishers('/polyline_map') > 0, 60.0)
+        peer.spin_for(0.5)
+        assert peer.tf_pub.get_subscription_count() == 0
+        assert peer.odom_pub.get_subscription_count() == 0
+        last = peer.play(list(drive_messages(drive)), 25.0, mode='scan')
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            last, abs=1e-6), 60.0), node.stderr()[-3000:]
+        msg = peer.maps[-1]
+        assert msg.header.frame_id == 'map'
+        segs = map_segments(msg)
+        world = transform(segs.reshape(-1, 2), drive.poses[0]).reshape(-1, 2, 2)
+        scores = B.wall_scores(world, drive.world.walls, drive.world.distance,
+                               points=drive.points())
+        assert scores['recall'] == 1.0 and scores['precision'] == 1.0, scores
+    finally:
+        peer.close()
+        assert node.stop() == 0
