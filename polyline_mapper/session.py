@@ -58,48 +58,6 @@ MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
 
 
-class Localization(NamedTuple):
-    """
-    Scan matching: where the newest mapped scan put the robot (``MappingSession.localization``).
-
-    The node broadcasts ``correction`` as fixed frame -> ``odom_frame`` on /tf and ``pose`` with
-    ``covariance`` as geometry_msgs/PoseWithCovarianceStamped.
-    """
-
-    stamp: float
-    """The scan's stamp, seconds."""
-    pose: np.ndarray
-    """(3,) x, y, yaw of the base frame (the odometry child; the laser without one) in the
-    fixed frame."""
-    covariance: np.ndarray
-    """(3, 3) over the pose's (x, y, yaw), m^2 and rad^2: the match's (``ScanMatch``), or the
-    prediction's prior when the match was refused or there was no map yet."""
-    correction: np.ndarray
-    """(3,) fixed frame <- ``odom_frame`` (x, y, yaw): map -> odom."""
-    matched: bool
-    """The pose is the scan's match against the map (else the prediction)."""
-    residual: float
-    """Robust RMS distance (m) of the matched points to the map (NaN when not matched)."""
-    odom_frame: Optional[str]
-    """The frame the poses came in (odometry frame, root of the scan frame's tree); None when
-    the scans carried their own poses."""
-    base_frame: Optional[str]
-    """The frame whose pose ``pose`` is (None: the laser's)."""
-
-
-_PRIOR = match_scan(np.zeros((0, 2)), np.zeros(3), np.zeros((0, 2, 2)), 1.0).covariance
-"""The prior covariance match_scan reports with a refused match (used before any map)."""
-JUMP_WINDOW = 50
-"""Matched scans whose residuals make the running median of the jump warning."""
-JUMP_RESIDUAL = 2.25
-"""A residual above this times the running median is a jump (warned, counted). The residual is
-a robust RMS inside the match gate, so it rarely exceeds 2.6x its typical value; on the drifted
-Intel, CSAIL and fr079 logs it peaks at 1.86x, 2.08x and 1.78x."""
-JUMP_SHIFT, JUMP_TURN = 0.3, 0.2
-"""A match this far (m, rad) from its odometry prediction (map -> odom changing by as much at
-the laser in one scan) is a jump."""
-
-
 class SessionError(ValueError):
     """A problem that makes the whole session meaningless (not one skipped record)."""
 
@@ -330,6 +288,48 @@ class PoseSource:
     def _default_fixed(self, frame: str) -> str:
         chain = self._chain(frame)
         return 'map' if 'map' in chain else chain[-1]
+
+
+class Localization(NamedTuple):
+    """
+    Scan matching: where the newest mapped scan put the robot (``MappingSession.localization``).
+
+    The node broadcasts ``correction`` as fixed frame -> ``odom_frame`` on /tf and ``pose`` with
+    ``covariance`` as geometry_msgs/PoseWithCovarianceStamped.
+    """
+
+    stamp: float
+    """The scan's stamp, seconds."""
+    pose: np.ndarray
+    """(3,) x, y, yaw of the base frame (the odometry child; the laser without one) in the
+    fixed frame."""
+    covariance: np.ndarray
+    """(3, 3) over the pose's (x, y, yaw), m^2 and rad^2: the match's (``ScanMatch``), or the
+    prediction's prior when the match was refused or there was no map yet."""
+    correction: np.ndarray
+    """(3,) fixed frame <- ``odom_frame`` (x, y, yaw): map -> odom."""
+    matched: bool
+    """The pose is the scan's match against the map (else the prediction)."""
+    residual: float
+    """Robust RMS distance (m) of the matched points to the map (NaN when not matched)."""
+    odom_frame: Optional[str]
+    """The frame the poses came in (odometry frame, root of the scan frame's tree); None when
+    the scans carried their own poses."""
+    base_frame: Optional[str]
+    """The frame whose pose ``pose`` is (None: the laser's)."""
+
+
+_PRIOR = match_scan(np.zeros((0, 2)), np.zeros(3), np.zeros((0, 2, 2)), 1.0).covariance
+"""The prior covariance match_scan reports with a refused match (used before any map)."""
+JUMP_WINDOW = 50
+"""Matched scans whose residuals make the running median of the jump warning."""
+JUMP_RESIDUAL = 2.25
+"""A residual above this times the running median is a jump (warned, counted). The residual is
+a robust RMS inside the match gate, so it rarely exceeds 2.6x its typical value; on the drifted
+Intel, CSAIL and fr079 logs it peaks at 1.86x, 2.08x and 1.78x."""
+JUMP_SHIFT, JUMP_TURN = 0.3, 0.2
+"""A match this far (m, rad) from its odometry prediction (map -> odom changing by as much at
+the laser in one scan) is a jump."""
 
 
 class WarningThrottle:
@@ -824,13 +824,13 @@ class MappingSession:
         """Forget the map and every queued scan; return the number of segments dropped."""
         with self._cv:
             self._generation += 1
+            self.localization = None
+            self._residuals.clear()
             self._waiting.clear()
             self._ready.clear()
             self._points.clear()
             self._trajectory.clear()
             self._correction = np.zeros(3)
-            self.localization = None
-            self._residuals.clear()
             self._origins.clear()
         with self._map_lock:
             dropped = len(self.mapper.segments)
