@@ -168,6 +168,8 @@ class PoseSource:
         self.latest = -math.inf
         """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
         self._parents = {}
+        self._static = set()                # frames whose parent edge is static
+        self._under_fixed = set()           # localizer: children of ignored fixed-frame edges
         self._mounted = False
 
     def add(self, record) -> Optional[tuple]:
@@ -183,7 +185,12 @@ class PoseSource:
             if odom_mode and not record.static:
                 return None         # odom mode: the odometry topic is the only moving edge
             if self.localizer and record.parent == self.fixed_frame:
-                return None         # our own map -> odom: never feed it back into the poses
+                if record.child == self.odom_frame:
+                    return None     # our own map -> odom read back: never a pose source
+                self._under_fixed.add(record.child)
+                return ('tf_frames', f'ignored transform {record.parent} -> {record.child}: with '
+                        f'scan matching this session owns the map frame {self.fixed_frame!r} '
+                        '(another localizer, or fixed_frame set to the odometry frame?)')
             if not record.static:
                 note = self._time_jump(record.stamp)
             self._set(record.parent, record.child, record.stamp, record.translation,
@@ -219,7 +226,10 @@ class PoseSource:
             raise RecordSkipped('bad_transform', f'ignored transform {parent} -> {child}: '
                                 f'{exc}') from None
         self._parents[child] = parent
-        if not static:
+        if static:
+            self._static.add(child)
+        else:
+            self._static.discard(child)
             self.latest = max(self.latest, stamp)
 
     def _time_jump(self, stamp: float) -> Optional[tuple]:
@@ -253,6 +263,11 @@ class PoseSource:
         elif self.localizer:
             chain = self._chain(frame)
             target = chain[-1]
+            if target in self._under_fixed and self._static.issuperset(chain[:-1]):
+                raise TransformLookupError(
+                    'tf_frames', f'frame {frame!r} moves only through the ignored transform '
+                    f'{self.fixed_frame} -> {target}: with scan matching fixed_frame must be a '
+                    'map frame above the odometry frame')
             self.base_frame = chain[-2]
         else:
             target = self.fixed_frame or self._default_fixed(frame)

@@ -149,3 +149,30 @@ def test_reset_forgets_the_localization(office_drive):
     assert session.localization is locs[-1]
     session.reset()
     assert session.localization is None and np.array_equal(session._correction, np.zeros(3))
+
+
+def test_another_map_frame_source_is_ignored_with_a_warning_and_a_wrong_fixed_frame_named(
+        office_drive):
+    # Another localizer's map -> odom before the first scan: ignored (one localizer per map
+    # frame), warned; the node's own map -> odom, once the odometry frame is known, silently.
+    truth = _base(office_drive)[:20]
+    warned = []
+    _, plain = _run(office_drive, truth)
+    _, fed = _run(office_drive, truth, warn=lambda cause, text: warned.append((cause, text)),
+                  feedback=(3.0, -2.0, 0.7))
+    assert np.array_equal(np.array([loc.pose for loc in plain]),
+                          np.array([loc.pose for loc in fed]))
+    assert warned == [('tf_frames', 'ignored transform map -> odom: with scan matching this '
+                       "session owns the map frame 'map' (another localizer, or fixed_frame set "
+                       'to the odometry frame?)')]
+    # fixed_frame set to the odometry frame: nothing can be posed, and the warning says why
+    warned.clear()
+    session, locs = _run(office_drive, truth[:3], fixed_frame='odom',
+                         warn=lambda cause, text: warned.append((cause, text)))
+    assert locs == [None] * 3 and session.used == 0
+    assert session.stats()['skipped'] == {'no pose: tf_frames': 3}
+    texts = [text for cause, text in warned if cause == 'tf_frames']
+    assert len(texts) == 6 and texts[0].startswith('ignored transform odom -> base_link')
+    assert texts[-1].endswith("frame 'laser' at 2.000: frame 'laser' moves only through the "
+                              'ignored transform odom -> base_link: with scan matching '
+                              'fixed_frame must be a map frame above the odometry frame')
