@@ -164,7 +164,8 @@ class PoseSource:
         """The frame the poses are looked up in: the fixed frame, or (``localizer``) the
         odometry frame (odom mode) / the root of the scan frame's tree (tf mode)."""
         self.base_frame = None
-        """Odom mode: the odometry's child frame (the robot base)."""
+        """The robot base: the odometry's child frame (odom mode), or in the localizer's tf mode
+        the frame under ``odom_frame`` on the scan frame's chain."""
         self.latest = -math.inf
         """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
         self._parents = {}
