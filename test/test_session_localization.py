@@ -176,3 +176,19 @@ def test_another_map_frame_source_is_ignored_with_a_warning_and_a_wrong_fixed_fr
     assert texts[-1].endswith("frame 'laser' at 2.000: frame 'laser' moves only through the "
                               'ignored transform odom -> base_link: with scan matching '
                               'fixed_frame must be a map frame above the odometry frame')
+
+
+def test_odometry_in_a_second_frame_is_a_counted_skip(office_drive):
+    truth = _base(office_drive)[:6]
+    session = MappingSession(None, SessionOptions(scan_matching=True, fixed_frame='map',
+                                                  pose_source='odom', mount=tuple(MOUNT)))
+    for i, pose in enumerate(truth):
+        frame = 'odom' if i < 3 else 'other_odom'
+        session.add(Odometry(float(i), frame, 'base_link', np.array([*pose[:2], 0.0]),
+                             quaternion_from_yaw(pose[2])))
+        session.add(scan_of(office_drive, i, float(i)))
+    session.flush()
+    assert session.stats()['skipped']['pose data: odom_frame'] == 3
+    assert session.examples['pose data: odom_frame'] == (
+        "odometry in frame 'other_odom', expected 'odom' as the first odometry")
+    assert session.localization.odom_frame == 'odom'
