@@ -48,7 +48,7 @@ from .core.geometry import se2_compose, se2_inverse
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
-from .core.register import match_scan, transform
+from .core.register import match_scan, scan_chords, spread, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
 from .scan import check_scan, scan_to_points, ScanError
@@ -56,6 +56,14 @@ from .scan import check_scan, scan_to_points, ScanError
 POSE_SOURCES = ('tf', 'odom')
 MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
+
+
+RECENT_SCANS = 6
+"""Scan matching: the last scans whose chords join G(t) as the map a new scan is matched to."""
+MATCH_POINTS = 240
+"""Scan matching: a scan with more points is matched (and kept as chords) with this many."""
+MATCH_SIGMA = 0.03
+"""Scan matching: the noise scale (m) used before the map has estimated its own sigma."""
 
 
 class SessionError(ValueError):
@@ -440,6 +448,8 @@ class MappingSession:
         self._last_add = None
         self._correction = np.zeros(3)
         """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
+        self._recent = deque(maxlen=RECENT_SCANS)
+        """Scan matching: chords of the last matched scans (fixed frame), the map's newest edge."""
         self._trajectory = []
         self.matches = Counter()
         """Scan matching outcomes: 'matched', 'no map yet', and each refusal reason."""
@@ -618,9 +628,13 @@ class MappingSession:
 
     def _match(self, local: np.ndarray, given: np.ndarray) -> tuple:
         """Refine ``given`` (the pose TF or odometry gives) against the map; (pose, note)."""
+        local = spread(local, MATCH_POINTS)
         prediction = se2_compose(self._correction, given)
         sigma = self.mapper.sigma
         segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
+        sigma = sigma or MATCH_SIGMA
+        if self._recent:
+            segs = np.concatenate([segs] + list(self._recent))
         if len(segs):                    # the map near the predicted scan (bounding boxes)
             world = transform(local, prediction)
             reach = 0.5 + self.mapper.r
@@ -629,14 +643,17 @@ class MappingSession:
             segs = segs[box]
         if not len(segs):
             self.matches['no map yet'] += 1
+            self._recent.append(scan_chords(transform(local, prediction)))
             return prediction, None
         m = match_scan(local, prediction, segs, sigma)
         self._last_match = m
         if not m.ok:
             self.matches[m.reason] += 1
+            self._recent.append(scan_chords(transform(local, prediction)))
             return prediction, ('match_failed', f'scan matching kept the predicted pose: '
                                 f'{m.reason} ({m.inliers} inliers)')
         self.matches['matched'] += 1
+        self._recent.append(scan_chords(transform(local, m.pose)))
         self._correction = se2_compose(m.pose, se2_inverse(given))
         return m.pose, None
 
@@ -847,6 +864,7 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._correction = np.zeros(3)
+            self._recent.clear()
             self._origins.clear()
         with self._map_lock:
             dropped = len(self.mapper.segments)
