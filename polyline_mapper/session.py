@@ -700,6 +700,11 @@ class MappingSession:
                           f'matched {100 * math.hypot(dx, dy):.0f} cm, {math.degrees(dyaw):.1f} '
                           'deg from the odometry prediction (wheel slip, a kidnapped robot, or '
                           'a wrong match)'))
+        elif m is not None and m.reason == 'correction too large':
+            self.jumps['correction'] += 1
+            notes.append(('correction_jump', f'scan and odometry disagree at {stamp:.3f} s by '
+                          'more than scan matching accepts: map -> odom kept (wheel slip, a '
+                          'kidnapped robot?)'))
         return notes
 
     def _run(self, max_updates: Optional[int], partial: bool) -> int:
