@@ -123,19 +123,19 @@ def test_a_scan_half_a_metre_off_its_odometry_warns_once_throttled_and_counts(of
 
 
 def test_a_residual_far_above_its_running_median_warns(office_drive):
-    # From scan 40 each reading is 3 cm too short or too long at random (a worse laser, or
+    # From scan 40 each reading is 4 cm too short or too long at random (a worse laser, or
     # clutter on the walls): the first such scan's residual jumps against the running median.
     import dataclasses
     rng = np.random.default_rng(3)
     ranges = office_drive.ranges.copy()
-    ranges[40:] += 0.03 * rng.choice([-1.0, 1.0], ranges[40:].shape)
+    ranges[40:] += 0.04 * rng.choice([-1.0, 1.0], ranges[40:].shape)
     drive = dataclasses.replace(office_drive, ranges=ranges)
     warned = []
     session, locs = _run(drive, _base(drive)[:80], warn=lambda cause, text: warned.append(text))
     jumps = [text for text in warned if 'residual jumped' in text]
     assert jumps and jumps[0].startswith('scan matching residual jumped at 40.000 s')
     assert session.stats()['match_jumps']['residual'] == len(jumps)
-    assert locs[40].residual > 2.25 * np.nanmedian([loc.residual for loc in locs[10:40]])
+    assert locs[40].residual > 2.5 * np.nanmedian([loc.residual for loc in locs[10:40]])
     # the clean drive: none
     warned.clear()
     session, _ = _run(office_drive, _base(office_drive)[:80],
