@@ -82,7 +82,7 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
             'self_coverage': 100 * own['coverage_0_10m'],
             'traj_rms_m': err['rms'], 'ate_m': err['ate'], 'traj_final_m': err['final'],
             'update_ms_p50': st['update_ms']['p50'], 'update_ms_p95': st['update_ms']['p95'],
-            'matches': st.get('scan_matching')}
+            'matches': st.get('scan_matching'), 'jumps': st.get('match_jumps')}
 
 
 def main() -> int:

@@ -15,9 +15,9 @@ Three groups:
 The mapper's configuration is read-only at runtime: it shapes a map already built (sigma, the
 merge and split thresholds), so changing it live would leave a map made under two
 configurations. Such changes are refused by the read-only descriptor; restart the node (or
-call ~/reset after a restart) to map with new values. Frames, the pose source and the queue
-size are read-only for the same reason. Everything about timing, publishing and logging may
-change live.
+call ~/reset after a restart) to map with new values. Frames, the pose source, scan matching
+and the queue size are read-only for the same reason. Everything about timing, publishing and
+logging may change live.
 """
 
 import ast
@@ -56,13 +56,23 @@ NODE_PARAMS = (
     ParamSpec('fixed_frame', 'map',
               'Frame of the map and of everything published. In tf mode, poses of the scan '
               'frame are looked up in it; in odom mode it must be the odometry frame '
-              '(nav_msgs/Odometry header.frame_id).'),
+              '(nav_msgs/Odometry header.frame_id). With scan_matching the node owns this frame '
+              'and broadcasts fixed_frame -> odometry frame; poses come from the odometry frame.'),
     ParamSpec('pose_source', 'tf',
               "Where scan poses come from: 'tf' (fixed_frame <- scan frame from /tf and "
               "/tf_static), 'odom' (nav_msgs/Odometry on 'odom' plus the laser_* mount) or "
               "'scan' (no pose data: each scan predicted at constant velocity and refined by "
               'scan matching, which this implies; the first scan at the origin of fixed_frame).',
               choices=('tf', 'odom', 'scan')),
+    ParamSpec('scan_matching', False,
+              'Localize as well as map: refine each scan pose (predicted from odometry or TF) '
+              'against the map built so far, broadcast fixed_frame -> odometry frame (map -> '
+              'odom) on /tf and the base pose on pose (PoseWithCovarianceStamped). Off: the '
+              'poses are used as given (a robot with its own localizer).'),
+    ParamSpec('map_odom_post_date', 0.2,
+              'scan_matching: seconds the map -> odom transform is stamped after its scan, as '
+              "AMCL's transform_tolerance, so transforms at the current time resolve between "
+              'two scans.', 0.0, 10.0, True),
     ParamSpec('transform_tolerance', 0.1,
               'Seconds a scan stamp may lie outside the stored transforms (or odometry) and '
               'still use the nearest one (held, never extrapolated).', 0.0, 10.0, True),
@@ -217,6 +227,8 @@ class NodeSettings:
 
     fixed_frame: str
     pose_source: str
+    scan_matching: bool
+    map_odom_post_date: float
     transform_tolerance: float
     transform_timeout: float
     transform_cache: float
@@ -298,10 +310,10 @@ def settings_from(values: dict) -> tuple:
     if node['update_every_n_scans'] > node['scan_buffer_size']:
         raise ValueError(f"update_every_n_scans ({node['update_every_n_scans']}) must be at most "
                          f"scan_buffer_size ({node['scan_buffer_size']})")
-    for name in ('transform_tolerance', 'transform_timeout', 'transform_cache', 'max_scan_latency',
-                 'laser_x',
-                 'laser_y', 'laser_yaw', 'map_publish_period', 'marker_width', 'warning_period',
-                 'stats_period', 'grid_resolution', 'grid_publish_period'):
+    for name in ('map_odom_post_date', 'transform_tolerance', 'transform_timeout',
+                 'transform_cache', 'max_scan_latency', 'laser_x', 'laser_y', 'laser_yaw',
+                 'map_publish_period', 'marker_width', 'warning_period', 'stats_period',
+                 'grid_resolution', 'grid_publish_period'):
         node[name] = float(node[name])
     smemsf = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('smemsf.')}
     inc = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('incremental.')}

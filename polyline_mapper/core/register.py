@@ -24,10 +24,13 @@ the scan's points to the lines of their nearest segments:
 - a covariance of the result: sigma^2 (J^T W J)^-1 over the constrained directions, and
   ``prior_std`` (the prediction's uncertainty) along the degenerate ones.
 
-A match with too few inliers or too large a correction is refused (``ok`` False, with the
+A result that explains fewer of the scan's points (within the final gate) than the prediction
+does is not taken: the prediction is returned as the match. A match with too few inliers or too
+large a correction is refused (``ok`` False, with the
 reason): the caller keeps the prediction, and the map is not corrupted by a scan placed wrong.
 """
 
+import math
 from typing import NamedTuple, Optional
 
 import numpy as np
@@ -57,7 +60,7 @@ class ScanMatch(NamedTuple):
     inliers: int
     """Points paired with a segment within the final gate."""
     residual: float
-    """Robust RMS of the inliers' distances to their lines at the final pose, metres."""
+    """RMS of the inliers' distances to their lines (within the final gate), metres."""
     degenerate: int
     """Number of directions of (x, y, yaw) kept at the prediction."""
 
@@ -230,14 +233,14 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         if small or at_stage >= 3:          # converged at this gate (or slow): narrow it
             stage, at_stage = stage + 1, 0
     # The match must explain the scan better than the prediction does (a slide along a
-    # symmetric room or a corridor can lower the weighted residual while losing points).
+    # symmetric room or a corridor can lower the weighted residual while losing points):
+    # else the prediction is the match (it explains the scan best).
     fit_pred, fit_pose = (_explained(near, transform(pts, p), gate_min) for p in (pred, pose))
     if fit_pose < fit_pred:
-        return ScanMatch(pred, prior, False, 'worse than the prediction', int(len(res)),
-                         np.nan, int((~good).sum()))
+        pose = pred.copy()
     shift = np.hypot(*(pose[:2] - pred[:2]))
     turn = abs((pose[2] - pred[2] + np.pi) % (2 * np.pi) - np.pi)
-    rms = float(np.sqrt(np.sum(w * res ** 2) / max(np.sum(w), 1e-12)))
+    rms = float(np.sqrt(np.mean(res ** 2))) if len(res) else math.nan
     if shift > max_shift or turn > max_turn:
         return ScanMatch(pred, prior, False, 'correction too large', int(len(res)), rms,
                          int((~good).sum()))

@@ -4,7 +4,8 @@ Messages <-> plain records (``formats.records``) and the map value (``core.mapva
 LaserScan, TFMessage and Odometry in as records (the node feeds them to the mapping session);
 the same records out as messages (play); the MapValue out as PolylineMap and MarkerArray (and
 back, for record-map); the planner map (``core.grid.GridMap``) out as nav_msgs/OccupancyGrid
-(and back); DiagnosticArray out.
+(and back); the localization (scan matching) out as a planar TransformStamped and a
+PoseWithCovarianceStamped; DiagnosticArray out.
 
 No logic beyond the conversion: checks live in ``scan.check_scan``, the numbers come from
 the core. Coordinates are metres in the map's frame; z is 0.
@@ -14,7 +15,7 @@ import array
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, TransformStamped
+from geometry_msgs.msg import Point, PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 import numpy as np
 from polyline_mapper_msgs.msg import Polyline, PolylineMap, Segment
@@ -25,6 +26,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ..core.grid import GridMap
 from ..core.mapvalue import MapValue
 from ..formats import records
+from ..poses import quaternion_from_yaw
 
 MARKER_NAMESPACE = 'polyline_map'
 
@@ -80,6 +82,39 @@ def transform_msg(tr: records.Transform, stamp: float = None) -> TransformStampe
     t.x, t.y, t.z = (float(v) for v in tr.translation)
     q.x, q.y, q.z, q.w = (float(v) for v in tr.rotation)
     return ts
+
+
+def planar_transform_msg(parent: str, child: str, stamp, pose) -> TransformStamped:
+    """Return ``pose`` (x, y, yaw of ``child`` in ``parent``) as geometry_msgs/TransformStamped."""
+    ts = TransformStamped()
+    ts.header.frame_id = parent
+    ts.header.stamp = stamp
+    ts.child_frame_id = child
+    x, y, yaw = (float(v) for v in pose)
+    ts.transform.translation.x, ts.transform.translation.y = x, y
+    q = ts.transform.rotation
+    q.x, q.y, q.z, q.w = (float(v) for v in quaternion_from_yaw(yaw))
+    return ts
+
+
+def pose_msg(frame_id: str, stamp, pose, covariance) -> PoseWithCovarianceStamped:
+    """
+    Build a geometry_msgs/PoseWithCovarianceStamped from a planar pose and its 3x3 covariance.
+
+    The 6x6 covariance (row-major over x, y, z, roll, pitch, yaw) holds the x, y and yaw rows
+    and columns, as AMCL fills it; z, roll and pitch are 0 (the pose is planar).
+    """
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    x, y, yaw = (float(v) for v in pose)
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y = x, y
+    q.x, q.y, q.z, q.w = (float(v) for v in quaternion_from_yaw(yaw))
+    full = np.zeros((6, 6))
+    full[np.ix_((0, 1, 5), (0, 1, 5))] = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    msg.pose.covariance = full.reshape(-1)
+    return msg
 
 
 # -- messages -> plain records, for the node ---------------------------------------------------

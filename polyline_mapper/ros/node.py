@@ -14,6 +14,13 @@ Topics (relative names, remappable):
 - ``map`` (nav_msgs/OccupancyGrid) out, reliable + transient local, depth 1: the planner map
   (``core.grid``) at ``grid_resolution``, occupied cells from the polylines, free cells from
   the traced beams, unknown elsewhere; at most every ``grid_publish_period`` s (0: never).
+- ``scan_matching`` on, the node is also a localizer (as AMCL or slam_toolbox): per mapped
+  scan it broadcasts ``fixed_frame`` -> odometry frame (map -> odom; the odometry's frame_id,
+  or in tf mode the root of the scan frame's tree) on ``/tf``, stamped with the scan's stamp
+  plus ``map_odom_post_date``, and publishes the base pose with its covariance on ``pose``
+  (geometry_msgs/PoseWithCovarianceStamped, reliable + transient local, depth 1). Poses are
+  then predicted in the odometry frame; transforms from ``fixed_frame`` (its own map -> odom,
+  read back from /tf) are never used as a pose source.
 
 ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period``: scans received,
 used and dropped, map size, sigma, update time and latency percentiles (ms) over the run; WARN
@@ -36,6 +43,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from polyline_mapper_msgs.msg import PolylineMap
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -54,7 +62,8 @@ from visualization_msgs.msg import MarkerArray
 
 from . import startup
 from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
-                       odometry_from_msg, scan_from_msg, time_msg, transforms_from_msg)
+                       odometry_from_msg, planar_transform_msg, pose_msg, scan_from_msg,
+                       time_msg, transforms_from_msg)
 from .qos import MAP_QOS, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
@@ -107,12 +116,18 @@ class PolylineMapperNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_map', self._on_save_map)
-        if self.settings.pose_source == 'tf':
+        if self.settings.pose_source == 'tf' or self.settings.scan_matching:
             try:
                 from tf2_msgs.msg import TFMessage
             except ImportError as exc:
                 raise ConfigError(f'tf2_msgs is not importable ({exc}); install it or run '
                                   'tools/dev.sh setup') from None
+            self._tf_message = TFMessage
+        self._localized = None              # the Localization last published
+        if self.settings.scan_matching:
+            self.tf_pub = self.create_publisher(TFMessage, '/tf', TF_QOS)
+            self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, 'pose', MAP_QOS)
+        if self.settings.pose_source == 'tf':
             self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      TF_STATIC_QOS)
@@ -140,7 +155,9 @@ class PolylineMapperNode(Node):
         self._worker.start()
         s = self.settings
         log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
-                 f'poses from {s.pose_source}, update every {s.update_every_n_scans} scan(s)')
+                 f'poses from {s.pose_source}, update every {s.update_every_n_scans} scan(s)'
+                 + (f'; scan matching: broadcasting {s.fixed_frame} -> odometry frame, pose on '
+                    f'{self.resolve_topic_name("pose")}' if s.scan_matching else ''))
 
     # -- parameters ----------------------------------------------------------------------------
     def _values(self, changes=()) -> dict:
@@ -222,6 +239,8 @@ class PolylineMapperNode(Node):
                 session.wait(0.05)
             try:
                 busy = session.step(max_updates=1) > 0
+                if self.settings.scan_matching:
+                    self._publish_localization()
                 if busy:
                     self._dirty = self._grid_dirty = True
                 elif session.has_partial_group() and session.idle_seconds() >= GROUP_IDLE:
@@ -262,6 +281,22 @@ class PolylineMapperNode(Node):
                                                        self.settings.marker_color, 0.0))
                 self._markers_shown = False
             self._last_publish = time.monotonic()
+
+    def _publish_localization(self) -> None:
+        """Broadcast map -> odom and publish the pose of the newest localized scan (once)."""
+        loc = self.session.localization
+        if loc is None or loc is self._localized:
+            return
+        self._localized = loc
+        frame = self.settings.fixed_frame
+        self.pose_pub.publish(pose_msg(frame, time_msg(loc.stamp), loc.pose, loc.covariance))
+        if loc.odom_frame is None or loc.odom_frame == frame:
+            self.warnings.warn('tf_frames', f'not broadcasting {frame} -> {loc.odom_frame}: the '
+                               'odometry frame must differ from fixed_frame with scan matching')
+            return
+        stamp = time_msg(loc.stamp + self.settings.map_odom_post_date)
+        self.tf_pub.publish(self._tf_message(transforms=[planar_transform_msg(
+            frame, loc.odom_frame, stamp, loc.correction)]))
 
     def _publish_grid(self) -> None:
         """Publish the planner map (nav_msgs/OccupancyGrid on 'map'), stamped as the map."""
@@ -312,6 +347,9 @@ class PolylineMapperNode(Node):
                 values[f'{key}_{q}'] = v
         for cause, n in sorted(self.warnings.counts.items()):
             values[f'skipped_{cause}'] = n
+        for key in ('scan_matching', 'match_jumps'):
+            for what, n in st.get(key, {}).items():
+                values[f'{key}_{what.replace(" ", "_")}'] = n
         self.diag_pub.publish(diagnostics_msg(f'{self.get_name()}: mapping', level, message,
                                               values, self.get_clock().now().to_msg()))
 
@@ -342,7 +380,8 @@ def session_options(settings) -> SessionOptions:
         mount_upside_down=settings.laser_upside_down, cache_seconds=settings.transform_cache,
         update_every_n_scans=settings.update_every_n_scans,
         max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
-        max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution)
+        max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution,
+        scan_matching=settings.scan_matching)
 
 
 def _cm(sigma) -> str:

@@ -1,0 +1,132 @@
+"""The node as a localizer over DDS: drifting /odom (or /tf) in, a map and map -> odom out."""
+
+from dataclasses import replace
+import time
+
+import numpy as np
+from polyline_mapper.core.geometry import sample_segments, se2_compose, se2_inverse
+from polyline_mapper.recordings import drive_messages, OdometryDrift, SIM_MOUNT
+from polyline_mapper.ros.qos import MAP_QOS, TF_QOS
+import pytest
+from rosnode import map_segments, NodeProcess, Peer, stamp_of
+
+pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+pytestmark = pytest.mark.slow
+RATE = 20.0                  # Hz, scans published
+TIMEOUT = 60.0
+SEED = 0
+
+
+def _drifted(drive) -> tuple:
+    """
+    Return (messages, true base poses, drifted base poses) of a robot with wheel odometry only.
+
+    The messages have drifting /odom and odom -> base_link, no map frame.
+    """
+    mount = np.asarray(SIM_MOUNT, dtype=float)
+    truth = se2_compose(np.asarray(drive.poses, dtype=float), se2_inverse(mount))
+    odom = OdometryDrift().apply(truth, SEED)
+    moved = replace(drive, poses=se2_compose(odom, mount))     # the scans stay where they were
+    return list(drive_messages(moved, map_to_odom=None)), truth, odom
+
+
+def _listen(peer: Peer) -> tuple:
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    tfs, poses = [], []
+    peer.node.create_subscription(peer.TFMessage, '/tf', lambda m: tfs.extend(
+        t for t in m.transforms if t.header.frame_id == 'map'), TF_QOS)
+    peer.node.create_subscription(PoseWithCovarianceStamped, 'pose', poses.append, MAP_QOS)
+    return tfs, poses
+
+
+def _planar(pose) -> np.ndarray:
+    """Return (x, y, yaw) of a geometry_msgs Pose or Transform."""
+    p = getattr(pose, 'position', None) or pose.translation
+    q = pose.orientation if hasattr(pose, 'orientation') else pose.rotation
+    return np.array([p.x, p.y, 2.0 * np.arctan2(q.z, q.w)])
+
+
+def _parameter(peer: Peer, name: str):
+    """Return the node's parameter ``name`` (None when it has none)."""
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+    resp = peer.call('/polyline_mapper_node/get_parameters', GetParameters,
+                     GetParameters.Request(names=[name]))
+    assert resp is not None and len(resp.values) == 1
+    value = resp.values[0]
+    return None if value.type == ParameterType.PARAMETER_NOT_SET else \
+        parameter_value_to_python(value)
+
+
+def _run(drive, folder, mode: str, params: dict) -> tuple:
+    msgs, truth, odom = _drifted(drive)
+    node = NodeProcess(folder, {'map_output_path': str(folder / 'map.json'),
+                                'map_publish_period': 0.1, 'transform_timeout': 0.3,
+                                'pose_source': mode, **params})
+    peer = Peer(f'test_peer_localizer_{mode}')
+    try:
+        tfs, poses = _listen(peer)
+        assert peer.wait_for_node(TIMEOUT, odom=mode == 'odom'), node.stderr()
+        t0 = time.time()
+        last = peer.play(msgs, RATE, mode=mode, t0=t0)
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        if params.get('scan_matching'):
+            assert peer.spin_until(lambda: tfs and stamp_of(tfs[-1]) == pytest.approx(
+                last, abs=1e-6) and poses and stamp_of(poses[-1]) == pytest.approx(
+                last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        else:
+            peer.spin_for(1.0)
+        return {'node': node, 'peer': peer, 'tfs': tfs, 'poses': poses, 'truth': truth,
+                'odom': odom, 't0': t0, 'pose_publishers': peer.node.count_publishers('/pose'),
+                'scan_matching': _parameter(peer, 'scan_matching')}
+    finally:
+        peer.close()
+        node.stop()
+
+
+@pytest.mark.parametrize('mode', ['odom', 'tf'])
+def test_with_only_drifting_odometry_the_node_localizes_and_maps_consistently(
+        office_drive, tmp_path, mode):
+    params = {'scan_matching': True, 'map_odom_post_date': 0.0}
+    if mode == 'odom':
+        params.update(laser_x=SIM_MOUNT[0], laser_y=SIM_MOUNT[1], laser_yaw=SIM_MOUNT[2])
+    run = _run(office_drive, tmp_path, mode, params)
+    node, peer, tfs, poses = run['node'], run['peer'], run['tfs'], run['poses']
+    truth, odom = run['truth'], run['odom']
+    assert 'scan matching: broadcasting map -> odometry frame' in node.stderr()
+    # map -> odom on /tf: map -> odom -> base_link is the true base pose, odometry alone is not
+    assert {(t.header.frame_id, t.child_frame_id) for t in tfs} == {('map', 'odom')}
+    k = [round((stamp_of(t) - run['t0']) * RATE) for t in tfs]
+    assert k[-1] == len(truth) - 1 and len(tfs) > 0.5 * len(truth)
+    localized = se2_compose(np.array([_planar(t.transform) for t in tfs]), odom[k])
+    err = np.hypot(*(localized[:, :2] - truth[k, :2]).T)
+    drift = np.hypot(*(odom[k, :2] - truth[k, :2]).T)
+    rms, drift_rms = np.sqrt(np.mean(err ** 2)), np.sqrt(np.mean(drift ** 2))
+    assert err[-1] < min(0.05, 0.25 * drift[-1]), (err[-1], drift[-1])
+    assert rms < min(0.05, 0.25 * drift_rms), (rms, drift_rms)       # issue 19: <= 5 cm RMS
+    # the pose: the base in the map, stamped as its scan, a positive-definite covariance
+    assert poses and {p.header.frame_id for p in poses} == {'map'}
+    last = poses[-1]
+    assert stamp_of(last) == pytest.approx(stamp_of(tfs[-1]), abs=1e-6)
+    assert np.allclose(_planar(last.pose.pose)[:2], localized[-1, :2], atol=1e-6)
+    for p in poses:
+        cov = np.asarray(p.pose.covariance).reshape(6, 6)
+        block = cov[np.ix_((0, 1, 5), (0, 1, 5))]
+        assert np.allclose(cov, cov.T) and np.linalg.eigvalsh(block).min() > 0
+        assert not cov[2:5].any() and not cov[:, 2:5].any()
+    # the map is in the map frame and on the true walls (the first pose is true)
+    msg = peer.maps[-1]
+    assert msg.header.frame_id == 'map'
+    samples, _ = sample_segments(map_segments(msg), 0.05)
+    dist = office_drive.world.distance(samples)
+    assert len(msg.segments) > 10 and np.median(dist) < 0.03, np.median(dist)
+
+
+def test_without_scan_matching_the_node_broadcasts_nothing(office_drive, tmp_path):
+    # The default: a robot with its own localizer keeps its map -> odom; the node only maps.
+    run = _run(office_drive, tmp_path, 'odom', {'fixed_frame': 'odom', 'laser_x': SIM_MOUNT[0]})
+    assert run['peer'].maps and not run['tfs'] and not run['poses']
+    assert run['pose_publishers'] == 0
+    assert run['scan_matching'] is False and 'scan matching' not in run['node'].stderr()

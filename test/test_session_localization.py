@@ -1,0 +1,193 @@
+"""Scan matching as a localizer: the session's Localization value, frames, jump warnings."""
+
+import numpy as np
+from polyline_mapper.core.geometry import se2_compose, se2_inverse
+from polyline_mapper.formats.records import Odometry
+from polyline_mapper.poses import quaternion_from_yaw
+from polyline_mapper.recordings import OdometryDrift
+from polyline_mapper.session import Localization, MappingSession, SessionOptions, WarningThrottle
+import pytest
+from test_session import FakeClock, scan_of, tf
+
+MOUNT = np.array([0.2, 0.05, 0.1])      # the laser on base_link
+
+
+def _base(drive) -> np.ndarray:
+    return se2_compose(np.asarray(drive.poses, dtype=float), se2_inverse(MOUNT))
+
+
+def _same(a, b, tol=1e-9) -> bool:
+    """Whether poses (..., 3) agree, headings compared modulo 2 pi."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    d[..., 2] = (d[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    return bool(np.abs(d).max() <= tol)
+
+
+def _run(drive, odom, warn=None, feedback=None, mode='tf', **options) -> tuple:
+    """Map the drive with base poses ``odom`` (odometry frame); return (session, locs)."""
+    options = {'scan_matching': True, 'fixed_frame': 'map', 'pose_source': mode, **options}
+    if mode == 'odom':
+        options['mount'] = tuple(MOUNT)
+    session = MappingSession(None, SessionOptions(**options), warn=warn)
+    session.add(tf(0.0, 'base_link', 'laser', MOUNT, static=True))
+    locs = []
+    for i, pose in enumerate(odom):
+        if mode == 'tf':
+            session.add(tf(float(i), 'odom', 'base_link', pose))
+        else:
+            session.add(Odometry(float(i), 'odom', 'base_link', np.array([*pose[:2], 0.0]),
+                                 quaternion_from_yaw(pose[2])))
+        if feedback is not None:            # the node reads its own map -> odom back from /tf
+            session.add(tf(float(i), 'map', 'odom', feedback))
+        session.add(scan_of(drive, i, float(i)))
+        session.step()
+        locs.append(session.localization)
+    session.flush()
+    return session, locs
+
+
+@pytest.mark.parametrize('mode', ['tf', 'odom'])
+def test_the_localization_is_the_matched_base_pose_in_the_map_with_its_correction(
+        office_drive, mode):
+    truth = _base(office_drive)
+    odom = OdometryDrift().apply(truth, 5)
+    session, locs = _run(office_drive, odom, mode=mode)
+    assert all(isinstance(loc, Localization) for loc in locs)
+    assert session.map_value().frame_id == 'map' and session.stats()['skipped'] == {}
+    assert {(loc.odom_frame, loc.base_frame) for loc in locs} == {('odom', 'base_link')}
+    assert [loc.stamp for loc in locs] == list(range(len(truth)))
+    pose = np.array([loc.pose for loc in locs])
+    corr = np.array([loc.correction for loc in locs])
+    # map -> odom composed with the odometry is the localized base pose
+    assert _same(se2_compose(corr, odom), pose)
+    err = np.hypot(*(pose[:, :2] - truth[:, :2]).T)
+    drift = np.hypot(*(odom[:, :2] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05 < 0.3 * np.sqrt(np.mean(drift ** 2))
+    matched = np.array([loc.matched for loc in locs])
+    assert matched.mean() > 0.9 and not matched[0]
+    for loc in locs:
+        cov = loc.covariance
+        assert cov.shape == (3, 3) and np.allclose(cov, cov.T)
+        assert np.linalg.eigvalsh(cov).min() > 0
+        assert np.isfinite(loc.residual) == loc.matched
+    # refused or before any map: the prior; matched: far tighter
+    assert np.sqrt(locs[0].covariance[0, 0]) >= 0.09
+    assert np.sqrt(np.median([loc.covariance[0, 0] for loc in locs if loc.matched])) < 0.01
+
+
+def test_its_own_map_to_odom_read_back_from_tf_never_moves_the_poses(office_drive):
+    truth = _base(office_drive)[:100]
+    odom = OdometryDrift().apply(truth, 2)
+    _, plain = _run(office_drive, odom)
+    _, fed = _run(office_drive, odom, feedback=(3.0, -2.0, 0.7))
+    assert np.array_equal(np.array([loc.pose for loc in plain]),
+                          np.array([loc.pose for loc in fed]))
+    assert {loc.odom_frame for loc in fed} == {'odom'}
+
+
+def test_without_a_given_map_frame_or_scan_matching_nothing_changes(office_drive):
+    odom = _base(office_drive)[:5]
+    session, locs = _run(office_drive, odom, mode='odom', scan_matching=False)
+    assert locs == [None] * 5
+    assert session.stats()['skipped'] == {'pose data: odom_frame': 5, 'no pose: no_tf': 5}
+    session = MappingSession(None, SessionOptions(scan_matching=True))      # replay's default
+    session.add(tf(0.0, 'map', 'odom', (1.0, 0.0, 0.0)))
+    session.add(tf(0.0, 'odom', 'laser', (0.0, 0.0, 0.0)))
+    session.add(scan_of(office_drive, 0, 0.0))
+    session.flush()
+    assert session.fixed_frame == 'map' and session.localization.odom_frame == 'map'
+    assert session.localization.pose == pytest.approx([1.0, 0.0, 0.0])
+
+
+def test_a_scan_half_a_metre_off_its_odometry_warns_once_throttled_and_counts(office_drive):
+    # Wheel slip: from scan 30 the odometry is 0.5 m off (x), from scan 80 another 0.4 m (y).
+    # Each time the scan disagrees with the odometry by more than 0.3 m (matched there, or
+    # refused as too large a correction): two jumps, one line logged within the throttle
+    # period, both counted.
+    truth = _base(office_drive)[:120]
+    odom = truth.copy()
+    odom[30:, 0] += 0.5
+    odom[80:, 1] += 0.4
+    clock, lines = FakeClock(), []
+    throttle = WarningThrottle(lines.append, 10.0, clock)
+    session, locs = _run(office_drive, odom, warn=throttle.warn)
+    assert throttle.counts['correction_jump'] == 2
+    jumped = [ln for ln in lines if 'correction_jump' in ln]
+    assert len(jumped) == 1 and ' at 30.000 s' in jumped[0]
+    assert session.stats()['match_jumps'] == {'correction': 2}
+    assert _same(se2_compose(locs[-1].correction, odom[-1]), locs[-1].pose)
+    # the same drive without the slip: no jump
+    quiet = []
+    session, _ = _run(office_drive, truth, warn=lambda cause, text: quiet.append(cause))
+    assert 'correction_jump' not in quiet and session.stats()['match_jumps'] == {}
+
+
+def test_a_residual_far_above_its_running_median_warns(office_drive):
+    # From scan 40 each reading is 4 cm too short or too long at random (a worse laser, or
+    # clutter on the walls): the first such scan's residual jumps against the running median.
+    import dataclasses
+    rng = np.random.default_rng(3)
+    ranges = office_drive.ranges.copy()
+    ranges[40:] += 0.04 * rng.choice([-1.0, 1.0], ranges[40:].shape)
+    drive = dataclasses.replace(office_drive, ranges=ranges)
+    warned = []
+    session, locs = _run(drive, _base(drive)[:80], warn=lambda cause, text: warned.append(text))
+    jumps = [text for text in warned if 'residual jumped' in text]
+    assert jumps and jumps[0].startswith('scan matching residual jumped at 40.000 s')
+    assert session.stats()['match_jumps']['residual'] == len(jumps)
+    assert locs[40].residual > 2.5 * np.nanmedian([loc.residual for loc in locs[10:40]])
+    # the clean drive: none
+    warned.clear()
+    session, _ = _run(office_drive, _base(office_drive)[:80],
+                      warn=lambda c, text: warned.append(text))
+    assert 'residual' not in session.stats()['match_jumps']
+
+
+def test_reset_forgets_the_localization(office_drive):
+    session, locs = _run(office_drive, _base(office_drive)[:10])
+    assert session.localization is locs[-1]
+    session.reset()
+    assert session.localization is None and np.array_equal(session._correction, np.zeros(3))
+
+
+def test_another_map_frame_source_is_ignored_with_a_warning_and_a_wrong_fixed_frame_named(
+        office_drive):
+    # Another localizer's map -> odom before the first scan: ignored (one localizer per map
+    # frame), warned; the node's own map -> odom, once the odometry frame is known, silently.
+    truth = _base(office_drive)[:20]
+    warned = []
+    _, plain = _run(office_drive, truth)
+    _, fed = _run(office_drive, truth, warn=lambda cause, text: warned.append((cause, text)),
+                  feedback=(3.0, -2.0, 0.7))
+    assert np.array_equal(np.array([loc.pose for loc in plain]),
+                          np.array([loc.pose for loc in fed]))
+    assert [w for w in warned if w[0] == 'tf_frames'] == [(
+        'tf_frames', 'ignored transform map -> odom: with scan matching this session owns the '
+        "map frame 'map' (another localizer, or fixed_frame set to the odometry frame?)")]
+    # fixed_frame set to the odometry frame: nothing can be posed, and the warning says why
+    warned.clear()
+    session, locs = _run(office_drive, truth[:3], fixed_frame='odom',
+                         warn=lambda cause, text: warned.append((cause, text)))
+    assert locs == [None] * 3 and session.used == 0
+    assert session.stats()['skipped'] == {'no pose: tf_frames': 3}
+    texts = [text for cause, text in warned if cause == 'tf_frames']
+    assert len(texts) == 6 and texts[0].startswith('ignored transform odom -> base_link')
+    assert texts[-1].endswith("frame 'laser' at 2.000: frame 'laser' moves only through the "
+                              'ignored transform odom -> base_link: with scan matching '
+                              'fixed_frame must be a map frame above the odometry frame')
+
+
+def test_odometry_in_a_second_frame_is_a_counted_skip(office_drive):
+    truth = _base(office_drive)[:6]
+    session = MappingSession(None, SessionOptions(scan_matching=True, fixed_frame='map',
+                                                  pose_source='odom', mount=tuple(MOUNT)))
+    for i, pose in enumerate(truth):
+        frame = 'odom' if i < 3 else 'other_odom'
+        session.add(Odometry(float(i), frame, 'base_link', np.array([*pose[:2], 0.0]),
+                             quaternion_from_yaw(pose[2])))
+        session.add(scan_of(office_drive, i, float(i)))
+    session.flush()
+    assert session.stats()['skipped']['pose data: odom_frame'] == 3
+    assert session.examples['pose data: odom_frame'] == (
+        "odometry in frame 'other_odom', expected 'odom' as the first odometry")
+    assert session.localization.odom_frame == 'odom'
