@@ -48,12 +48,15 @@ from .core.geometry import se2_compose, se2_inverse
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
+from .core.polylines import MapGeometry
 from .core.register import match_scan, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
 from .scan import check_scan, scan_to_points, ScanError
 
 POSE_SOURCES = ('tf', 'odom')
+TRAJECTORY_ROWS = 100000
+"""Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
 
@@ -98,7 +101,9 @@ class SessionOptions:
     keep_points: bool = False
     """Keep every mapped point (offline: for map metrics and plots). Memory grows with them."""
     mapping: bool = True
-    """False: only register the scans (points and counts), leave the map empty."""
+    """False: the map is never changed: the scans are only registered (points, counts and,
+    with scan matching, their poses), so an empty map stays empty and a loaded one
+    (``MappingSession.load_map``) stays exactly as loaded: localization only."""
     scan_matching: bool = False
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
@@ -159,6 +164,8 @@ class PoseSource:
         self.latest = -math.inf
         """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
         self._parents = {}
+        self._static = set()
+        """Frames whose edge to their parent is static (a mount)."""
         self._mounted = False
 
     def add(self, record) -> Optional[tuple]:
@@ -201,7 +208,10 @@ class PoseSource:
             raise RecordSkipped('bad_transform', f'ignored transform {parent} -> {child}: '
                                 f'{exc}') from None
         self._parents[child] = parent
-        if not static:
+        if static:
+            self._static.add(child)
+        else:
+            self._static.discard(child)
             self.latest = max(self.latest, stamp)
 
     def _time_jump(self, stamp: float) -> Optional[tuple]:
@@ -237,6 +247,27 @@ class PoseSource:
         pose = self.buffer.lookup_planar(target, frame, scan.stamp, self.options.tolerance)
         self.fixed_frame = target
         return pose
+
+    def base_pose(self, scan: Scan) -> np.ndarray:
+        """
+        Return (x, y, yaw) of the robot carrying the laser of ``scan``, in the fixed frame.
+
+        The robot is the frame the laser is mounted on (its parent by a static transform: the
+        odometry child frame with ``mount``), or the laser itself when it has no mount (or the
+        scan carries its pose). Call after ``pose(scan)`` succeeded; its lookup failing, the
+        laser pose is returned.
+        """
+        laser = self.pose(scan)
+        frame = scan.frame_id
+        if self.options.pose_source == 'odom' and self.options.mount is not None:
+            frame = MOUNT_FRAME
+        if scan.pose is not None or frame not in self._static or frame not in self._parents:
+            return laser.xyz
+        try:
+            return self.buffer.lookup_planar(self.fixed_frame, self._parents[frame], scan.stamp,
+                                             self.options.tolerance).xyz
+        except TransformLookupError:
+            return laser.xyz
 
     def _default_fixed(self, frame: str) -> str:
         chain, seen = [frame], {frame}
@@ -342,11 +373,58 @@ class MappingSession:
         self._last_add = None
         self._correction = np.zeros(3)
         """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
-        self._trajectory = []
+        self._trajectory = (deque() if self.options.keep_points
+                            else deque(maxlen=TRAJECTORY_ROWS))
+        self._loaded = None
+        """(MapValue, planner map or None, initial base pose or None) of ``load_map``."""
+        self._place = None
+        """The initial base pose (x, y, yaw) the next posed scan is placed at, or None."""
         self.matches = Counter()
         """Scan matching outcomes: 'matched', 'no map yet', and each refusal reason."""
         self._news = False
         self._estimating_noted = False
+
+    def load_map(self, value: MapValue, initial_pose=None, grid: GridMap = None) -> None:
+        """
+        Start from a saved map (``formats.mapjson.read_map(...).value``): localization on it.
+
+        The map's segments, support and noise scale (``stats['sigma']``, ``stats['r']``) become
+        the mapper's G(0), its frame the frame of the map value. Scan matching is turned on
+        (``options.scan_matching``): the given poses (odometry, TF) are in their own frame, and
+        only matching registers the scans to the saved map. ``initial_pose`` (x, y, yaw; m,
+        rad): where the robot (the frame the laser is mounted on, see
+        ``PoseSource.base_pose``) is in the map at the first scan; None: where the given poses
+        say (the given frame is the map's). With ``options.mapping`` False the map is never
+        changed: ``map_value`` returns the loaded segments, support, polylines and closed flags
+        as they are, and ``occupancy`` the loaded planner map (``grid``) when there is one.
+        With mapping True the scans are mapped into it. ``reset`` goes back to it.
+
+        Raises ValueError (one line) when the map or the pose cannot be used.
+        """
+        pose = None
+        if initial_pose is not None:
+            pose = np.asarray(initial_pose, dtype=np.float64)
+            if pose.shape != (3,) or not np.isfinite(pose).all():
+                raise ValueError(f'initial pose must be 3 finite numbers (x, y, yaw), got '
+                                 f'{list(np.ravel(initial_pose))}')
+        stats = value.stats or {}
+        sigma, r = stats.get('sigma'), stats.get('r')
+        if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
+                and math.isfinite(sigma) and sigma > 0):
+            sigma = None
+        if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
+                                 and math.isfinite(r) and r > 0):
+            r = None
+        if len(value.segments) and sigma is None and self.mapper.config.smemsf.sigma is None:
+            raise ValueError('the map has no noise scale (stats.sigma): scans cannot be '
+                             'matched against it; set smemsf.sigma')
+        with self._map_lock:
+            self.mapper.load(value.segments, value.support, sigma, r)
+        with self._cv:
+            self.options.scan_matching = True
+            self._loaded = (value, grid, pose)
+            self._place = pose
+            self._correction = np.zeros(3)
 
     # -- producers -----------------------------------------------------------------------------
     def add(self, record) -> None:
@@ -493,6 +571,10 @@ class MappingSession:
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
+                if self._place is not None:     # the first scan on a loaded map
+                    self._correction = se2_compose(self._place,
+                                                   se2_inverse(self.poses.base_pose(scan)))
+                    self._place = None
                 if self.options.scan_matching:
                     local = scan_to_points(scan.ranges, angles, np.zeros(3), scan.range_min,
                                            limit)
@@ -505,7 +587,7 @@ class MappingSession:
         if len(pts) == 0:
             return [self._skip('bad scan', 'no_valid_points',
                                f'no reading within the mapping range at {scan.stamp:.3f} s')]
-        if self.options.keep_points:
+        if self.options.keep_points or self.options.scan_matching:
             self._trajectory.append((scan.stamp, *xyz))
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
@@ -623,6 +705,13 @@ class MappingSession:
         """Return the map frame (known once the first scan is posed, unless given)."""
         return self.poses.fixed_frame
 
+    @property
+    def map_frame(self) -> str:
+        """Return the frame of the map: a loaded map's own, else the fixed frame (or 'map')."""
+        if self._loaded is not None:
+            return self._loaded[0].frame_id
+        return self.fixed_frame or 'map'
+
     def points(self) -> np.ndarray:
         """Return every mapped point, (N, 2) fixed frame (``keep_points`` only)."""
         with self._lock:
@@ -639,19 +728,31 @@ class MappingSession:
                 return np.zeros((0, 2))
             return np.concatenate([np.repeat(o, c, axis=0) for o, c in self._origins])
 
-    def map_value(self) -> MapValue:
-        """Return the current map: segments, aligned support, polylines, frame, stamp, stats."""
+    def map_value(self, trajectory: Optional[bool] = None) -> MapValue:
+        """
+        Return the current map: segments, aligned support, polylines, frame, stamp, stats.
+
+        ``trajectory``: include the scans' poses (default: with ``keep_points``; True: also
+        live with scan matching, the newest ``TRAJECTORY_ROWS``). A loaded map kept fixed
+        (``load_map``, mapping off) is returned as loaded, in its own frame.
+        """
+        fixed = self._loaded is not None and not self.options.mapping
         with self._map_lock:
-            geo = self.mapper.polylines()
+            geo = None if fixed else self.mapper.polylines()
             sigma, r = self.mapper.sigma, (self.mapper.r if self.mapper.sigma else None)
+        if fixed:
+            loaded = self._loaded[0]
+            geo = MapGeometry(loaded.segments.copy(), loaded.support.copy(),
+                              [p.copy() for p in loaded.polylines], list(loaded.closed))
+            sigma, r = loaded.stats.get('sigma', sigma), loaded.stats.get('r', r)
         stats = self.stats()
         stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,
                      r=r)
+        keep = self.options.keep_points if trajectory is None else trajectory
         with self._lock:
-            traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) \
-                if self.options.keep_points else None
-        return MapValue(geo.segments, geo.support, geo.polylines, geo.closed,
-                        self.fixed_frame or 'map', self.stamp, stats, traj)
+            traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) if keep else None
+        return MapValue(geo.segments, geo.support, geo.polylines, geo.closed, self.map_frame,
+                        self.stamp, stats, traj)
 
     def occupancy(self, segments=None) -> Optional[GridMap]:
         """
@@ -662,6 +763,8 @@ class MappingSession:
         """
         if self.grid is None:
             return None
+        if self._loaded is not None and not self.options.mapping and self._loaded[1] is not None:
+            return self._loaded[1]
         if segments is None:
             with self._map_lock:
                 segments = self.mapper.polylines().segments
@@ -684,7 +787,12 @@ class MappingSession:
         return out
 
     def reset(self) -> int:
-        """Forget the map and every queued scan; return the number of segments dropped."""
+        """
+        Forget the map and every queued scan; return the number of segments dropped.
+
+        A session started from a saved map (``load_map``) goes back to it and to its initial
+        pose.
+        """
         with self._cv:
             self._generation += 1
             self._waiting.clear()
@@ -692,10 +800,14 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._correction = np.zeros(3)
+            self._place = None if self._loaded is None else self._loaded[2]
             self._origins.clear()
         with self._map_lock:
             dropped = len(self.mapper.segments)
             self.mapper.reset()
+            if self._loaded is not None:        # back to the loaded map and initial pose
+                value = self._loaded[0]
+                self.mapper.load(value.segments, value.support, self.mapper.sigma)
             if self.grid is not None:
                 self.grid.reset()
                 self.grid_seconds.clear()
