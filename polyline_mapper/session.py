@@ -685,6 +685,7 @@ class MappingSession:
                                           [len(g[1]) for g in group]))
                 if ran:
                     self.updates += 1
+                if ran or not self.options.mapping:     # mapping off: convert and match
                     self.update_seconds.append(seconds)
                     if self.clock is not None:
                         self.latency_seconds.append(self.clock() - group[-1][4])
