@@ -4,15 +4,23 @@ Mapping with drifting wheel odometry: the Radish logs as a robot without a local
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/drift.py [--datasets DIR] [--only NAME ...] [--seeds 0 1 2 3 4]
+        [--modes corrected odometry matching]
 
 For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes a bag whose
 /odom and /tf odom -> base_link follow the corrected poses with wheel-odometry-like drift added
 (``recordings.OdometryDrift``: each step's motion with Gaussian noise, 5 % of the step per axis,
 0.02 rad + 1 deg per metre of heading; the first pose true; no map frame), and
-``polyline-mapper replay BAG --pose-source odom`` maps it. The map is scored against the log's
-true points (mean distance, coverage within 0.10 m) and the poses the mapper used against the
-corrected ones (RMS position error of the laser). The same log replayed with its corrected poses
-is the reference. This is the baseline issue 19 (poses from the scans) has to improve on.
+``polyline-mapper replay BAG --pose-source odom`` maps it, as given (``odometry``) and with
+``--scan-matching`` (``matching``). The same log replayed with its corrected poses is the
+reference (``corrected``). Scores:
+
+- the poses the mapper used (the map's trajectory, base frame) against the corrected ones: RMS
+  as they stand (both start at the first true pose) and the absolute trajectory error (ATE:
+  RMS after the best rigid alignment, ``core.metrics.trajectory_error``);
+- the map against the log's true points (mean distance, coverage within 0.10 m), as it stands
+  and laid onto the true frame by that alignment;
+- the map against its own points (as the mapper placed them): the self-consistency a user sees;
+- the update time per scan (scan conversion, matching and map update, the session's clock).
 
 Writes the table into benchmarks/README.md (between the ``drift`` markers) and the raw numbers
 to benchmarks/results/drift.json.
@@ -28,40 +36,53 @@ import tempfile
 from common import HERE, REPO, stamp, write_readme
 import numpy as np
 from polyline_mapper.core import map_metrics
+from polyline_mapper.core.metrics import trajectory_error
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.poses import se2_compose, se2_inverse
-from polyline_mapper.recordings import OdometryDrift
 from polyline_mapper.replay import run_replay
 from polyline_mapper.session import SessionOptions
 
 LOGS = ['intel-corrected', 'csail-corrected', 'freiburg-079-corrected']
 
 
-def drifted_laser_poses(log, seed: int) -> np.ndarray:
-    """Return the laser poses the drifted bag of ``log`` implies (as carmen_messages makes)."""
-    laser = np.array([r.pose for r in log.records])
-    mount = np.asarray(log.laser_offset, dtype=np.float64)
-    base = OdometryDrift().apply(se2_compose(laser, se2_inverse(mount)), seed)
-    return se2_compose(base, mount)
+MODES = ('corrected', 'odometry', 'matching')
 
 
-def one(path: pathlib.Path, seed, truth: np.ndarray, log) -> dict:
-    """Map ``path`` with drift ``seed`` (None: the corrected poses); return its row."""
+def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
+    """Map ``path`` in ``mode`` (drift ``seed``; None for the corrected poses); return its row."""
     with tempfile.TemporaryDirectory() as tmp:
-        if seed is None:
-            res = run_replay(str(path))
+        if mode == 'corrected':
+            res = run_replay(str(path), options=SessionOptions(keep_points=True), progress=True)
         else:
             bag = os.path.join(tmp, 'bag')
             carmen_to_bag(str(path), bag, drift_seed=seed)
-            res = run_replay(bag, options=SessionOptions(pose_source='odom'))
-    m = map_metrics(truth, res.map_value.segments)
-    true_xy = np.array([r.pose[:2] for r in log.records])
-    used_xy = true_xy if seed is None else drifted_laser_poses(log, seed)[:, :2]
-    rms = float(np.sqrt(np.mean(np.sum((used_xy - true_xy) ** 2, axis=1))))
-    return {'seed': seed, 'segments': len(res.map_value), 'mean_cm': 100 * m['mean_distance'],
-            'coverage': 100 * m['coverage_0_10m'], 'traj_rms_m': rms,
-            'traj_final_m': float(np.hypot(*(used_xy[-1] - true_xy[-1])))}
+            res = run_replay(bag, options=SessionOptions(
+                pose_source='odom', keep_points=True, scan_matching=mode == 'matching'),
+                progress=True)
+    segs = res.map_value.segments
+    used = np.asarray(res.map_value.trajectory)[:, 1:]          # base poses, one per scan used
+    mount = np.asarray(log.laser_offset, dtype=np.float64)
+    true_base = se2_compose(np.array([r.pose for r in log.records]), se2_inverse(mount))
+    if len(used) != len(true_base):
+        raise RuntimeError(f'{len(used)} poses used for {len(true_base)} scans')
+    err = trajectory_error(used, true_base)
+    al = err['alignment']                        # the map, laid onto the true frame as a whole
+    c, s = np.cos(al[2]), np.sin(al[2])
+    aligned = segs @ np.array([[c, s], [-s, c]]) + al[:2]
+    raw = map_metrics(truth, segs)
+    lay = map_metrics(truth, aligned)
+    own = map_metrics(res.points, segs)
+    st = res.map_value.stats
+    return {'mode': mode, 'seed': seed, 'segments': len(segs),
+            'mean_cm': 100 * raw['mean_distance'], 'coverage': 100 * raw['coverage_0_10m'],
+            'aligned_mean_cm': 100 * lay['mean_distance'],
+            'aligned_coverage': 100 * lay['coverage_0_10m'],
+            'self_mean_cm': 100 * own['mean_distance'],
+            'self_coverage': 100 * own['coverage_0_10m'],
+            'traj_rms_m': err['rms'], 'ate_m': err['ate'], 'traj_final_m': err['final'],
+            'update_ms_p50': st['update_ms']['p50'], 'update_ms_p95': st['update_ms']['p95'],
+            'matches': st.get('scan_matching')}
 
 
 def main() -> int:
@@ -71,37 +92,59 @@ def main() -> int:
         'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2, 3, 4])
+    ap.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/drift.py ' + ' '.join(sys.argv[1:]))
     rows = []
-    for name in args.only or LOGS:
-        path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
-        log = read_carmen(str(path))
-        truth = log.points()
-        for seed in [None] + list(args.seeds):
-            row = dict(one(path, seed, truth, log), log=name)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+    runs = [(name, mode, seed) for name in args.only or LOGS for mode in args.modes
+            for seed in ([None] if mode == 'corrected' else args.seeds)]
+    logs = {}
+    for k, (name, mode, seed) in enumerate(runs):
+        print(f'[{k + 1}/{len(runs)}] {name} {mode} seed {seed}', file=sys.stderr, flush=True)
+        if name not in logs:
+            logs.clear()
+            path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
+            log = read_carmen(str(path))
+            logs[name] = (path, log, log.points())
+        path, log, truth = logs[name]
+        row = dict(one(path, seed, truth, log, mode), log=name)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
     out = HERE / 'results'
     out.mkdir(exist_ok=True)
     (out / 'drift.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
     lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
              f"`{meta['command']}`.", '',
-             '| log | poses | mean distance (cm) | coverage (%) | trajectory RMS (m) | '
-             'final error (m) | segments |', '|---|---|---|---|---|---|---|']
+             'Drifted rows: mean (min-max) over the seeds. Map against the true points as it '
+             'stands, and laid onto the true frame by the trajectory alignment (aligned); '
+             '"own points": the points as the mapper placed them. ATE: RMS position error '
+             'after that rigid alignment; RMS: as the poses stand (first pose true).', '',
+             '| log | poses | seeds | map vs true points: mean (cm) / coverage (%) | aligned: '
+             'mean (cm) / coverage (%) | own points: mean (cm) / coverage (%) | trajectory '
+             'RMS (m) | ATE (m) | update median (ms) | segments |',
+             '|---|---|---|---|---|---|---|---|---|---|']
+
+    def cell(group, key, digits):
+        v = [r[key] for r in group]
+        if len(v) == 1:
+            return f'{v[0]:.{digits}f}'
+        return f'{np.mean(v):.{digits}f} ({min(v):.{digits}f}-{max(v):.{digits}f})'
+
     for name in args.only or LOGS:
-        ref = [r for r in rows if r['log'] == name and r['seed'] is None][0]
-        drift = [r for r in rows if r['log'] == name and r['seed'] is not None]
-        lines.append(f"| {name} | corrected | {ref['mean_cm']:.1f} | {ref['coverage']:.1f} | 0 | "
-                     f"0 | {ref['segments']} |")
-        seeds = ', '.join(str(r['seed']) for r in drift)
-        cells = []
-        for key, digits in (('mean_cm', 1), ('coverage', 1), ('traj_rms_m', 2),
-                            ('traj_final_m', 2), ('segments', 0)):
-            v = [r[key] for r in drift]
-            cells.append(f'{np.mean(v):.{digits}f} ({min(v):.{digits}f}-{max(v):.{digits}f})')
-        lines.append(f'| {name} | odometry, seeds {seeds} (mean, min-max) | '
-                     + ' | '.join(cells) + ' |')
+        for mode in args.modes:
+            group = [r for r in rows if r['log'] == name and r['mode'] == mode]
+            if not group:
+                continue
+            seeds = ', '.join('-' if r['seed'] is None else str(r['seed']) for r in group)
+            label = {'corrected': 'corrected', 'odometry': 'drifted odometry',
+                     'matching': 'drifted odometry + scan matching'}[mode]
+            lines.append(
+                f'| {name} | {label} | {seeds} | {cell(group, "mean_cm", 1)} / '
+                f'{cell(group, "coverage", 1)} | {cell(group, "aligned_mean_cm", 1)} / '
+                f'{cell(group, "aligned_coverage", 1)} | {cell(group, "self_mean_cm", 2)} / '
+                f'{cell(group, "self_coverage", 1)} | {cell(group, "traj_rms_m", 2)} | '
+                f'{cell(group, "ate_m", 3)} | {cell(group, "update_ms_p50", 1)} | '
+                f'{cell(group, "segments", 0)} |')
     write_readme('drift', '\n'.join(lines) + '\n')
     return 0
 

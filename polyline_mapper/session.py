@@ -49,7 +49,7 @@ from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
-from .core.register import match_scan, transform
+from .core.register import match_scan, scan_chords, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
 from .scan import check_scan, scan_to_points, ScanError
@@ -59,6 +59,12 @@ TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
+
+
+RECENT_SCANS = 6
+"""Scan matching: the last scans whose chords join G(t) as the map a new scan is matched to."""
+MATCH_SIGMA = 0.03
+"""Scan matching: the noise scale (m) used before the map has estimated its own sigma."""
 
 
 class SessionError(ValueError):
@@ -373,6 +379,8 @@ class MappingSession:
         self._last_add = None
         self._correction = np.zeros(3)
         """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
+        self._recent = deque(maxlen=RECENT_SCANS)
+        """Scan matching: chords of the last matched scans (fixed frame), the map's newest edge."""
         self._trajectory = (deque() if self.options.keep_points
                             else deque(maxlen=TRAJECTORY_ROWS))
         self._loaded = None
@@ -425,6 +433,7 @@ class MappingSession:
             self._loaded = (value, grid, pose)
             self._place = pose
             self._correction = np.zeros(3)
+            self._recent.clear()
 
     # -- producers -----------------------------------------------------------------------------
     def add(self, record) -> None:
@@ -597,6 +606,9 @@ class MappingSession:
         prediction = se2_compose(self._correction, given)
         sigma = self.mapper.sigma
         segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
+        sigma = sigma or MATCH_SIGMA
+        if self._recent:
+            segs = np.concatenate([segs] + list(self._recent))
         if len(segs):                    # the map near the predicted scan (bounding boxes)
             world = transform(local, prediction)
             reach = 0.5 + self.mapper.r
@@ -605,13 +617,16 @@ class MappingSession:
             segs = segs[box]
         if not len(segs):
             self.matches['no map yet'] += 1
+            self._recent.append(scan_chords(transform(local, prediction)))
             return prediction, None
         m = match_scan(local, prediction, segs, sigma)
         if not m.ok:
             self.matches[m.reason] += 1
+            self._recent.append(scan_chords(transform(local, prediction)))
             return prediction, ('match_failed', f'scan matching kept the predicted pose: '
                                 f'{m.reason} ({m.inliers} inliers)')
         self.matches['matched'] += 1
+        self._recent.append(scan_chords(transform(local, m.pose)))
         self._correction = se2_compose(m.pose, se2_inverse(given))
         return m.pose, None
 
@@ -802,6 +817,7 @@ class MappingSession:
             self._trajectory.clear()
             self._correction = np.zeros(3)
             self._place = None if self._loaded is None else self._loaded[2]
+            self._recent.clear()
             self._origins.clear()
         with self._map_lock:
             dropped = len(self.mapper.segments)

@@ -65,3 +65,49 @@ def twin_fraction(segments: np.ndarray, distance: float = 0.10,
     has = np.zeros(k, dtype=bool)
     has[pairs[twin].ravel()] = True
     return float(has.mean())
+
+
+def rigid_alignment(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """
+    Return the rigid 2D motion (x, y, yaw) that best lays ``estimate`` onto ``reference``.
+
+    Least squares over corresponding (N, 2) positions, rotation and translation only (Horn's
+    closed form, as the absolute trajectory error of the TUM RGB-D benchmark aligns).
+
+    >>> ref = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    >>> np.round(rigid_alignment(ref[:, ::-1] * [1, -1], ref), 4) + 0.0
+    array([0.    , 0.    , 1.5708])
+    """
+    est = np.asarray(estimate, dtype=np.float64).reshape(-1, 2)
+    ref = np.asarray(reference, dtype=np.float64).reshape(-1, 2)
+    if len(est) != len(ref) or len(est) == 0:
+        raise ValueError(f'need equal, non-empty position lists, got {len(est)} and {len(ref)}')
+    me, mr = est.mean(axis=0), ref.mean(axis=0)
+    h = (est - me).T @ (ref - mr)
+    yaw = float(np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    t = mr - np.array([[c, -s], [s, c]]) @ me
+    return np.array([t[0], t[1], yaw])
+
+
+def trajectory_error(estimate: np.ndarray, reference: np.ndarray) -> dict:
+    """
+    Position errors of an estimated trajectory against a reference (rows correspond).
+
+    Returns
+    -------
+    dict with ``rms`` (metres, as the positions stand: both trajectories share their first
+    pose), ``ate`` (metres, RMS after the rigid alignment ``rigid_alignment``: the absolute
+    trajectory error, blind to a constant offset of the whole frame), ``final`` (metres, last
+    pose, as they stand) and ``alignment`` (x, y, yaw of that alignment).
+
+    """
+    est = np.asarray(estimate, dtype=np.float64)[:, :2]
+    ref = np.asarray(reference, dtype=np.float64)[:, :2]
+    al = rigid_alignment(est, ref)
+    c, s = np.cos(al[2]), np.sin(al[2])
+    moved = est @ np.array([[c, s], [-s, c]]) + al[:2]
+    err = np.hypot(*(est - ref).T)
+    return {'rms': float(np.sqrt(np.mean(err ** 2))),
+            'ate': float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1)))),
+            'final': float(err[-1]), 'alignment': al}
