@@ -748,8 +748,8 @@ class MappingSession:
         """
         Return the current map: segments, aligned support, polylines, frame, stamp, stats.
 
-        ``trajectory``: include the scans' poses (default: with ``keep_points``; True: also
-        live with scan matching, the newest ``TRAJECTORY_ROWS``). A loaded map kept fixed
+        ``trajectory``: with ``keep_points`` the scans' poses are included; True includes them
+        live with scan matching too (the newest ``TRAJECTORY_ROWS``). A loaded map kept fixed
         (``load_map``, mapping off) is returned as loaded, in its own frame.
         """
         fixed = self._loaded is not None and not self.options.mapping
@@ -764,7 +764,7 @@ class MappingSession:
         stats = self.stats()
         stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,
                      r=r)
-        keep = self.options.keep_points if trajectory is None else trajectory
+        keep = self.options.keep_points or bool(trajectory and self.options.scan_matching)
         with self._lock:
             traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) if keep else None
         return MapValue(geo.segments, geo.support, geo.polylines, geo.closed, self.map_frame,
