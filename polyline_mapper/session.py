@@ -24,6 +24,10 @@ from ``recordings``. The session does, in this order:
 5. **Publish**: ``map_value()`` returns the one ``MapValue`` (segments, support, polylines, closed,
    frame, stamp, stats).
 
+A session may start from a saved map (``load_map``: localization on it, scan matching on):
+with ``SessionOptions.mapping`` False that map is returned unchanged and only the scans' poses
+are found; with it True the scans are mapped into it.
+
 Time comes from an injected clock. Offline (``clock=None``) it is *data time*: a scan arrives at
 its own stamp and "now" is the newest pose data's stamp, so a replay gives the same map however
 fast it runs. Live, the clock is wall time (``time.monotonic``): a scan waits at most ``wait``
