@@ -142,6 +142,24 @@ def test_initial_pose_places_a_robot_whose_odometry_starts_elsewhere(saved, offi
     assert rms_error(np.array(json.loads(lost.read_text())['trajectory']), office) > 0.5
 
 
+@pytest.mark.parametrize('options', [
+    {'pose_source': 'odom', 'mount': SIM_MOUNT},      # the mount given (the node's laser_*)
+    {'pose_source': 'odom'},                          # the mount from /tf_static
+    {'pose_source': 'tf'},
+])
+def test_the_initial_pose_is_the_robot_base_with_every_pose_source(saved, office, options):
+    _, path, _ = saved
+    origin = (-2.0, 1.0, -0.6)
+    records = records_of(drifted_messages(office, 2, odom_origin=origin))
+    start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
+    session = replay_records(records, options=SessionOptions(keep_points=True, mapping=False,
+                                                             **options),
+                             start_map=read_map(path), initial_pose=start)
+    trajectory = session.map_value().trajectory
+    assert np.abs(trajectory[0, 1:] - office.poses[0]).max() < 0.03
+    assert rms_error(trajectory, office) <= 0.05, rms_error(trajectory, office)
+
+
 def test_mapping_on_a_saved_map_adds_the_walls_it_lacks(office):
     # The saved map holds the first 120 scans only: two walls of the east wing are missing.
     true = [(topic, record, t) for t, topic, record in drive_messages(office)]
