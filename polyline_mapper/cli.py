@@ -8,6 +8,7 @@ Subcommands:
          [--map SAVED.json [--initial-pose X,Y,YAW_DEG] [--no-mapping]]  ... on a saved map
   plot MAP.json [--points INPUT [--free-space]] -o MAP.png  draw a map (over points or beams)
   export MAP.json -o OUT.{geojson,svg,csv,yaml}             convert a map for other tools
+  export MAP.json --trajectory -o OUT.{csv,tum}            its trajectory (replay's poses)
   convert LOG -o BAG [--storage sqlite3|mcap]               CARMEN log -> rosbag2
   play INPUT [--rate R] [--loop]                            publish a recording on live topics
   record-map [TOPIC] -o MAP.json [--plot MAP.png]           save the map a running node publishes
@@ -457,10 +458,17 @@ def _plot_free_space(args, value: MapValue, inputs: list) -> int:
 
 
 def cmd_export(args) -> int:
-    from .formats.export import export_map
+    from .formats.export import export_map, export_trajectory
     from .formats.mapjson import read_map
     check_outputs([args.output], [args.map])
     data = read_map(args.map)
+    if args.trajectory or (args.format or '') == 'tum' or \
+            os.path.splitext(args.output)[1].lower() == '.tum':
+        fmt = export_trajectory(data, args.output, args.format, inputs=[args.map])
+        if not args.quiet:
+            print(f'wrote {args.output}: the trajectory, {len(data.value.trajectory)} poses '
+                  f'({"TUM" if fmt == "tum" else "CSV t,x,y,yaw"})')
+        return 0
     fmt = export_map(data, args.output, args.format, inputs=[args.map])
     if not args.quiet and fmt == 'yaml':
         print(f'wrote {args.output} and {os.path.splitext(args.output)[0]}.pgm: the map_server '
@@ -634,9 +642,12 @@ def build_parser() -> argparse.ArgumentParser:
                        'YAML + PGM pair for planners')
     e.add_argument('map', help='map JSON (from fit or replay)')
     e.add_argument('-o', '--output', required=True, help='OUT.geojson, OUT.svg, OUT.csv or '
-                   'OUT.yaml (writes OUT.pgm beside it)')
-    e.add_argument('--format', choices=('geojson', 'svg', 'csv', 'yaml'),
+                   'OUT.yaml (writes OUT.pgm beside it); with --trajectory OUT.csv or OUT.tum')
+    e.add_argument('--format', choices=('geojson', 'svg', 'csv', 'yaml', 'tum'),
                    help='format (default: from the output suffix)')
+    e.add_argument('--trajectory', action='store_true', help="write the map's trajectory "
+                   '(one pose per scan, from replay) instead of its segments: CSV t,x,y,yaw or '
+                   'TUM (timestamp tx ty tz qx qy qz qw)')
     e.add_argument('-q', '--quiet', action='store_true', help='no summary')
     e.set_defaults(func=cmd_export)
 

@@ -53,7 +53,7 @@ from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
-from .core.register import match_scan, scan_chords, transform
+from .core.register import match_scan, scan_chords, spread, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
 from .scan import check_scan, scan_to_points, ScanError
@@ -67,6 +67,8 @@ MOUNT_FRAME = '_laser_mount'
 
 RECENT_SCANS = 6
 """Scan matching: the last scans whose chords join G(t) as the map a new scan is matched to."""
+MATCH_POINTS = 240
+"""Scan matching: a scan with more points is matched (and kept as chords) with this many."""
 MATCH_SIGMA = 0.03
 """Scan matching: the noise scale (m) used before the map has estimated its own sigma."""
 
@@ -607,6 +609,7 @@ class MappingSession:
 
     def _match(self, local: np.ndarray, given: np.ndarray) -> tuple:
         """Refine ``given`` (the pose TF or odometry gives) against the map; (pose, note)."""
+        local = spread(local, MATCH_POINTS)
         prediction = se2_compose(self._correction, given)
         sigma = self.mapper.sigma
         segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))

@@ -117,3 +117,31 @@ def test_plot_map_alone_and_over_points(fitted, tmp_path, capsys):
     for png in (alone, over):
         assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert over.stat().st_size > alone.stat().st_size
+
+
+def test_the_trajectory_exports_as_csv_and_tum(tmp_path, capsys):
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:corridors', '-o', str(out), '-q']) == 0
+    data = read_map(str(out))
+    traj = data.value.trajectory
+    assert traj is not None and len(traj) == data['stats']['scans_used']
+    assert main(['export', str(out), '--trajectory', '-o', str(tmp_path / 't.csv')]) == 0
+    rows = list(csv.DictReader(io.StringIO((tmp_path / 't.csv').read_text())))
+    got = np.array([[float(r[k]) for k in ('t', 'x', 'y', 'yaw')] for r in rows])
+    assert np.allclose(got, traj, atol=1e-4)
+    assert main(['export', str(out), '-o', str(tmp_path / 't.tum')]) == 0    # .tum: trajectory
+    tum = np.loadtxt(tmp_path / 't.tum')
+    assert tum.shape == (len(traj), 8) and np.allclose(tum[:, :3], traj[:, :3], atol=1e-4)
+    assert np.allclose(tum[:, 3:6], 0.0)
+    yaw = 2 * np.arctan2(tum[:, 6], tum[:, 7])
+    assert np.allclose(np.angle(np.exp(1j * (yaw - traj[:, 3]))), 0.0, atol=1e-5)
+    assert np.allclose(np.hypot(tum[:, 6], tum[:, 7]), 1.0, atol=1e-5)
+    capsys.readouterr()
+    # A map without a trajectory (a batch fit) and a format that cannot hold one: one line.
+    assert main(['fit', 'sim:corridors', '-o', str(tmp_path / 'fit.json'), '-q']) == 0
+    assert main(['export', str(tmp_path / 'fit.json'), '--trajectory', '-o',
+                 str(tmp_path / 'f.csv')]) == 2
+    assert main(['export', str(out), '--trajectory', '-o', str(tmp_path / 't.svg')]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and 'no trajectory' in err[0] and 'unknown trajectory format' in err[1]
+    assert not (tmp_path / 'f.csv').exists() and not (tmp_path / 't.svg').exists()

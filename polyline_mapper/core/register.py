@@ -40,6 +40,10 @@ TURN_MARGIN = 1.1
 """``_best_turn`` leaves the predicted heading only for a turn scoring this much higher."""
 
 
+TURN_POINTS = 90
+"""``_best_turn`` scores at most this many of the scan's points (evenly spread)."""
+
+
 class ScanMatch(NamedTuple):
     """The result of ``match_scan``."""
 
@@ -89,6 +93,12 @@ class _SegmentSamples:
         return pt, self.owner[idx[pt]]
 
 
+def _explained(near: '_SegmentSamples', world: np.ndarray, gate: float) -> float:
+    """Return sum over points of max(0, 1 - (d / gate)^2), d the distance to the map."""
+    d, _ = near.tree.query(world, k=1, distance_upper_bound=gate)
+    return float(np.clip(1.0 - (d / gate) ** 2, 0.0, None).sum())
+
+
 def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate: float,
                turns: np.ndarray) -> float:
     """
@@ -100,6 +110,7 @@ def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate:
     """
     if len(turns) < 2:
         return 0.0
+    pts = spread(pts, TURN_POINTS)
     ang = pose[2] + np.asarray(turns, dtype=np.float64)[:, None]          # (T, 1)
     c, s = np.cos(ang), np.sin(ang)
     xs = pose[0] + c * pts[:, 0] - s * pts[:, 1]                            # (T, N)
@@ -118,7 +129,8 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
                min_inliers: int = 20, min_share: float = 0.25, max_shift: float = 0.5,
                max_turn: float = 0.35, degenerate: float = 0.02,
                prior_std: tuple = (0.1, 0.1, 0.05),
-               turns=np.linspace(-0.2, 0.2, 17)) -> ScanMatch:
+               turns=np.linspace(-0.2, 0.2, 9), max_points: int = 240,
+               spacing: float = 0.05) -> ScanMatch:
     """
     Refine a scan's pose against map segments.
 
@@ -148,6 +160,12 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         Std (m, m, rad) reported along degenerate directions.
     turns : (T,) float array
         Heading offsets (rad) tried before Gauss-Newton (``_best_turn``); one value: none.
+    max_points : int
+        A scan with more points is matched with this many, evenly spread over its beams.
+    spacing : float
+        Sample spacing along the segments, metres: a point pairs with the segment of its nearest
+        sample (exact point-to-line residuals; the choice between two segments closer than
+        half the spacing may be off).
 
     Returns
     -------
@@ -155,6 +173,7 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
 
     """
     pts = as_points(points)
+    pts = spread(pts, max_points)                # the time per scan stays bounded
     pred = np.asarray(prediction, dtype=np.float64).reshape(3)
     segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
     prior = np.diag(np.square(np.asarray(prior_std, dtype=np.float64)))
@@ -170,7 +189,7 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     keep = length > 1e-9
     segs, u, length = segs[keep], u[keep], length[keep]
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1) / length[:, None]
-    near = _SegmentSamples(segs, spacing=max(sigma, 0.02))
+    near = _SegmentSamples(segs, spacing=float(spacing))
     scale = max(float(np.median(np.hypot(pts[:, 0], pts[:, 1]))), 1.0)   # metres per radian
     need = min(min_inliers, max(3, int(np.ceil(min_share * len(pts)))))
     pose = pred.copy()
@@ -210,6 +229,12 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
             break
         if small or at_stage >= 3:          # converged at this gate (or slow): narrow it
             stage, at_stage = stage + 1, 0
+    # The match must explain the scan better than the prediction does (a slide along a
+    # symmetric room or a corridor can lower the weighted residual while losing points).
+    fit_pred, fit_pose = (_explained(near, transform(pts, p), gate_min) for p in (pred, pose))
+    if fit_pose < fit_pred:
+        return ScanMatch(pred, prior, False, 'worse than the prediction', int(len(res)),
+                         np.nan, int((~good).sum()))
     shift = np.hypot(*(pose[:2] - pred[:2]))
     turn = abs((pose[2] - pred[2] + np.pi) % (2 * np.pi) - np.pi)
     rms = float(np.sqrt(np.sum(w * res ** 2) / max(np.sum(w), 1e-12)))
@@ -225,6 +250,13 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     unscale = np.diag([1.0, 1.0, 1.0 / scale])
     cov = unscale @ ((vecs * var) @ vecs.T) @ unscale
     return ScanMatch(pose, cov, True, '', int(len(res)), rms, int((~good).sum()))
+
+
+def spread(points: np.ndarray, n: int) -> np.ndarray:
+    """Return at most ``n`` of ``points``, evenly spaced in their order (beam order)."""
+    if not n or len(points) <= n:
+        return points
+    return points[np.linspace(0, len(points) - 1, int(n)).astype(np.intp)]
 
 
 def scan_chords(points: np.ndarray, gap: float = 0.5) -> np.ndarray:

@@ -19,6 +19,11 @@ Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
   cells would load as free). The grid is the one stored in the map (``replay``, the node's
   ``~/save_map``); a map without one gives its segments' cells occupied and all else unknown,
   at ``GRID_RESOLUTION``.
+- The trajectory (``--trajectory``; a map from ``replay`` holds one: one row per scan used, the
+  base frame's pose in the map frame at the scan's header stamp): CSV ``t,x,y,yaw`` (seconds,
+  metres, radians), or the TUM RGB-D format (``.tum``: ``timestamp tx ty tz qx qy qz qw`` per
+  line, space separated, tz 0 and the yaw as a quaternion about z), which trajectory tools
+  (``evo``, the TUM benchmark scripts) read.
 """
 
 import io
@@ -33,6 +38,7 @@ from .output import OutputSet, write_text_atomic
 from ..core.grid import FREE, GridMap, OCCUPIED, rasterise
 
 FORMATS = ('geojson', 'svg', 'csv', 'yaml')
+TRAJECTORY_FORMATS = ('csv', 'tum')
 GRID_RESOLUTION = 0.05
 """Cell size (m) of the grid exported from a map that stores none."""
 PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
@@ -126,6 +132,47 @@ def to_csv(data: dict) -> str:
         sup = '' if support is None or i >= len(support) else f'{float(support[i]):g}'
         rows.append(','.join(f'{v:.4f}' for v in s) + f',{sup}')
     return '\n'.join(rows) + '\n'
+
+
+def trajectory_csv(trajectory: np.ndarray) -> str:
+    """Return a trajectory (T, 4) as CSV text: header ``t,x,y,yaw``, one row per pose."""
+    rows = ['t,x,y,yaw']
+    rows += [f'{t:.6f},{x:.4f},{y:.4f},{yaw:.6f}' for t, x, y, yaw in trajectory + 0.0]
+    return '\n'.join(rows) + '\n'
+
+
+def trajectory_tum(trajectory: np.ndarray) -> str:
+    """
+    Return a trajectory (T, 4) in the TUM format: ``timestamp tx ty tz qx qy qz qw`` lines.
+
+    >>> print(trajectory_tum(np.array([[1.5, 2.0, -1.0, np.pi / 2]])), end='')
+    1.500000 2.0000 -1.0000 0.0000 0.000000 0.000000 0.707107 0.707107
+    """
+    t = np.asarray(trajectory, dtype=np.float64).reshape(-1, 4) + 0.0     # no '-0.0000'
+    half = t[:, 3] / 2.0
+    return ''.join(f'{r[0]:.6f} {r[1]:.4f} {r[2]:.4f} 0.0000 0.000000 0.000000 {qz:.6f} '
+                   f'{qw:.6f}\n' for r, qz, qw in zip(t, np.sin(half) + 0.0, np.cos(half)))
+
+
+def export_trajectory(data: dict, path: str, fmt: str = None, inputs=()) -> str:
+    """
+    Write the trajectory a map holds to ``path`` as CSV or TUM; return the format.
+
+    The format comes from ``fmt`` or the suffix (``.csv``; ``.tum`` or ``.txt`` for TUM).
+    Raises ValueError when the map holds no trajectory, on another format, or on a refused
+    output (``formats.output``: never over an input, a device or a folder).
+    """
+    fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
+    fmt = 'tum' if fmt == 'txt' else fmt
+    if fmt not in TRAJECTORY_FORMATS:
+        raise ValueError(f'{path}: unknown trajectory format {fmt!r} (expected .csv, .tum or '
+                         '.txt, or --format csv|tum)')
+    traj = map_value_from_dict(data).trajectory
+    if traj is None:
+        raise ValueError('the map holds no trajectory (replay writes one: one pose per scan '
+                         'used)')
+    write_text_atomic(path, (trajectory_csv if fmt == 'csv' else trajectory_tum)(traj), inputs)
+    return fmt
 
 
 def planner_grid(data: dict) -> GridMap:
