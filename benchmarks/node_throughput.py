@@ -62,7 +62,7 @@ def make_drive(scans: int, beams: int):
     return drive, n
 
 
-def run(seconds: float, rate: float, beams: int) -> dict:
+def run(seconds: float, rate: float, beams: int, matching: bool = False) -> dict:
     """Stream the drive into a fresh node; return the measurements."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -79,16 +79,22 @@ def run(seconds: float, rate: float, beams: int) -> dict:
     t_sim = time.perf_counter()
     drive, _ = make_drive(count, beams)
     drive_seconds = time.perf_counter() - t_sim
-    msgs = list(drive_messages(drive, mount=(0.2, 0.0, 0.0), map_to_odom=(0.5, -0.3, 0.1)))
+    # With matching the map frame starts on the odometry frame (no map -> odom is sent), so
+    # odom is put on map for the wall check.
+    msgs = list(drive_messages(drive, mount=(0.2, 0.0, 0.0),
+                               map_to_odom=(0.0, 0.0, 0.0) if matching else (0.5, -0.3, 0.1)))
     static = next(r for _, topic, r in msgs if topic == '/tf_static')
     transforms = [r for _, topic, r in msgs if topic == '/tf']
+    if matching:            # a robot without a localizer: odom -> base_link only, no map frame
+        transforms = [[tr for tr in group if tr.parent != 'map'] for group in transforms]
     scans = [r for _, topic, r in msgs if topic == '/scan']
     count = min(count, len(scans))
 
     exe = os.path.join(os.path.dirname(sys.executable), 'polyline_mapper_node')
     err = tempfile.NamedTemporaryFile('w+', suffix='.stderr', delete=False)
-    node = subprocess.Popen([exe, '--ros-args', '-p', 'map_publish_period:=0.0',
-                             '-p', 'stats_period:=10.0'], stderr=err, stdout=subprocess.DEVNULL,
+    params = ['-p', 'map_publish_period:=0.0', '-p', 'stats_period:=10.0']
+    params += ['-p', 'scan_matching:=true'] if matching else []
+    node = subprocess.Popen([exe, '--ros-args'] + params, stderr=err, stdout=subprocess.DEVNULL,
                             env=dict(os.environ, RCUTILS_COLORIZED_OUTPUT='0'))
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
@@ -207,8 +213,9 @@ def table(r: dict, meta: dict) -> str:
                    f'queue, {lost} never received)')
     return (
         f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
-        f"`{meta['command']}` (node with default parameters and map_publish_period:=0; the "
-        f'publisher runs on the same 2 cores).\n\n'
+        f"`{meta['command']}` (node with default parameters and map_publish_period:=0"
+        + ('; scan_matching:=true, /tf without map -> odom' if '--scan-matching' in
+           meta['command'] else '') + '; the publisher runs on the same 2 cores).\n\n'
         f'Result: {verdict}.\n\n'
         '| quantity | value |\n|---|---:|\n'
         f"| stream | {r['scans_sent']} scans x {r['beams']} beams at {r['rate_hz']:g} Hz "
@@ -235,19 +242,23 @@ def main(argv=None) -> int:
     parser.add_argument('--rate', type=float, default=40.0)
     parser.add_argument('--beams', type=int, default=720)
     parser.add_argument('--no-readme', action='store_true', help='do not update README.md')
+    parser.add_argument('--scan-matching', action='store_true', help='the node with '
+                        'scan_matching:=true and no map -> odom on /tf (a robot with odometry '
+                        'only); results in node-throughput-matching.json and its own block')
     args = parser.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 50))
-    r = run(args.seconds, args.rate, args.beams)
+    r = run(args.seconds, args.rate, args.beams, args.scan_matching)
+    name = 'node-throughput' + ('-matching' if args.scan_matching else '')
     command = 'python benchmarks/node_throughput.py' + ''.join(
         f' {a}' for a in (argv if argv is not None else sys.argv[1:]))
     meta = stamp(command)
-    out = HERE / 'results' / 'node-throughput.json'
+    out = HERE / 'results' / f'{name}.json'
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps({'meta': meta, 'result': r}, indent=1) + '\n')
     print(json.dumps(r, indent=1))
     if not args.no_readme:
-        write_readme('node-throughput', table(r, meta))
+        write_readme(name, table(r, meta))
     return 0
 
 

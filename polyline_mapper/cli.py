@@ -5,6 +5,7 @@ Subcommands:
   fit INPUT -o MAP.json [--plot MAP.png] [--config FILE]   fit a map to points, a log or a bag
   demo -o MAP.json [--plot MAP.png] [--offline]             live node + simulated office drive
   replay INPUT -o MAP.json [--plot MAP.png] ...             map a bag or CARMEN log scan by scan
+         [--map SAVED.json [--initial-pose X,Y,YAW_DEG] [--no-mapping]]  ... on a saved map
   plot MAP.json [--points INPUT [--free-space]] -o MAP.png  draw a map (over points or beams)
   export MAP.json -o OUT.{geojson,svg,csv,yaml}             convert a map for other tools
   export MAP.json --trajectory -o OUT.{csv,tum}            its trajectory (replay's poses)
@@ -326,14 +327,45 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
                           mount_upside_down=flip, scan_matching=matching)
 
 
+def _initial_pose(text: str) -> tuple:
+    """Parse ``X,Y,YAW_DEG`` into (x, y, yaw rad)."""
+    parts = text.split(',')
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        x, y, yaw = (float(v) for v in parts)
+        if not np.isfinite([x, y, yaw]).all():
+            raise ValueError
+    except ValueError:
+        raise CliError('--initial-pose expects X,Y,YAW_DEG (metres, metres, degrees: the '
+                       f'robot in the map at the first scan), got {text!r}') from None
+    return x, y, float(np.deg2rad(yaw))
+
+
+def _start_map(args) -> tuple:
+    """Return (MapFile or None, initial pose or None) of --map, --initial-pose, --no-mapping."""
+    if args.map is None:
+        for flag, given in (('--no-mapping', args.no_mapping),
+                            ('--initial-pose', args.initial_pose is not None)):
+            if given:
+                raise CliError(f'{flag} applies to a saved map: give --map MAP.json')
+        return None, None
+    from .formats.mapjson import read_map
+    pose = None if args.initial_pose is None else _initial_pose(args.initial_pose)
+    return read_map(args.map), pose
+
+
 def cmd_replay(args) -> int:
     from .replay import run_replay
     config = load_incremental_config(args.config, args.set)
-    check_outputs([args.output, args.plot], [args.input, args.config])
-    options = _replay_options(args, args.every, args.update_every_n_scans, args.scan_matching)
+    check_outputs([args.output, args.plot], [args.input, args.config, args.map])
+    start, pose = _start_map(args)
+    options = _replay_options(args, args.every, args.update_every_n_scans,
+                              args.scan_matching or start is not None)
     t0 = time.perf_counter()
     res = run_replay(args.input, config, options, args.scan_topic, args.odom_topic,
-                     progress=not args.quiet)
+                     progress=not args.quiet, mapping=not args.no_mapping, start_map=start,
+                     initial_pose=pose)
     for line in res.warnings:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
@@ -342,10 +374,13 @@ def cmd_replay(args) -> int:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     value = res.map_value
     value.stats['total_seconds'] = round(time.perf_counter() - t0, 3)
+    if start is not None:
+        value.stats.update(start_map=os.path.basename(args.map), mapping=not args.no_mapping)
     save_map(value, res.points, args.output, args.plot,
              title=f'{os.path.basename(os.path.normpath(args.input))} (replay): '
                    f'{len(value.segments)} segments', config=config_dict(config),
-             inputs=[args.input, args.config], grid=res.session.occupancy(value.segments))
+             inputs=[args.input, args.config, args.map],
+             grid=res.session.occupancy(value.segments))
     if not args.quiet:
         print(res.summary(args.output))
     return 0
@@ -583,6 +618,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('--update-every-n-scans', type=number(1, 1000, kind=int), default=1,
                    metavar='N', help="one map update per N posed scans, as the node's "
                    'update_every_n_scans parameter (the same map as the node given N)')
+    r.add_argument('--map', metavar='SAVED.json', help='start from a saved map (a MAP.json of '
+                   'fit or replay) and localize on it: turns --scan-matching on (the poses of '
+                   'INPUT are registered to the map by matching); the output is in its frame')
+    r.add_argument('--initial-pose', metavar='X,Y,YAW_DEG', help='with --map: the robot (the '
+                   'frame the laser is mounted on) in the map at the first scan (m, m, deg); '
+                   "default: where INPUT's poses put it")
+    r.add_argument('--no-mapping', action='store_true', help='with --map: keep the map fixed '
+                   '(localization only): OUT holds the saved map unchanged, bit for bit, and '
+                   'the trajectory')
     r.set_defaults(func=cmd_replay)
 
     pl = sub.add_parser('plot', help='draw a map JSON as a PNG, over points if given')

@@ -129,6 +129,19 @@ NODE_PARAMS = (
     ParamSpec('diagnostics_period', 1.0,
               'Seconds between two diagnostic_msgs/DiagnosticArray on /diagnostics (counts, '
               'map size, update-time percentiles); 0 turns them off.', 0.0, 3600.0, True),
+    ParamSpec('map_input_path', '',
+              'A saved map (MAP.json of replay, fit or ~/save_map; ~ is expanded) to start from '
+              "and localize on; '' starts with an empty map. Loading a map turns scan matching "
+              'on: the scans are registered to it. A missing or unreadable map stops the node '
+              'at start-up. ~/reset goes back to it.'),
+    ParamSpec('initial_pose', [0.0, 0.0, 0.0],
+              'With map_input_path: x, y, yaw (m, m, rad) of the robot (the frame the laser is '
+              'mounted on) in the saved map at the first scan; default the map origin, where a '
+              'map made from odometry started.'),
+    ParamSpec('mapping', True,
+              'true: map the scans (into the saved map of map_input_path, if any); false: keep '
+              'the map fixed (localization only: the published and saved map is the loaded '
+              'one, unchanged).'),
 )
 
 # Closed hulls of what IncrementalConfig / SMEMSFConfig accept (they validate exactly, naming
@@ -249,11 +262,19 @@ class NodeSettings:
     warning_period: float
     stats_period: float
     diagnostics_period: float
+    map_input_path: str
+    initial_pose: tuple
+    mapping: bool
 
     @property
     def output_path(self) -> str:
         """Return map_output_path with ~ expanded."""
         return os.path.expanduser(self.map_output_path)
+
+    @property
+    def input_path(self) -> str:
+        """Return map_input_path with ~ expanded ('' for none)."""
+        return os.path.expanduser(self.map_input_path) if self.map_input_path else ''
 
 
 def check_value(spec: ParamSpec, value) -> None:
@@ -307,6 +328,11 @@ def settings_from(values: dict) -> tuple:
     if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
         raise ValueError(f'marker_color must be 4 numbers in [0, 1] (r, g, b, a), got {color}')
     node['marker_color'] = color
+    pose = tuple(float(v) for v in node['initial_pose'])
+    if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+        raise ValueError(f'initial_pose must be 3 finite numbers (x, y, yaw: m, m, rad), got '
+                         f'{list(pose)}')
+    node['initial_pose'] = pose
     if node['update_every_n_scans'] > node['scan_buffer_size']:
         raise ValueError(f"update_every_n_scans ({node['update_every_n_scans']}) must be at most "
                          f"scan_buffer_size ({node['scan_buffer_size']})")

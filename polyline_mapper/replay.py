@@ -120,14 +120,21 @@ def free_space_text(stats: dict) -> str:
 
 
 def replay_records(records, config: IncrementalConfig = None,
-                   options: SessionOptions = None, progress=None) -> MappingSession:
+                   options: SessionOptions = None, progress=None, start_map=None,
+                   initial_pose=None) -> MappingSession:
     """
     Map records on data time: feed them to a new session, flush it at the end, return it.
 
-    ``progress(session)`` is called after each scan record.
+    ``progress(session)`` is called after each scan record. ``start_map``: a saved map to
+    start from (a ``formats.mapjson.MapFile`` as ``read_map`` returns it, or a MapValue) with
+    the robot at ``initial_pose`` (x, y, yaw; m, rad) at the first scan
+    (``MappingSession.load_map``; None: where the poses say).
     """
     options = options or SessionOptions()
     session = MappingSession(config, options)
+    if start_map is not None:
+        value = getattr(start_map, 'value', start_map)
+        session.load_map(value, initial_pose, getattr(start_map, 'grid', None))
     for record in records:
         session.add(record)
         session.step()
@@ -139,12 +146,14 @@ def replay_records(records, config: IncrementalConfig = None,
 
 def run_replay(path: str, config: IncrementalConfig = None, options: SessionOptions = None,
                scan_topic: str = None, odom_topic: str = None, progress: bool = False,
-               mapping: bool = True) -> ReplayResult:
+               mapping: bool = True, start_map=None, initial_pose=None) -> ReplayResult:
     """
     Replay a bag, CARMEN log or ``sim:`` drive through a mapping session; return the result.
 
     ``progress`` shows a tqdm bar over the scans (on a terminal). With ``mapping=False`` the
-    scans are only registered (points and counts, empty map).
+    map is never changed: the scans are only registered (points, counts, poses), the map stays
+    empty or, with ``start_map``, as loaded. ``start_map`` (a ``read_map`` MapFile or a
+    MapValue) and ``initial_pose``: localization on a saved map (``replay_records``).
     """
     import dataclasses
     t0 = time.perf_counter()
@@ -165,7 +174,7 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
                 bar.set_postfix(segments=len(session.mapper.segments))
         try:
             session = replay_records(source.records(), config, options,
-                                     tick if bar is not None else None)
+                                     tick if bar is not None else None, start_map, initial_pose)
         finally:
             if bar is not None:
                 bar.close()

@@ -30,6 +30,10 @@ from ``recordings``. The session does, in this order:
 5. **Publish**: ``map_value()`` returns the one ``MapValue`` (segments, support, polylines, closed,
    frame, stamp, stats).
 
+A session may start from a saved map (``load_map``: localization on it, scan matching on):
+with ``SessionOptions.mapping`` False that map is returned unchanged and only the scans' poses
+are found; with it True the scans are mapped into it.
+
 Time comes from an injected clock. Offline (``clock=None``) it is *data time*: a scan arrives at
 its own stamp and "now" is the newest pose data's stamp, so a replay gives the same map however
 fast it runs. Live, the clock is wall time (``time.monotonic``): a scan waits at most ``wait``
@@ -54,6 +58,7 @@ from .core.geometry import se2_compose, se2_inverse
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
+from .core.polylines import MapGeometry
 from .core.register import match_scan, scan_chords, spread, transform
 from .formats.records import Odometry, Scan, Skipped, Transform
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
@@ -64,6 +69,8 @@ MAX_SCAN_SPAN = 1.0
 """Seconds the beams of one scan may span for motion compensation (longer: taken as bad)."""
 MAX_MOTION_GAP = 1.0
 """Seconds between the last two poses beyond which their motion is not extrapolated."""
+TRAJECTORY_ROWS = 100000
+"""Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
 
@@ -147,7 +154,9 @@ class SessionOptions:
     keep_points: bool = False
     """Keep every mapped point (offline: for map metrics and plots). Memory grows with them."""
     mapping: bool = True
-    """False: only register the scans (points and counts), leave the map empty."""
+    """False: the map is never changed: the scans are only registered (points, counts and,
+    with scan matching, their poses), so an empty map stays empty and a loaded one
+    (``MappingSession.load_map``) stays exactly as loaded: localization only."""
     scan_matching: bool = False
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
@@ -220,7 +229,8 @@ class PoseSource:
         self.latest = -math.inf
         """Newest stamp of dynamic pose data (transforms or odometry), seconds."""
         self._parents = {}
-        self._static = set()                # frames whose parent edge is static
+        self._static = set()
+        """Frames whose edge to their parent is static (a mount)."""
         self._under_fixed = set()           # localizer: children of ignored fixed-frame edges
         self._mounted = False
 
@@ -353,6 +363,27 @@ class PoseSource:
                                              self.options.tolerance).xyz
         except TransformLookupError:
             return None
+
+    def robot_pose(self, scan: Scan) -> np.ndarray:
+        """
+        Return (x, y, yaw) of the robot carrying the laser of ``scan``, in the fixed frame.
+
+        The robot is the frame the laser is mounted on (its parent by a static transform: the
+        odometry child frame with ``mount``), or the laser itself when it has no mount (or the
+        scan carries its pose). Call after ``pose(scan)`` succeeded; its lookup failing, the
+        laser pose is returned.
+        """
+        laser = self.pose(scan)
+        frame = scan.frame_id
+        if self.options.pose_source == 'odom' and self.options.mount is not None:
+            frame = MOUNT_FRAME
+        if scan.pose is not None or frame not in self._static or frame not in self._parents:
+            return laser.xyz
+        try:
+            return self.buffer.lookup_planar(self.fixed_frame, self._parents[frame], scan.stamp,
+                                             self.options.tolerance).xyz
+        except TransformLookupError:
+            return laser.xyz
 
     def _chain(self, frame: str) -> list:
         """Return [frame, its parent, ..., the root of its tree]; TransformLookupError if alone."""
@@ -507,9 +538,14 @@ class MappingSession:
         """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
         self._recent = deque(maxlen=RECENT_SCANS)
         """Scan matching: chords of the last matched scans (fixed frame), the map's newest edge."""
-        self._trajectory = []
+        self._trajectory = (deque() if self.options.keep_points
+                            else deque(maxlen=TRAJECTORY_ROWS))
         self._motion = deque(maxlen=2)
         """(stamp, (x, y, yaw)) of the last two posed scans: the matched motion."""
+        self._loaded = None
+        """(MapValue, planner map or None, initial base pose or None) of ``load_map``."""
+        self._place = None
+        """The initial base pose (x, y, yaw) the next posed scan is placed at, or None."""
         self.matches = Counter()
         """Scan matching outcomes: 'matched', 'no map yet', and each refusal reason."""
         self.localization = None
@@ -520,6 +556,49 @@ class MappingSession:
         self._last_match = None
         self._news = False
         self._estimating_noted = False
+
+    def load_map(self, value: MapValue, initial_pose=None, grid: GridMap = None) -> None:
+        """
+        Start from a saved map (``formats.mapjson.read_map(...).value``): localization on it.
+
+        The map's segments, support and noise scale (``stats['sigma']``, ``stats['r']``) become
+        the mapper's G(0), its frame the frame of the map value. Scan matching is turned on
+        (``options.scan_matching``): the given poses (odometry, TF) are in their own frame, and
+        only matching registers the scans to the saved map. ``initial_pose`` (x, y, yaw; m,
+        rad): where the robot (the frame the laser is mounted on, see
+        ``PoseSource.robot_pose``) is in the map at the first scan; None: where the given poses
+        say (the given frame is the map's). With ``options.mapping`` False the map is never
+        changed: ``map_value`` returns the loaded segments, support, polylines and closed flags
+        as they are, and ``occupancy`` the loaded planner map (``grid``) when there is one.
+        With mapping True the scans are mapped into it. ``reset`` goes back to it.
+
+        Raises ValueError (one line) when the map or the pose cannot be used.
+        """
+        pose = None
+        if initial_pose is not None:
+            pose = np.asarray(initial_pose, dtype=np.float64)
+            if pose.shape != (3,) or not np.isfinite(pose).all():
+                raise ValueError(f'initial pose must be 3 finite numbers (x, y, yaw), got '
+                                 f'{list(np.ravel(initial_pose))}')
+        stats = value.stats or {}
+        sigma, r = stats.get('sigma'), stats.get('r')
+        if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
+                and math.isfinite(sigma) and sigma > 0):
+            sigma = None
+        if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
+                                 and math.isfinite(r) and r > 0):
+            r = None
+        if len(value.segments) and sigma is None and self.mapper.config.smemsf.sigma is None:
+            raise ValueError('the map has no noise scale (stats.sigma): scans cannot be '
+                             'matched against it; set smemsf.sigma')
+        with self._map_lock:
+            self.mapper.load(value.segments, value.support, sigma, r)
+        with self._cv:
+            self.options.scan_matching = True
+            self._loaded = (value, grid, pose)
+            self._place = pose
+            self._correction = np.zeros(3)
+            self._recent.clear()
 
     # -- producers -----------------------------------------------------------------------------
     def add(self, record) -> None:
@@ -680,6 +759,10 @@ class MappingSession:
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
+                if self._place is not None:     # the first scan on a loaded map
+                    self._correction = se2_compose(self._place,
+                                                   se2_inverse(self.poses.robot_pose(scan)))
+                    self._place = None
                 if scan_mode:
                     xyz = self._predict(scan.stamp)
                 motion = self._beam_motion(scan, pose, notes)
@@ -705,7 +788,7 @@ class MappingSession:
         if self._motion and scan.stamp <= self._motion[-1][0]:
             self._motion.clear()            # time went back: the old motion means nothing
         self._motion.append((scan.stamp, xyz))
-        if self.options.keep_points:
+        if self.options.keep_points or self.options.scan_matching:
             self._trajectory.append((scan.stamp, *xyz))
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
@@ -922,6 +1005,7 @@ class MappingSession:
                                           [len(g[1]) for g in group]))
                 if ran:
                     self.updates += 1
+                if ran or not self.options.mapping:     # mapping off: convert and match
                     self.update_seconds.append(seconds)
                     if self.clock is not None:
                         self.latency_seconds.append(self.clock() - group[-1][4])
@@ -942,6 +1026,13 @@ class MappingSession:
         """Return the map frame (known once the first scan is posed, unless given)."""
         return self.poses.fixed_frame
 
+    @property
+    def map_frame(self) -> str:
+        """Return the frame of the map: a loaded map's own, else the fixed frame (or 'map')."""
+        if self._loaded is not None:
+            return self._loaded[0].frame_id
+        return self.fixed_frame or 'map'
+
     def points(self) -> np.ndarray:
         """Return every mapped point, (N, 2) fixed frame (``keep_points`` only)."""
         with self._lock:
@@ -958,19 +1049,31 @@ class MappingSession:
                 return np.zeros((0, 2))
             return np.concatenate([np.repeat(o, c, axis=0) for o, c in self._origins])
 
-    def map_value(self) -> MapValue:
-        """Return the current map: segments, aligned support, polylines, frame, stamp, stats."""
+    def map_value(self, trajectory: Optional[bool] = None) -> MapValue:
+        """
+        Return the current map: segments, aligned support, polylines, frame, stamp, stats.
+
+        ``trajectory``: with ``keep_points`` the scans' poses are included; True includes them
+        live with scan matching too (the newest ``TRAJECTORY_ROWS``). A loaded map kept fixed
+        (``load_map``, mapping off) is returned as loaded, in its own frame.
+        """
+        fixed = self._loaded is not None and not self.options.mapping
         with self._map_lock:
-            geo = self.mapper.polylines()
+            geo = None if fixed else self.mapper.polylines()
             sigma, r = self.mapper.sigma, (self.mapper.r if self.mapper.sigma else None)
+        if fixed:
+            loaded = self._loaded[0]
+            geo = MapGeometry(loaded.segments.copy(), loaded.support.copy(),
+                              [p.copy() for p in loaded.polylines], list(loaded.closed))
+            sigma, r = loaded.stats.get('sigma', sigma), loaded.stats.get('r', r)
         stats = self.stats()
         stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,
                      r=r)
+        keep = self.options.keep_points or bool(trajectory and self.options.scan_matching)
         with self._lock:
-            traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) \
-                if self.options.keep_points else None
-        return MapValue(geo.segments, geo.support, geo.polylines, geo.closed,
-                        self.fixed_frame or 'map', self.stamp, stats, traj)
+            traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) if keep else None
+        return MapValue(geo.segments, geo.support, geo.polylines, geo.closed, self.map_frame,
+                        self.stamp, stats, traj)
 
     def occupancy(self, segments=None) -> Optional[GridMap]:
         """
@@ -981,6 +1084,8 @@ class MappingSession:
         """
         if self.grid is None:
             return None
+        if self._loaded is not None and not self.options.mapping and self._loaded[1] is not None:
+            return self._loaded[1]
         if segments is None:
             with self._map_lock:
                 segments = self.mapper.polylines().segments
@@ -1004,7 +1109,12 @@ class MappingSession:
         return out
 
     def reset(self) -> int:
-        """Forget the map and every queued scan; return the number of segments dropped."""
+        """
+        Forget the map and every queued scan; return the number of segments dropped.
+
+        A session started from a saved map (``load_map``) goes back to it and to its initial
+        pose.
+        """
         with self._cv:
             self._generation += 1
             self.localization = None
@@ -1015,11 +1125,15 @@ class MappingSession:
             self._trajectory.clear()
             self._motion.clear()
             self._correction = np.zeros(3)
+            self._place = None if self._loaded is None else self._loaded[2]
             self._recent.clear()
             self._origins.clear()
         with self._map_lock:
             dropped = len(self.mapper.segments)
             self.mapper.reset()
+            if self._loaded is not None:        # back to the loaded map and initial pose
+                value = self._loaded[0]
+                self.mapper.load(value.segments, value.support, self.mapper.sigma)
             if self.grid is not None:
                 self.grid.reset()
                 self.grid_seconds.clear()

@@ -255,19 +255,35 @@ class IncrementalMapper:
         return map_geometry(self.segments, self.support, self.sigma, r, cfg.kappa,
                             cfg.join_over_r * r)
 
-    def load(self, segments, support=None) -> None:
+    def load(self, segments, support=None, sigma: float = None, r: float = None) -> None:
         """
         Replace the map by given segments (K, 2, 2) metres, e.g. a saved map to extend.
 
-        ``support`` (K,) defaults to the cap (a loaded map is trusted like a long-seen one).
+        ``support`` (K,) defaults to the cap (a loaded map is trusted like a long-seen one); NaN
+        entries (a map file without support) take the cap too. ``sigma`` (m), when given, is
+        the map's noise scale: mapping starts at once with it (no noise estimate from the first
+        scans) and it is the floor sigma may grow from (unless the configuration fixes sigma).
+        ``r`` (m), the map's LSS half-size (MAP.json's ``stats.r``), when larger than
+        ``r_over_sigma`` x sigma, is taken as the scan spacing the map was made with, until new
+        scans' spacings outvote it. Raises ValueError (the map unchanged) on bad segments,
+        support, sigma or r.
         """
         from .geometry import as_segments
         segs = as_segments(segments)
+        for name, v in (('sigma', sigma), ('r', r)):
+            if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f'{name} must be a finite number > 0 (m), got {v!r}')
+        sup = None if support is None else np.asarray(support, dtype=np.float64)
+        if sup is not None and (sup.shape != (len(segs),) or np.isinf(sup).any()
+                                or np.any(sup < 0)):
+            raise ValueError(f'support must be {len(segs)} finite values >= 0')
+        if sigma is not None and self.config.smemsf.sigma is None:
+            self.sigma = self._sigma0 = max(float(sigma), self.config.smemsf.sigma_min)
+            if r is not None and r > self.config.smemsf.r_over_sigma * self.sigma:
+                self._spacings.append(2.0 * float(r))
         r = self.r
         cap = self.config.virtual_cap * np.maximum(lengths(segs) / (2.0 * r), 1.0)
-        sup = cap if support is None else np.asarray(support, dtype=np.float64)
-        if sup.shape != (len(segs),) or not np.all(np.isfinite(sup)) or np.any(sup < 0):
-            raise ValueError(f'support must be {len(segs)} finite values >= 0')
+        sup = cap if sup is None else np.where(np.isnan(sup), cap, sup)
         self._replace(np.flatnonzero(self._alive), segs, sup)
 
     def reset(self) -> None:

@@ -110,6 +110,19 @@ class PolylineMapperNode(Node):
         self.session = MappingSession(self.config, session_options(self.settings),
                                       clock=time.monotonic, warn=self.warnings.warn,
                                       info=log.info)
+        path = self.settings.input_path
+        try:
+            saved = startup.read_start_map(path)
+            if saved is not None:
+                self.session.load_map(saved.value, self.settings.initial_pose, saved.grid)
+        except startup.StartupError as exc:
+            raise ConfigError(str(exc)) from None
+        except ValueError as exc:
+            raise ConfigError(f'map_input_path {path}: {exc}') from None
+        if saved is not None:
+            log.info(f'starting from the saved map {path} ({len(saved.value)} segments) at '
+                     f'{list(self.settings.initial_pose)}; '
+                     + ('mapping into it' if self.settings.mapping else 'localization only'))
         self.map_pub = self.create_publisher(PolylineMap, 'polyline_map', MAP_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
         self.grid_pub = self.create_publisher(OccupancyGrid, 'map', MAP_QOS)
@@ -214,7 +227,7 @@ class PolylineMapperNode(Node):
 
     def _on_save_map(self, request, response):
         path = self.settings.output_path
-        value = self.session.map_value()
+        value = self.session.map_value(trajectory=True)
         try:
             write_map(path, value, config_dict(self.config),
                       grid=self.session.occupancy(value.segments))
@@ -267,7 +280,7 @@ class PolylineMapperNode(Node):
             used = self.session.used
             value = self.session.map_value()
             self._published = (used, self.session.generation, value.segments)
-            frame = self.settings.fixed_frame
+            frame = value.frame_id          # fixed_frame, or the frame of a loaded map
             stamp = (time_msg(value.stamp) if value.stamp is not None
                      else self.get_clock().now().to_msg())
             self.map_pub.publish(map_to_msg(value, frame, stamp))
@@ -307,7 +320,7 @@ class PolylineMapperNode(Node):
             grid = self.session.occupancy(segments if current else None)  # no 2nd polylines()
             stamp = self.session.stamp
             stamp = (time_msg(stamp) if stamp is not None else self.get_clock().now().to_msg())
-            self.grid_pub.publish(grid_to_msg(grid, self.settings.fixed_frame, stamp))
+            self.grid_pub.publish(grid_to_msg(grid, self.session.map_frame, stamp))
             self._last_grid = time.monotonic()
 
     def _log_stats(self, now: float) -> None:
@@ -381,7 +394,7 @@ def session_options(settings) -> SessionOptions:
         update_every_n_scans=settings.update_every_n_scans,
         max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
         max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution,
-        scan_matching=settings.scan_matching)
+        scan_matching=settings.scan_matching, mapping=settings.mapping)
 
 
 def _cm(sigma) -> str:

@@ -7,7 +7,8 @@ its own "Failed to parse global arguments" line), so a missing, broken or binary
 finds these before rcl does and says what is wrong in our words (the choices of a parameter
 given no value, the line of a YAML error); ``init`` starts rclpy and turns whatever rcl still
 refuses into one line, without rcl's own log line. Callers log ``cannot start: <reason>`` and
-exit with code 1, as for a bad parameter value.
+exit with code 1, as for a bad parameter value. ``read_start_map`` reads the saved map of
+``map_input_path`` the same way: a missing, unreadable or broken file is one line.
 """
 
 import os
@@ -69,6 +70,9 @@ def _check_rule(rule: str, specs: dict) -> None:
     if name == 'fixed_frame':
         raise StartupError(f'fixed_frame must be a frame name (e.g. map), got an empty value '
                            f'(-p {rule})')
+    if spec is not None and spec.default == '':
+        raise StartupError(f'{name}: no value after ":=" (-p {rule}); leave the parameter out '
+                           'for none')
     if spec is not None and isinstance(spec.default, str):
         raise StartupError(f'{name} must not be empty (-p {rule})')
     kind = f' ({name} takes a {type(spec.default).__name__})' if spec is not None else ''
@@ -114,6 +118,22 @@ def check_params_file(path: str) -> None:
         raise StartupError(f'{what}: not valid YAML ({problem}{where})') from None
     except RecursionError:
         raise StartupError(f'{what}: not valid YAML (nested too deep)') from None
+
+
+def read_start_map(path: str):
+    """
+    Return the saved map at ``path`` (``formats.mapjson.MapFile``), or None for ''.
+
+    StartupError with one line naming ``map_input_path`` when it is missing, not a regular
+    file, unreadable, not a map JSON or a broken one (``read_map``'s checks).
+    """
+    if not path:
+        return None
+    from ..formats.mapjson import read_map
+    try:
+        return read_map(path)
+    except ValueError as exc:
+        raise StartupError(f'map_input_path {exc}') from None
 
 
 def init(args: Optional[Sequence[str]] = None, **kwargs) -> None:

@@ -1,0 +1,289 @@
+"""Localization on a saved map: replay --map [--initial-pose] [--no-mapping]; session.load_map."""
+
+import json
+
+from bag_helpers import write_bag
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.core.geometry import sample_segments
+from polyline_mapper.core.incremental import IncrementalMapper
+from polyline_mapper.core.index import nearest_distance
+from polyline_mapper.formats.mapjson import read_map
+from polyline_mapper.formats.records import Scan
+from polyline_mapper.poses import se2_compose, se2_inverse
+from polyline_mapper.recordings import (drive_messages, make_drive, OdometryDrift,
+                                        robot_messages, SIM_MOUNT, SIM_START)
+from polyline_mapper.replay import replay_records
+from polyline_mapper.session import MappingSession, SessionOptions
+import pytest
+
+ARRAYS = ('frame_id', 'segments', 'support', 'polylines', 'closed')
+"""The keys of MAP.json that hold the map itself (compared bit for bit)."""
+
+
+@pytest.fixture(scope='module')
+def office():
+    """Return the drive of ``sim:office`` (seed 1, 1 cm noise, 541 beams), as replay opens it."""
+    return make_drive('sim:office')
+
+
+def drifted_messages(drive, seed: int, odom_origin=None) -> list:
+    """
+    Return the drive as a robot without a localizer records it: (topic, record, log time).
+
+    The base poses get issue 19's odometry drift (first pose true), /tf odom -> base_link and
+    /odom follow them, /tf_static holds the laser mount, and there is no map frame. With
+    ``odom_origin`` (x, y, yaw of the odometry frame in the map) the odometry starts there
+    instead of on the map frame.
+    """
+    spec = drive.spec
+    stamps = SIM_START + np.asarray(drive.stamps, dtype=np.float64)
+    mount = np.asarray(SIM_MOUNT)
+    base = OdometryDrift().apply(se2_compose(np.asarray(drive.poses), se2_inverse(mount)), seed)
+    if odom_origin is not None:
+        base = se2_compose(se2_inverse(np.asarray(odom_origin, dtype=np.float64)), base)
+    scans = [Scan(t, 'laser', spec.angle_min, spec.angle_increment, spec.range_min,
+                  spec.range_max, np.asarray(r, dtype=np.float32))
+             for t, r in zip(stamps.tolist(), drive.ranges)]
+    return [(topic, record, t) for t, topic, record in
+            robot_messages(stamps, se2_compose(base, mount), scans, mount=mount)]
+
+
+def records_of(messages, scans: int = None) -> list:
+    """Flatten (topic, record, t) messages into records, up to the ``scans``-th scan."""
+    out, n = [], 0
+    for topic, record, _ in messages:
+        if topic == '/scan':
+            n += 1
+            if scans is not None and n > scans:
+                break
+        out.extend(record if isinstance(record, list) else [record])
+    return out
+
+
+def rms_error(trajectory: np.ndarray, drive) -> float:
+    """RMS distance (m) of the trajectory's positions to the drive's true laser positions."""
+    err = trajectory[:, 1:3] - np.asarray(drive.poses)[:, :2]
+    return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+
+
+def wall_cover(segments: np.ndarray, drive) -> np.ndarray:
+    """Share of each wall of the world within 5 cm of a map segment."""
+    walls = np.asarray(drive.world.walls, dtype=np.float64)
+    pts, owner = sample_segments(walls, 0.05)
+    d = nearest_distance(pts, np.asarray(segments).reshape(-1, 2, 2))[0]
+    return np.array([np.mean(d[owner == i] < 0.05) for i in range(len(walls))])
+
+
+def map_arrays(path) -> dict:
+    with open(path) as fh:
+        data = json.load(fh)
+    return {k: data[k] for k in ARRAYS}
+
+
+@pytest.fixture(scope='module')
+def saved(office, tmp_path_factory):
+    """Map the office once with true poses (replay sim:office); write a drifted bag of it."""
+    folder = tmp_path_factory.mktemp('localization')
+    path = folder / 'office.json'
+    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
+    bag = write_bag(folder / 'drifted', drifted_messages(office, 1))
+    return folder, path, bag
+
+
+def test_replay_on_a_saved_map_without_mapping_localizes_and_keeps_the_map(saved, office):
+    folder, path, bag = saved
+    before = path.read_bytes()
+    out = folder / 'localized.json'
+    assert main(['replay', bag, '--map', str(path), '--no-mapping', '-o', str(out), '-q']) == 0
+    assert path.read_bytes() == before                       # the input map is not touched
+    assert map_arrays(out) == map_arrays(path)                # the map is the saved one
+    data = json.loads(out.read_text())
+    trajectory = np.array(data['trajectory'])
+    assert len(trajectory) == len(office.poses)
+    odometry = [r.translation[:2] for topic, r, _ in drifted_messages(office, 1)
+                if topic == '/odom']
+    drift = np.hypot(*(np.array(odometry) - np.asarray(office.poses)[:, :2]).T).max()
+    assert drift > 1.0                                        # odometry alone is lost
+    assert rms_error(trajectory, office) <= 0.05, rms_error(trajectory, office)
+    assert data['stats']['start_map'] == 'office.json' and data['stats']['mapping'] is False
+    assert data['stats']['scan_matching']['matched'] >= 0.97 * len(office.poses)
+    assert data['grid'] == json.loads(path.read_text())['grid']
+
+
+@pytest.mark.parametrize('seed', [0, 2, 3])
+def test_localization_error_stays_within_5_cm_for_other_drifts(saved, office, seed):
+    _, path, _ = saved
+    saved_map = read_map(path)
+    session = replay_records(records_of(drifted_messages(office, seed)),
+                             options=SessionOptions(keep_points=True, mapping=False),
+                             start_map=saved_map)
+    value = session.map_value()
+    assert rms_error(value.trajectory, office) <= 0.05, rms_error(value.trajectory, office)
+    for key in ('segments', 'support', 'closed'):
+        assert np.array_equal(getattr(value, key), getattr(saved_map.value, key)), key
+    assert all(np.array_equal(a, b) for a, b in zip(value.polylines, saved_map.value.polylines))
+    assert value.frame_id == 'map' and session.fixed_frame == 'odom'
+
+
+def test_initial_pose_places_a_robot_whose_odometry_starts_elsewhere(saved, office):
+    folder, path, _ = saved
+    origin = (1.5, -0.8, 0.4)                 # the odometry frame's origin in the map
+    bag = write_bag(folder / 'elsewhere', drifted_messages(office, 1, odom_origin=origin))
+    start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
+    out = folder / 'placed.json'
+    pose = ','.join(repr(float(v)) for v in (start[0], start[1], np.rad2deg(start[2])))
+    assert main(['replay', bag, '--map', str(path), '--no-mapping', '-o', str(out), '-q',
+                 f'--initial-pose={pose}']) == 0
+    placed = np.array(json.loads(out.read_text())['trajectory'])
+    assert rms_error(placed, office) <= 0.05, rms_error(placed, office)
+    lost = folder / 'lost.json'               # where the odometry says: 1.7 m off, not matched
+    assert main(['replay', bag, '--map', str(path), '--no-mapping', '-o', str(lost), '-q']) == 0
+    assert rms_error(np.array(json.loads(lost.read_text())['trajectory']), office) > 0.5
+
+
+@pytest.mark.parametrize('options', [
+    {'pose_source': 'odom', 'mount': SIM_MOUNT},      # the mount given (the node's laser_*)
+    {'pose_source': 'odom'},                          # the mount from /tf_static
+    {'pose_source': 'tf'},
+])
+def test_the_initial_pose_is_the_robot_base_with_every_pose_source(saved, office, options):
+    _, path, _ = saved
+    origin = (-2.0, 1.0, -0.6)
+    records = records_of(drifted_messages(office, 2, odom_origin=origin))
+    start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
+    session = replay_records(records, options=SessionOptions(keep_points=True, mapping=False,
+                                                             **options),
+                             start_map=read_map(path), initial_pose=start)
+    trajectory = session.map_value().trajectory
+    assert np.abs(trajectory[0, 1:] - office.poses[0]).max() < 0.03
+    assert rms_error(trajectory, office) <= 0.05, rms_error(trajectory, office)
+
+
+def test_mapping_on_a_saved_map_adds_the_walls_it_lacks(office):
+    # The saved map holds the first 120 scans only: two walls of the east wing are missing.
+    true = [(topic, record, t) for t, topic, record in drive_messages(office)]
+    first = replay_records(records_of(true, 120), options=SessionOptions(keep_points=True))
+    partial = first.map_value()
+    before = wall_cover(partial.segments, office)
+    missing = before < 0.1
+    assert missing.sum() >= 2
+    runs = {}
+    for mapping in (True, False):
+        session = replay_records(records_of(drifted_messages(office, 1)),
+                                 options=SessionOptions(keep_points=True, mapping=mapping),
+                                 start_map=partial)
+        runs[mapping] = session.map_value()
+    grown = runs[True]
+    after = wall_cover(grown.segments, office)
+    assert (after[missing] > 0.9).all(), after
+    assert (after >= np.minimum(before, 0.95) - 0.05).all(), (before, after)
+    stray = office.world.distance(sample_segments(grown.segments, 0.02)[0])
+    assert np.percentile(stray, 99) < 0.05
+    assert rms_error(grown.trajectory, office) <= 0.05, rms_error(grown.trajectory, office)
+    assert np.array_equal(runs[False].segments, partial.segments)     # mapping off: as loaded
+    assert np.array_equal(runs[False].support, partial.support)
+
+
+def test_the_mapper_starts_from_a_loaded_map_at_its_noise_scale(office):
+    seg = np.array([[[0.0, 0.0], [4.0, 0.0]], [[4.0, 0.0], [4.0, 3.0]]])
+    mapper = IncrementalMapper()
+    mapper.load(seg, np.array([50.0, np.nan]), sigma=0.01, r=0.06)
+    assert mapper.sigma == 0.01 and mapper.r == pytest.approx(0.06)
+    assert mapper.support[0] == 50.0 and mapper.support[1] == pytest.approx(10.0 * 3.0 / 0.12)
+    spec = office.spec
+    angles = spec.angle_min + spec.angle_increment * np.arange(len(office.ranges[0]))
+    info = mapper.update_scan(office.ranges[0], angles, office.poses[0], spec.range_min,
+                              spec.range_max)
+    assert info.skipped is None                    # no noise estimate first: it maps at once
+    for bad in ({'sigma': float('nan')}, {'sigma': -1.0}, {'r': 0.0}):
+        with pytest.raises(ValueError, match='must be a finite number > 0'):
+            mapper.load(seg, None, **{'sigma': 0.01, **bad})
+    with pytest.raises(ValueError, match='support must be 2 finite values'):
+        mapper.load(seg, np.array([1.0, np.inf]), sigma=0.01)
+    assert len(mapper.segments) > 0
+
+
+def test_reset_goes_back_to_the_loaded_map_and_a_bad_pose_is_refused(saved, office):
+    _, path, _ = saved
+    saved_map = read_map(path)
+    session = MappingSession(options=SessionOptions(keep_points=True))
+    for bad in ((1.0, 2.0), (0.0, float('nan'), 0.0)):
+        with pytest.raises(ValueError, match='initial pose must be 3 finite numbers'):
+            session.load_map(saved_map.value, bad)
+    session.load_map(saved_map.value)
+    assert session.options.scan_matching
+    for record in records_of(drifted_messages(office, 1), 60):
+        session.add(record)
+        session.step()
+    session.flush()
+    assert len(session.map_value().segments) != len(saved_map.value.segments) or not \
+        np.array_equal(session.map_value().segments, saved_map.value.segments)
+    session.reset()
+    back = session.map_value()
+    assert len(back.segments) == len(saved_map.value.segments)
+    assert np.abs(np.sort(back.segments.ravel()) - np.sort(saved_map.value.segments.ravel())
+                  ).max() < 1e-3
+    assert back.trajectory.shape == (0, 4)
+
+
+def test_a_map_without_noise_scale_is_refused_unless_sigma_is_set(saved, tmp_path):
+    _, path, _ = saved
+    data = json.loads(path.read_text())
+    del data['stats']['sigma']
+    bare = tmp_path / 'bare.json'
+    bare.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match='no noise scale'):
+        MappingSession().load_map(read_map(bare).value)
+    rc = main(['replay', 'sim:office', '--every', '20', '--map', str(bare), '-o',
+               str(tmp_path / 'o.json'), '-q', '--set', 'sigma=0.01'])
+    assert rc == 0
+
+
+def _not_a_map(tmp_path):
+    p = tmp_path / 'points.json'
+    p.write_text('{"points": [[0, 0], [1, 1]]}')
+    return p
+
+
+def _folder(tmp_path):
+    p = tmp_path / 'folder.json'
+    p.mkdir()
+    return p
+
+
+def _garbage(tmp_path):
+    p = tmp_path / 'garbage.json'
+    p.write_bytes(b'\x00\x01 not json')
+    return p
+
+
+@pytest.mark.parametrize('args, words', [
+    (lambda t, m: ['--map', str(t / 'missing.json')], 'missing.json: no such file'),
+    (lambda t, m: ['--map', str(_not_a_map(t))], 'missing key "frame_id"'),
+    (lambda t, m: ['--map', str(_garbage(t))], 'not a readable map JSON'),
+    (lambda t, m: ['--map', str(_folder(t))], 'not a regular file'),
+    (lambda t, m: ['--map', m, '--initial-pose', '1,2'], '--initial-pose expects X,Y,YAW_DEG'),
+    (lambda t, m: ['--map', m, '--initial-pose', 'nan,0,0'], '--initial-pose expects'),
+    (lambda t, m: ['--map', m, '--initial-pose', '1,2,x'], '--initial-pose expects'),
+    (lambda t, m: ['--no-mapping'], '--no-mapping applies to a saved map: give --map'),
+    (lambda t, m: ['--initial-pose', '0,0,0'], '--initial-pose applies to a saved map'),
+])
+def test_bad_localization_arguments_are_one_line_errors(saved, tmp_path, capsys, args, words):
+    _, path, _ = saved
+    out = tmp_path / 'out.json'
+    rc = main(['replay', 'sim:office', '-o', str(out), '-q'] + args(tmp_path, str(path)))
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith('polyline-mapper: error: ') and words in err, err
+    assert err.count('\n') == 1 and 'Traceback' not in err
+    assert not out.exists()
+
+
+def test_the_output_may_not_replace_the_saved_map(saved, capsys):
+    _, path, _ = saved
+    before = path.read_bytes()
+    rc = main(['replay', 'sim:office', '--map', str(path), '-o', str(path), '-q'])
+    err = capsys.readouterr().err
+    assert rc == 2 and err == (f'polyline-mapper: error: {path}: is an input of this run; '
+                               'refusing to write over it\n'), err
+    assert path.read_bytes() == before

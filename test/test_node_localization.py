@@ -1,0 +1,124 @@
+"""The node on a saved map over DDS: map_input_path, initial_pose, mapping false; bad starts."""
+
+from concurrent.futures import ThreadPoolExecutor
+import json
+import os
+import subprocess
+
+import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.formats.mapjson import read_map
+from polyline_mapper.poses import se2_compose, se2_inverse
+from polyline_mapper.recordings import make_drive, SIM_MOUNT
+import pytest
+from rosnode import map_segments, NODE_EXE, NodeProcess, Peer, stamp_of
+from std_srvs.srv import Trigger
+from test_localization import drifted_messages
+
+pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+pytestmark = pytest.mark.slow
+RATE = 20.0
+TIMEOUT = 60.0
+
+
+@pytest.fixture(scope='module')
+def office():
+    """Return the drive of ``sim:office``, as replay opens it."""
+    return make_drive('sim:office')
+
+
+@pytest.fixture(scope='module')
+def saved_map(tmp_path_factory):
+    """Map sim:office with true poses (replay); return the MAP.json path."""
+    path = tmp_path_factory.mktemp('node_localization') / 'office.json'
+    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
+    return path
+
+
+def test_the_node_localizes_on_a_saved_map_and_publishes_it_unchanged(saved_map, office,
+                                                                      tmp_path):
+    # A robot without a localizer: /tf odom -> base_link drifts (issue 19's model), no map
+    # frame, so poses are looked up in odom; the map and the trajectory are in the map's frame.
+    # The robot starts at its true pose (the odometry too), 0.8 m, 6 m from the map's origin.
+    out = tmp_path / 'saved.json'
+    start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
+    node = NodeProcess(tmp_path, {'map_input_path': str(saved_map), 'mapping': False,
+                                  'initial_pose': [float(v) for v in start],
+                                  'fixed_frame': 'odom', 'map_output_path': str(out),
+                                  'map_publish_period': 0.1, 'transform_timeout': 0.3})
+    peer = Peer('test_peer_localization')
+    try:
+        assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
+        messages = [(t, topic, record) for topic, record, t in drifted_messages(office, 1)]
+        last = peer.play(messages, RATE)
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        loaded = read_map(saved_map).value
+        msg = peer.maps[-1]
+        assert msg.header.frame_id == 'map'
+        assert np.array_equal(map_segments(msg), loaded.segments)
+        response = peer.call('/polyline_mapper_node/save_map', Trigger)
+        assert response is not None and response.success, node.stderr()[-3000:]
+    finally:
+        peer.close()
+        assert node.stop() == 0
+    data = json.loads(out.read_text())
+    with open(saved_map) as fh:
+        before = json.load(fh)
+    for key in ('frame_id', 'segments', 'support', 'polylines', 'closed'):
+        assert data[key] == before[key], key
+    rows = np.array(data['trajectory'])
+    first = last - (len(office.poses) - 1) / RATE
+    index = np.round((rows[:, 0] - first) * RATE).astype(int)
+    assert len(rows) > 0.9 * len(office.poses) and np.all(np.diff(index) > 0)
+    err = rows[:, 1:3] - np.asarray(office.poses)[index, :2]
+    rms = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    assert rms <= 0.05, rms
+    assert 'localization only' in node.stderr()
+    assert data['stats']['scan_matching']['matched'] >= len(rows) - 2
+
+
+def run_node(argv):
+    proc = subprocess.run([str(NODE_EXE), '--ros-args'] + argv, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, timeout=TIMEOUT,
+                          env=dict(os.environ, RCUTILS_COLORIZED_OUTPUT='0'))
+    return proc.returncode, proc.stdout.decode(errors='replace')
+
+
+# argv after --ros-args ('{dir}' a scratch folder, '{map}' the saved map) -> the one line says.
+CASES = [
+    (['-p', 'map_input_path:={dir}/missing.json'],
+     ['map_input_path', 'missing.json: no such file']),
+    (['-p', 'map_input_path:={dir}/points.json'], ['points.json', 'missing key "frame_id"']),
+    (['-p', 'map_input_path:={dir}/binary.json'], ['binary.json: not a readable map JSON']),
+    (['-p', 'map_input_path:={dir}'], ['map_input_path', 'not a regular file']),
+    (['-p', 'map_input_path:='], ['map_input_path: no value after ":="', 'leave the parameter']),
+    (['-p', 'map_input_path:={map}', '-p', 'initial_pose:=[1.0, 2.0]'],
+     ['initial_pose must be 3 finite numbers', '[1.0, 2.0]']),
+    (['-p', 'map_input_path:={map}', '-p', 'initial_pose:=[.nan, 0.0, 0.0]'],
+     ['initial_pose must be 3 finite numbers']),
+    (['-p', 'mapping:=maybe'], ['mapping']),
+]
+
+
+@pytest.fixture(scope='module')
+def outcomes(saved_map, tmp_path_factory):
+    """Start the node once per case (four at a time); return (argv, rc, output) per case."""
+    folder = tmp_path_factory.mktemp('start_map')
+    (folder / 'points.json').write_text('{"points": [[0, 0], [1, 1]]}')
+    (folder / 'binary.json').write_bytes(bytes(range(256)) * 4)
+    argvs = [[a.format(dir=folder, map=saved_map) for a in argv] for argv, _ in CASES]
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(run_node, argvs))
+    return {i: (argv, rc, out) for i, (argv, (rc, out)) in enumerate(zip(argvs, results))}
+
+
+@pytest.mark.parametrize('case', range(len(CASES)), ids=[' '.join(a) for a, _ in CASES])
+def test_a_bad_saved_map_or_initial_pose_stops_the_node_with_one_line(outcomes, case):
+    argv, rc, out = outcomes[case]
+    lines = out.strip().splitlines()
+    assert rc == 1 and len(lines) == 1, (argv, out)
+    assert 'Traceback' not in out and '[rcl]' not in out
+    assert 'cannot start: ' in lines[0], lines[0]
+    for fragment in CASES[case][1]:
+        assert fragment in lines[0], (fragment, lines[0])
