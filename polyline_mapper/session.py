@@ -789,7 +789,9 @@ class MappingSession:
             self._motion.clear()            # time went back: the old motion means nothing
         self._motion.append((scan.stamp, xyz))
         if self.options.keep_points or self.options.scan_matching:
-            self._trajectory.append((scan.stamp, *xyz))
+            # The robot base (the frame the laser is mounted on), where the laser went.
+            mount_to_base = se2_compose(se2_inverse(pose.xyz), self.poses.robot_pose(scan))
+            self._trajectory.append((scan.stamp, *se2_compose(xyz, mount_to_base)))
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
 

@@ -38,8 +38,9 @@ class MapValue:
     """Seconds: the stamp of the newest scan in the map (None for a map of bare points)."""
     stats: dict = field(default_factory=dict)
     trajectory: Optional[np.ndarray] = None
-    """(P, 4) float: stamp (s), x, y, yaw (m, rad) of the laser in ``frame_id`` for each scan
-    in the map, as the mapper placed it (None when not recorded)."""
+    """(P, 4) float: stamp (s), x, y, yaw (m, rad) of the robot base (the frame the laser is
+    mounted on; the laser itself when it has no mount) in ``frame_id`` for each scan in the
+    map, where the mapper placed it (None when not recorded)."""
 
     def __post_init__(self):
         """Check that the arrays agree (segments and support, polylines and closed flags)."""
