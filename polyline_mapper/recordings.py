@@ -203,6 +203,13 @@ class OdometryDrift:
     independent zero-mean Gaussian noise with standard deviations ``translation`` x d on each
     axis and ``rotation`` + ``rotation_per_m`` x d radians on the heading. The first pose is
     true; the error then accumulates as on a robot without a localizer.
+
+    The model's step is one record of a Radish log (about a second and half a metre apart).
+    Odometry sampled faster (the simulator: a scan every 0.1 s) gets the same heading random
+    walk per second when ``apply`` is given the poses' stamps: the constant heading term of a
+    step of dt seconds is then ``rotation`` x sqrt(dt / ``period``) (0.0063 rad at 10 Hz), not
+    0.02 rad a step, which at 10 Hz would turn a standing robot by 0.06 rad a second and
+    bend every moving-sensor scan.
     """
 
     translation: float = 0.05
@@ -211,8 +218,10 @@ class OdometryDrift:
     """Std of the heading error of every step, radians."""
     rotation_per_m: float = float(np.deg2rad(1.0))
     """Std of the heading error per metre travelled, radians."""
+    period: float = 1.0
+    """Seconds of the model's step (for ``apply`` with stamps)."""
 
-    def apply(self, poses, rng) -> np.ndarray:
+    def apply(self, poses, rng, stamps=None) -> np.ndarray:
         """
         Return drifted copies of ``poses`` ((P, 3) x, y, yaw), seeded by ``rng``.
 
@@ -229,9 +238,15 @@ class OdometryDrift:
         rng = np.random.default_rng(rng)
         steps = se2_compose(se2_inverse(poses[:-1]), poses[1:])        # motion in the robot frame
         dist = np.hypot(steps[:, 0], steps[:, 1])
+        turn = self.rotation
+        if stamps is not None:
+            dt = np.diff(np.asarray(stamps, dtype=np.float64))
+            if dt.shape != dist.shape or not (np.isfinite(dt).all() and (dt >= 0).all()):
+                raise ValueError('stamps must be one finite, non-decreasing time per pose')
+            turn = self.rotation * np.sqrt(dt / self.period)
         noisy = steps + rng.normal(size=steps.shape) * np.stack(
             [self.translation * dist, self.translation * dist,
-             self.rotation + self.rotation_per_m * dist], axis=1)
+             turn + self.rotation_per_m * dist], axis=1)
         # Chain the noisy steps: headings add up, each step turns with the heading before it.
         yaw = poses[0, 2] + np.concatenate([[0.0], np.cumsum(noisy[:, 2])])
         c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
@@ -336,8 +351,8 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
     are stamped ``start`` + those. The laser sits at ``mount`` on base_link (rolled when
     ``upside_down``), odom at ``map_to_odom`` in map. ``odom_drift`` (a seed): instead, a robot
     without a localizer, as ``carmen_messages`` writes one: /odom and /tf odom -> base_link
-    follow the true base poses with ``OdometryDrift`` added, and there is no map frame (the
-    first pose is true). A moving sensor's scans carry the drive's ``time_increment`` and
+    follow the true base poses with ``OdometryDrift`` added (its heading random walk per
+    second, at the drive's rate), and there is no map frame (the first pose is true). A moving sensor's scans carry the drive's ``time_increment`` and
     ``scan_time``. ``options`` go to ``robot_messages``.
     """
     spec = drive.spec
@@ -351,7 +366,8 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
     laser = drive.poses
     if odom_drift is not None:
         m = np.asarray(mount, dtype=np.float64)
-        base = OdometryDrift().apply(se2_compose(laser, se2_inverse(m)), odom_drift)
+        base = OdometryDrift().apply(se2_compose(laser, se2_inverse(m)), odom_drift,
+                                     stamps=stamps)
         laser, map_to_odom = se2_compose(base, m), None
     return robot_messages(stamps, laser, scans, mount=mount, upside_down=upside_down,
                           map_to_odom=map_to_odom, **options)
