@@ -93,7 +93,19 @@ def main() -> int:
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2, 3, 4])
     ap.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))
+    ap.add_argument('--json', help='write the raw rows here (default: results/drift.json, '
+                    'and the README block); with --json the README is not touched')
+    ap.add_argument('--from-json', nargs='+', metavar='JSON', help='run nothing: join these '
+                    'runs (e.g. two logs run side by side, each with --json) into '
+                    'results/drift.json and the README block')
     args = ap.parse_args()
+    if args.from_json:
+        runs = [json.loads(pathlib.Path(p).read_text()) for p in args.from_json]
+        meta = dict(runs[0]['meta'], command=' ; '.join(r['meta']['command'] for r in runs),
+                    date=' / '.join(r['meta']['date'] for r in runs))
+        rows = [row for r in runs for row in r['rows']]
+        args.only = [name for name in LOGS if any(row['log'] == name for row in rows)]
+        return report(meta, rows, args.only, args.modes)
     meta = stamp('.venv/bin/python benchmarks/drift.py ' + ' '.join(sys.argv[1:]))
     rows = []
     runs = [(name, mode, seed) for name in args.only or LOGS for mode in args.modes
@@ -110,6 +122,15 @@ def main() -> int:
         row = dict(one(path, seed, truth, log, mode), log=name)
         rows.append(row)
         print(json.dumps(row), flush=True)
+    if args.json:
+        pathlib.Path(args.json).write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1)
+                                           + '\n')
+        return 0
+    return report(meta, rows, args.only or LOGS, args.modes)
+
+
+def report(meta: dict, rows: list, logs: list, modes: list) -> int:
+    """Write results/drift.json and the README block of ``rows``."""
     out = HERE / 'results'
     out.mkdir(exist_ok=True)
     (out / 'drift.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
@@ -130,8 +151,8 @@ def main() -> int:
             return f'{v[0]:.{digits}f}'
         return f'{np.mean(v):.{digits}f} ({min(v):.{digits}f}-{max(v):.{digits}f})'
 
-    for name in args.only or LOGS:
-        for mode in args.modes:
+    for name in logs:
+        for mode in modes:
             group = [r for r in rows if r['log'] == name and r['mode'] == mode]
             if not group:
                 continue
