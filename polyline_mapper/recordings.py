@@ -352,8 +352,9 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
     ``upside_down``), odom at ``map_to_odom`` in map. ``odom_drift`` (a seed): instead, a robot
     without a localizer, as ``carmen_messages`` writes one: /odom and /tf odom -> base_link
     follow the true base poses with ``OdometryDrift`` added (its heading random walk per
-    second, at the drive's rate), and there is no map frame (the first pose is true). A moving sensor's scans carry the drive's ``time_increment`` and
-    ``scan_time``. ``options`` go to ``robot_messages``.
+    second, at the drive's rate), and there is no map frame (the first pose is true). A moving
+    sensor's scans carry the drive's ``time_increment`` and ``scan_time``. ``options`` go to
+    ``robot_messages``.
     """
     spec = drive.spec
     stamps = start + np.asarray(drive.stamps, dtype=np.float64)

@@ -233,3 +233,32 @@ def wall_errors(segments: np.ndarray, drive) -> tuple:
         err = end_errors(segments, a + t.min() * u, a + t.max() * u).min()
         worst = max(worst, float(err))
     return stray, worst
+
+
+def start_refusals(argvs: list, timeout: float = 60.0, workers: int = 4) -> dict:
+    """
+    Start the node once per argv (after --ros-args; ``workers`` at a time) and let it refuse.
+
+    Returns {index: (argv, returncode, stdout and stderr)}.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    def run(argv):
+        proc = subprocess.run([str(NODE_EXE), '--ros-args'] + argv, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, timeout=timeout,
+                              env=dict(os.environ, RCUTILS_COLORIZED_OUTPUT='0'))
+        return proc.returncode, proc.stdout.decode(errors='replace')
+    with ThreadPoolExecutor(workers) as pool:
+        results = list(pool.map(run, argvs))
+    return {i: (argv, rc, out) for i, (argv, (rc, out)) in enumerate(zip(argvs, results))}
+
+
+def assert_refused_in_one_line(outcome: tuple, fragments) -> None:
+    """Assert a ``start_refusals`` outcome: exit 1, one 'cannot start:' line with each fragment."""
+    argv, rc, out = outcome
+    lines = out.strip().splitlines()
+    assert rc == 1 and len(lines) == 1, (argv, out)
+    assert 'Traceback' not in out and '[rcl]' not in out
+    assert 'cannot start: ' in lines[0], lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0], (fragment, lines[0])

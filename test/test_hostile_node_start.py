@@ -1,12 +1,9 @@
 """The node refuses bad ROS arguments and parameter files with one line and exit code 1."""
 
-from concurrent.futures import ThreadPoolExecutor
-import os
-import subprocess
 
 from conftest import REPO
 import pytest
-from rosnode import NODE_EXE
+from rosnode import assert_refused_in_one_line, start_refusals
 
 pytestmark = pytest.mark.slow
 TIMEOUT = 60.0
@@ -36,13 +33,6 @@ CASES = [
 ]
 
 
-def run_node(argv):
-    proc = subprocess.run([str(NODE_EXE), '--ros-args'] + argv, stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, timeout=TIMEOUT,
-                          env=dict(os.environ, RCUTILS_COLORIZED_OUTPUT='0'))
-    return proc.returncode, proc.stdout.decode(errors='replace')
-
-
 @pytest.fixture(scope='module')
 def outcomes(tmp_path_factory):
     """Start the node once per case (four at a time); return (argv, rc, output) per case."""
@@ -52,20 +42,12 @@ def outcomes(tmp_path_factory):
     (folder / 'layout.yaml').write_text(NOT_ROS_LAYOUT)
     (folder / 'empty_frame.yaml').write_text(EMPTY_FRAME)
     argvs = [[a.format(dir=folder) for a in argv] for argv, _ in CASES]
-    with ThreadPoolExecutor(4) as pool:
-        results = list(pool.map(run_node, argvs))
-    return {i: (argv, rc, out) for i, (argv, (rc, out)) in enumerate(zip(argvs, results))}
+    return start_refusals(argvs, TIMEOUT)
 
 
 @pytest.mark.parametrize('case', range(len(CASES)), ids=[' '.join(a) for a, _ in CASES])
 def test_bad_start_arguments_exit_1_with_one_line(outcomes, case):
-    argv, rc, out = outcomes[case]
-    lines = out.strip().splitlines()
-    assert rc == 1 and len(lines) == 1, (argv, out)
-    assert 'Traceback' not in out and '[rcl]' not in out
-    assert 'cannot start: ' in lines[0], lines[0]
-    for fragment in CASES[case][1]:
-        assert fragment in lines[0], (fragment, lines[0])
+    assert_refused_in_one_line(outcomes[case], CASES[case][1])
 
 
 def test_the_shipped_parameter_file_passes_the_start_checks():

@@ -257,9 +257,9 @@ def test_drifting_odometry_and_a_moving_sensor_map_as_true_poses_do():
     assert s['rms'] <= 0.05 and s['walls']['f1'] == 1.0, (s['rms'], s['walls'])
 
 
-@pytest.mark.xfail(strict=True, reason='issue 19: along the corridor loop\'s sides the scans '
-                   'constrain nothing, the odometry\'s 5 % per step adds up: 15 cm RMS, walls '
-                   'F1 0.53 (2026-11-24)')
+@pytest.mark.xfail(strict=True, reason='issue 19: along the sides of the corridor loop the '
+                   'scans constrain nothing, the odometry error of 5 % a step adds up: 15 cm '
+                   'RMS, walls F1 0.53 (2026-11-24)')
 def test_drifting_odometry_and_a_moving_sensor_in_the_corridors_map_as_true_poses_do():
     drive, s = replay('sim:corridors,moving_sensor=1,turn=0.2', 1, drift=1)
     assert s['rms'] <= 0.05 and s['walls']['f1'] == 1.0, (s['rms'], s['walls'])
