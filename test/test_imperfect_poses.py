@@ -276,11 +276,14 @@ def test_scan_only_drive_maps_every_wall_within_10cm():
     assert s['rms'] < 0.05
 
 
-@pytest.mark.xfail(strict=True, reason='issue 19: scan only, the office corridor (door gaps '
-                   'only along its axis) slides: 1.0 m RMS, walls F1 0.33 (2026-11-24)')
 def test_scan_only_office_drive_maps_every_wall_within_10cm():
+    # The office corridor's only cue along its axis is a few door gaps: a weak constraint the
+    # matcher must use in scan mode, or the robot that stops to turn and starts again is kept
+    # standing still by the constant-velocity prediction and the map slides (2.7 m RMS).
     drive, s = replay('sim:office,step=0.1,turn=0.1', seed=1, pose_source='scan')
+    assert s['used'] == len(drive.poses)
     assert s['walls']['recall'] == 1.0 and s['walls']['precision'] == 1.0, s['walls']
+    assert s['rms'] < 0.05 and s['err'].max() < 0.1, (s['rms'], s['err'].max())
 
 
 def test_scan_only_needs_no_pose_data_and_starts_at_the_origin():
