@@ -114,6 +114,10 @@ def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate:
     if len(turns) < 2:
         return 0.0
     pts = spread(pts, TURN_POINTS)
+    # The score at the predicted heading first: when it reaches len(pts) / TURN_MARGIN no turn
+    # can beat it by the margin (a score is at most len(pts)), so the other turns need no query.
+    if _explained(near, transform(pts, pose), gate) * TURN_MARGIN >= len(pts):
+        return 0.0
     ang = pose[2] + np.asarray(turns, dtype=np.float64)[:, None]          # (T, 1)
     c, s = np.cos(ang), np.sin(ang)
     xs = pose[0] + c * pts[:, 0] - s * pts[:, 1]                            # (T, N)
