@@ -71,6 +71,36 @@ def test_refusals_keep_the_prediction():
     assert not m.ok and m.reason == 'correction too large'
 
 
+@pytest.mark.parametrize('error', [(0.8, 0.0, 0.0), (-0.5, 0.6, 0.1), (0.0, -0.9, -0.15)])
+def test_a_prediction_beyond_the_gate_is_found_by_relocalizing(error):
+    # A wheel slip or a bump: the prediction is up to 0.9 m (and 0.15 rad) off, beyond the
+    # match gate. Without the wider search the scan stays where the prediction put it (or is
+    # refused); with it the true pose is found and marked as relocalized.
+    truth = np.array([2.0, 3.0, 0.3])
+    pts = cast(ROOM, truth, rng=4)
+    pred = truth + error
+    plain = match_scan(pts, pred, ROOM, sigma=0.01)
+    assert not plain.ok or np.hypot(*(plain.pose[:2] - truth[:2])) > 0.3
+    m = match_scan(pts, pred, ROOM, sigma=0.01, relocalize=1.0)
+    assert m.ok and m.relocalized and not plain.relocalized
+    assert np.hypot(*(m.pose[:2] - truth[:2])) < 0.01 and abs(m.pose[2] - truth[2]) < 0.005
+
+
+def test_relocalizing_leaves_good_matches_and_new_ground_alone():
+    truth = np.array([4.0, 2.5, -0.4])
+    pts = cast(ROOM, truth, rng=5)
+    near = truth + (0.1, -0.05, 0.02)                    # within the gate: matched as before
+    a = match_scan(pts, near, ROOM, sigma=0.01)
+    b = match_scan(pts, near, ROOM, sigma=0.01, relocalize=1.0)
+    assert a.ok and not b.relocalized and np.array_equal(a.pose, b.pose)
+    # New ground: the map holds one wall of the room only; nothing fits better anywhere
+    # within 1 m, so the match from the prediction stands.
+    wall = ROOM[:1]
+    c = match_scan(pts, truth, wall, sigma=0.01)
+    d = match_scan(pts, truth, wall, sigma=0.01, relocalize=1.0)
+    assert not d.relocalized and d.ok == c.ok and np.array_equal(c.pose, d.pose)
+
+
 def test_constant_velocity_prediction():
     a, b = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.1])
     c = predict_constant_velocity(a, b)

@@ -122,6 +122,30 @@ def test_a_scan_half_a_metre_off_its_odometry_warns_once_throttled_and_counts(of
     assert 'correction_jump' not in quiet and session.stats()['match_jumps'] == {}
 
 
+def test_a_slip_beyond_the_match_gate_is_relocalized_and_leaves_the_map_whole(office_drive):
+    # From scan 30 the odometry is 0.8 m off: beyond the match gate, the scan would be mapped
+    # there (walls F1 0.49 before the relocalization search). The wide search finds the pose
+    # once, the map stays right, and the jump of map -> odom is warned.
+    import importlib
+    import sys
+    from conftest import REPO
+    sys.path.insert(0, str(REPO / 'benchmarks'))
+    walls = importlib.import_module('baselines').wall_scores
+    truth = _base(office_drive)
+    odom = truth.copy()
+    odom[30:, 0] += 0.8
+    warned = []
+    session, locs = _run(office_drive, odom, warn=lambda cause, text: warned.append(cause))
+    assert session.matches['relocalized'] == 1 and session.stats()['match_jumps'] == {
+        'correction': 1}
+    assert warned == ['correction_jump']
+    pose = np.array([loc.pose for loc in locs])
+    assert np.hypot(*(pose[:, :2] - truth[:, :2]).T).max() < 0.06
+    scores = walls(session.map_value().segments, office_drive.world.walls,
+                   office_drive.world.distance, points=office_drive.points())
+    assert scores['f1'] == 1.0, scores
+
+
 def test_a_residual_far_above_its_running_median_warns(office_drive):
     # From scan 40 each reading is 4 cm too short or too long at random (a worse laser, or
     # clutter on the walls): the first such scan's residual jumps against the running median.
