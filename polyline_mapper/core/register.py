@@ -29,9 +29,10 @@ does is not taken: the prediction is returned as the match. With ``relocalize``,
 puts few of the scan's points on the map (``RELOCALIZE_SHARE``) starts a wider search: shifts on
 a grid within ``relocalize`` metres times the heading turns, scored at once through the k-d
 tree, then Gauss-Newton from the best; it is taken when it puts clearly more points on the map
-(a wheel slip or a bump beyond the gate); new ground has no such pose and keeps the first result. A match with too few inliers or too
-large a correction is refused (``ok`` False, with the
-reason): the caller keeps the prediction, and the map is not corrupted by a scan placed wrong.
+(a wheel slip or a bump beyond the gate); new ground has no such pose and keeps the first
+result. A match with too few inliers or too large a correction is refused (``ok`` False, with
+the reason): the caller keeps the prediction, and the map is not corrupted by a scan placed
+wrong.
 """
 
 import math
