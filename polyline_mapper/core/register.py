@@ -119,10 +119,15 @@ class _SegmentSamples:
         return pt, self.owner[idx[pt]]
 
 
-def _explained(near: '_SegmentSamples', world: np.ndarray, gate: float) -> float:
-    """Return sum over points of max(0, 1 - (d / gate)^2), d the distance to the map."""
-    d, _ = near.tree.query(world, k=1, distance_upper_bound=gate)
-    return float(np.clip(1.0 - (d / gate) ** 2, 0.0, None).sum())
+def _fit(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate: float) -> tuple:
+    """
+    Return how well the map explains ``pts`` placed at ``pose``: (score, share).
+
+    Score: sum over points of max(0, 1 - (d / gate)^2), d the distance to the map; share: the
+    share of points with d < ``gate``. One k-d tree query.
+    """
+    d, _ = near.tree.query(transform(pts, pose), k=1, distance_upper_bound=gate)
+    return float(np.clip(1.0 - (d / gate) ** 2, 0.0, None).sum()), float(np.isfinite(d).mean())
 
 
 def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate: float,
@@ -139,7 +144,7 @@ def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate:
     pts = spread(pts, TURN_POINTS)
     # The score at the predicted heading first: when it reaches len(pts) / TURN_MARGIN no turn
     # can beat it by the margin (a score is at most len(pts)), so the other turns need no query.
-    if _explained(near, transform(pts, pose), gate) * TURN_MARGIN >= len(pts):
+    if _fit(near, pts, pose, gate)[0] * TURN_MARGIN >= len(pts):
         return 0.0
     ang = pose[2] + np.asarray(turns, dtype=np.float64)[:, None]          # (T, 1)
     c, s = np.cos(ang), np.sin(ang)
@@ -270,12 +275,6 @@ class _Problem(NamedTuple):
     degenerate: float
 
 
-def _on_map(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, gate: float) -> float:
-    """Return the share of ``pts`` placed at ``pose`` that lie within ``gate`` of the map."""
-    d, _ = near.tree.query(transform(pts, pose), k=1, distance_upper_bound=gate)
-    return float(np.isfinite(d).mean())
-
-
 def _search(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, radius: float,
             turns) -> np.ndarray:
     """
@@ -326,7 +325,7 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
         pt, sg = near.pairs(world, g)
         if len(pt) < need:
             return (ScanMatch(pred, prior, False, 'too few inliers', int(len(pt)), np.nan, 3),
-                    _on_map(near, pts, pred, gate_min))
+                    _fit(near, pts, pred, gate_min)[1])
         n = normal[sg]
         res = np.einsum('ij,ij->i', n, world[pt] - segs[sg, 0])
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -353,15 +352,15 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
     # The match must explain the scan better than the prediction does (a slide along a
     # symmetric room or a corridor can lower the weighted residual while losing points):
     # else the prediction is the match (it explains the scan best).
-    fit_pred, fit_pose = (_explained(near, transform(pts, p), gate_min) for p in (pred, pose))
+    (fit_pred, on_pred), (fit_pose, on_pose) = (_fit(near, pts, p, gate_min) for p in (pred, pose))
     if fit_pose < fit_pred:
-        pose = pred.copy()
+        pose, on_pose = pred.copy(), on_pred
     shift = np.hypot(*(pose[:2] - pred[:2]))
     turn = abs((pose[2] - pred[2] + np.pi) % (2 * np.pi) - np.pi)
     rms = float(np.sqrt(np.mean(res ** 2))) if len(res) else math.nan
     if shift > max_shift or turn > max_turn:
         return (ScanMatch(pred, prior, False, 'correction too large', int(len(res)), rms,
-                          int((~good).sum())), _on_map(near, pts, pred, gate_min))
+                          int((~good).sum())), on_pred)
     # Covariance in the scaled coordinates (yaw x scale): sigma^2 / eigenvalue along the
     # constrained directions, the prior's variance along the others; then metres and radians.
     vals = np.linalg.eigvalsh(info)
@@ -370,8 +369,7 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
                    np.einsum('ik,ij,jk->k', vecs, prior_scaled, vecs))
     unscale = np.diag([1.0, 1.0, 1.0 / scale])
     cov = unscale @ ((vecs * var) @ vecs.T) @ unscale
-    return (ScanMatch(pose, cov, True, '', int(len(res)), rms, int((~good).sum())),
-            _on_map(near, pts, pose, gate_min))
+    return ScanMatch(pose, cov, True, '', int(len(res)), rms, int((~good).sum())), on_pose
 
 
 def spread(points: np.ndarray, n: int) -> np.ndarray:
