@@ -566,6 +566,8 @@ def _pose_args(sp) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .recordings import sim_names
+    drives = f'a built-in drive: {sim_names()}'
     p = _Parser(prog='polyline-mapper',
                 description='2D polyline maps from laser scans (SMEMSF).')
     sub = p.add_subparsers(dest='command', required=True)
@@ -580,8 +582,8 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
 
     f = sub.add_parser('fit', help='fit a map to an (N, 2) point file, a CARMEN log or a bag')
-    f.add_argument('input', help='.npy/.csv/.txt points (metres), CARMEN .log/.log.gz, or a '
-                   'bag (registered as replay does, then fitted at once)')
+    f.add_argument('input', help='.npy/.csv/.txt points (metres), CARMEN .log/.log.gz, a '
+                   f'bag (registered as replay does, then fitted at once), or {drives}')
     common(f)
     f.add_argument('--frame-id', default='map', help='frame of the points (default: map)')
     f.add_argument('--range-max', type=POSITIVE, default=None,
@@ -607,7 +609,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser('replay', help='map a bag or CARMEN log scan by scan (incremental)')
-    r.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, or CARMEN .log(.gz)')
+    r.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, CARMEN .log(.gz), '
+                   f'or {drives} (sim:office_dynamic: people walking, a door opening, a box '
+                   'carried away; --set free_space_window=10 clears them)')
     common(r)
     _pose_args(r)
     r.add_argument('--every', type=number(1, kind=int), default=1, metavar='N',
@@ -657,7 +661,7 @@ def build_parser() -> argparse.ArgumentParser:
     py = sub.add_parser('play', help='publish a bag, CARMEN log or simulated drive on live '
                         'topics with its timing (scan, odom, /tf, /tf_static, /clock)')
     py.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, CARMEN .log(.gz), '
-                    'or a built-in drive: sim:office, sim:hall, sim:corridors')
+                    f'or {drives}')
     py.add_argument('--rate', type=POSITIVE, default=1.0,
                     help='time scale (default 1: as recorded)')
     py.add_argument('--loop', action='store_true', help='play again and again (stamps shifted '

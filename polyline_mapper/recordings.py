@@ -7,7 +7,9 @@ Every input the tools read, opened in one place: point files, CARMEN logs, bags,
 - ``carmen``: a CARMEN log, .log / .clf / .carmen, gzipped or not;
 - ``bag``: a rosbag2 folder (with metadata.yaml), a .db3 or .mcap storage file, a ROS 1 .bag;
 - ``sim``: a built-in simulated drive, ``sim:office`` (the office floor with its curved wall),
-  ``sim:hall`` or ``sim:corridors``, made at run time from a seed, with options after commas
+  ``sim:hall``, ``sim:corridors`` or ``sim:office_dynamic`` (the office with people walking, a
+  door that opens and a box carried away; ``sim:office-dynamic`` too), made at run time from a
+  seed, with options after commas
   (``SIM_OPTIONS``), e.g. ``sim:office,odom_drift=3,moving_sensor=1``: wheel odometry that
   drifts (``OdometryDrift`` seeded 3; no map frame) and a lidar whose beams are taken over the
   scan time (``time_increment`` set).
@@ -47,7 +49,11 @@ SUFFIXES = {
 }
 """File name endings (lower case) of each kind; a rosbag2 folder is known by its metadata.yaml."""
 SIM_PREFIX = 'sim:'
-SIM_WORLDS = ('office', 'hall', 'corridors')
+SIM_WORLDS = ('office', 'hall', 'corridors', 'office_dynamic')
+"""Built-in simulated worlds, ``sim:WORLD``; ``office_dynamic``: the office with people
+walking, a door opening at 20 s and a box carried away at 15 s (``sim.office_dynamic``)."""
+SIM_ALIASES = {'office-dynamic': 'office_dynamic'}
+"""Other spellings of a world's name accepted in ``sim:WORLD``."""
 SIM_OPTIONS = {
     'odom_drift': 'seed: /odom and odom -> base_link drift like wheel odometry (OdometryDrift), '
                   'no map frame',
@@ -68,12 +74,17 @@ FRAMES = ('map', 'odom', 'base_link', 'laser')
 """Frames of ``robot_messages``: map, odometry, robot base, laser (REP 105 names)."""
 
 
+def sim_names() -> str:
+    """Return the built-in simulated drives as a user types them: 'sim:office, sim:hall, ...'."""
+    return ', '.join(SIM_PREFIX + w for w in SIM_WORLDS)
+
+
 def accepted_inputs() -> str:
     """Return the accepted input kinds as text, for error messages."""
     return ('point files (' + ', '.join(SUFFIXES['points']) + '), CARMEN logs ('
             + ', '.join(SUFFIXES['carmen']) + '), bags (a rosbag2 folder, '
             + ', '.join(s for s in SUFFIXES['bag'] if s != '.bag') + ', a ROS 1 .bag) or a '
-            'simulated drive (' + ', '.join(SIM_PREFIX + w for w in SIM_WORLDS) + ')')
+            'simulated drive (' + sim_names() + ')')
 
 
 def kind_of(path) -> str:
@@ -291,10 +302,10 @@ def sim_options(name: str) -> tuple:
     """
     text = str(name)
     world, *items = (text[len(SIM_PREFIX):] if text.startswith(SIM_PREFIX) else text).split(',')
+    world = SIM_ALIASES.get(world, world)
     if world not in SIM_WORLDS:
-        raise ValueError(f'{text}: unknown simulated drive (expected one of '
-                         f'{", ".join(SIM_PREFIX + w for w in SIM_WORLDS)}, options after '
-                         'commas)')
+        raise ValueError(f'{text}: unknown simulated drive (expected one of {sim_names()}, '
+                         'options after commas)')
     out = {}
     for item in items:
         key, eq, value = (v.strip() for v in item.partition('='))
@@ -329,8 +340,10 @@ def make_drive(name: str, seed: int = 1, noise: float = 0.01, beams: int = 541):
     ``name`` may carry options (``sim_options``); its ``beams`` replaces the argument. The
     odometry drift is not part of the drive (``drive_messages`` adds it).
     """
-    from .sim import corridor_loop, hall_with_arc, LaserSpec, office_floor, simulate_drive
-    worlds = {'office': office_floor, 'hall': hall_with_arc, 'corridors': corridor_loop}
+    from .sim import (corridor_loop, hall_with_arc, LaserSpec, office_dynamic, office_floor,
+                      simulate_drive)
+    worlds = {'office': office_floor, 'hall': hall_with_arc, 'corridors': corridor_loop,
+              'office_dynamic': office_dynamic}
     world, opts = sim_options(name)
     if not (np.isfinite(noise) and noise >= 0):
         raise ValueError(f'noise must be a finite number >= 0 (m), got {noise!r}')

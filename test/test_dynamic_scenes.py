@@ -5,10 +5,13 @@ import sys
 
 from conftest import end_errors, REPO
 import numpy as np
+from polyline_mapper.cli import main
 from polyline_mapper.core import fit
 from polyline_mapper.core.geometry import sample_segments
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.index import nearest_distance
+from polyline_mapper.formats.mapjson import read_map
+from polyline_mapper.recordings import make_drive, sim_options
 from polyline_mapper.sim import (corridor_loop, LaserSpec, office_dynamic, office_floor,
                                  Removed, simulate_drive)
 import pytest
@@ -88,10 +91,9 @@ def test_static_drives_are_unchanged_by_time():
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
 
 
-def test_walls_stay_and_what_moved_is_gone(dynamic):
-    drive, mapper, _ = dynamic
+def assert_walls_stay_and_what_moved_is_gone(segs, drive):
+    """Every static wall found within 0.1 m, no segment on what moved or off the walls."""
     world = drive.world
-    segs = mapper.polylines().segments
     pts, hits = drive.points(with_hits=True)
     for i, wall in enumerate(world.walls):
         a, b = wall
@@ -107,6 +109,27 @@ def test_walls_stay_and_what_moved_is_gone(dynamic):
     assert world.distance(samples).max() <= 0.10
     scores = B.wall_scores(segs, world.walls, world.distance, points=pts[hits < len(world.walls)])
     assert scores['f1'] == 1.0
+
+
+def test_walls_stay_and_what_moved_is_gone(dynamic):
+    drive, mapper, _ = dynamic
+    assert_walls_stay_and_what_moved_is_gone(mapper.polylines().segments, drive)
+
+
+def test_replay_of_the_dynamic_office_from_the_command_line(tmp_path):
+    # The dynamic office as a user replays it (the drive play publishes, through TF): with the
+    # free-space evidence on, the walls stay and the people, the box and the door leaf are gone.
+    assert sim_options('sim:office-dynamic,step=0.5') == ('office_dynamic', {'step': 0.5})
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:office_dynamic', '--set', 'free_space_window=10', '-o',
+                 str(out), '-q']) == 0
+    data = read_map(out)
+    stats = data['stats']
+    drive = make_drive('sim:office-dynamic')
+    assert drive.world.name == 'office_dynamic' and len(drive.world.dynamic) == 4
+    assert stats['scans_used'] == len(drive.poses) and stats['beams'] > 0
+    assert stats['contradicted_share'] is not None and stats['contradicted_share'] <= 0.02
+    assert_walls_stay_and_what_moved_is_gone(data.value.segments, drive)
 
 
 def test_without_free_space_evidence_the_door_stays_shut(dynamic):
