@@ -52,6 +52,12 @@ def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
     return load_fit_config(path, overrides)
 
 
+def load_fit_options(path: str = None, overrides: list = ()) -> tuple:
+    """Return (fit configuration, ``free_space_window``) of ``--config`` and ``--set``."""
+    from .config import load_fit_options as load
+    return load(path, overrides)
+
+
 def load_incremental_config(path: str = None, overrides: list = ()):
     """Return the mapper configuration of ``--config`` and ``--set`` (see ``config``)."""
     from .config import load_mapper_config
@@ -80,8 +86,13 @@ def _progress_factory(enabled: bool, desc: str, unit: str):
     return wrap
 
 
-def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True):
-    """Fit with a progress bar over iterations (shown on a terminal only)."""
+def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True, origins=None,
+            free_space_window: int = 0):
+    """
+    Fit with a progress bar over iterations (shown on a terminal only).
+
+    ``origins`` (N, 2) and ``free_space_window`` > 0: fit with the beams' free-space evidence.
+    """
     bar = None
     if progress:
         from tqdm import tqdm
@@ -93,7 +104,10 @@ def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True):
             bar.update(1)
             bar.set_postfix(segments=info['segments'], sigma=f"{info['sigma'] * 100:.1f}cm")
     try:
-        return fit(points, config, progress=tick)
+        if origins is None or free_space_window <= 0:
+            return fit(points, config, progress=tick)
+        return fit(points, config, progress=tick, origins=origins,
+                   free_space_window=free_space_window)
     finally:
         if bar is not None:
             bar.close()
@@ -169,7 +183,9 @@ def summary_line(path: str, stats: dict) -> str:
             f"{stats['points']} points, mean distance {stats['mean_distance'] * 100:.2f} cm, "
             f"p95 {stats['p95_distance'] * 100:.2f} cm, coverage "
             f"{stats['coverage_0_10m'] * 100:.1f}%{free_space_text(stats)}, "
-            f"{stats['iterations']} iterations, {stats['seconds']:.1f} s")
+            f"{stats['iterations']} iterations, {stats['seconds']:.1f} s"
+            + (f", free-space evidence of {stats['free_space_beams']} beams cut "
+               f"{stats['free_squares']} squares" if stats.get('free_space_beams') else ''))
 
 
 def free_space_text(stats: dict) -> str:
@@ -188,16 +204,23 @@ def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig) -> None:
 def cmd_fit(args) -> int:
     inputs = [args.input, args.config]
     check_outputs([args.output, args.plot], inputs)
-    config = load_config(args.config, args.set)
+    config, window = load_fit_options(args.config, args.set)
     t0 = time.perf_counter()
     points, origins, desc = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
         raise CliError(f'{args.input}: {len(points)} usable point(s); need at least 2')
-    result = run_fit(points, config, not args.quiet)
+    if window > 0 and origins is None:
+        print(f'polyline-mapper: warning: {args.input}: free_space_window={window} cannot be '
+              'applied: a point file has no beams (laser positions); fitting the bare points',
+              file=sys.stderr)
+    result = run_fit(points, config, not args.quiet, origins, window)
+    used = window if result.beams else 0
     stats = write_outputs(result, points, config, args.output, args.plot, args.frame_id,
                           title=f'{os.path.basename(args.input)}: {len(result.segments)} segments',
                           extra={'input': os.path.basename(args.input), 'input_type': desc,
-                                 'total_seconds': round(time.perf_counter() - t0, 3)},
+                                 'total_seconds': round(time.perf_counter() - t0, 3),
+                                 'free_space_window': used, 'free_space_beams': result.beams,
+                                 'free_squares': result.free_squares},
                           inputs=inputs, origins=origins)
     _warn_if_empty(args.input, stats, config)
     if not args.quiet:
@@ -583,7 +606,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser('fit', help='fit a map to an (N, 2) point file, a CARMEN log or a bag')
     f.add_argument('input', help='.npy/.csv/.txt points (metres), CARMEN .log/.log.gz, a '
-                   f'bag (registered as replay does, then fitted at once), or {drives}')
+                   f'bag (registered as replay does, then fitted at once), or {drives}; '
+                   '--set free_space_window=10 fits a log, bag or drive with its beams (what '
+                   'they see through is cut out; off by default: mean distance grows on real '
+                   'logs)')
     common(f)
     f.add_argument('--frame-id', default='map', help='frame of the points (default: map)')
     f.add_argument('--range-max', type=POSITIVE, default=None,

@@ -105,14 +105,15 @@ def _file_values(data: dict, keys: dict, path: str) -> dict:
 
 
 def read_values(path: str = None, overrides: Iterable[str] = (),
-                groups: Iterable[str] = GROUPS) -> dict:
+                groups: Iterable[str] = GROUPS, extra: Iterable[str] = ()) -> dict:
     """
     Read a config file and ``key=value`` overrides; return {field name: typed value}.
 
-    Only the table's entries of ``groups`` are accepted; anything else is a ConfigError that
-    lists the accepted keys.
+    Only the table's entries of ``groups`` (and the field names ``extra`` of other groups) are
+    accepted; anything else is a ConfigError that lists the accepted keys.
     """
     keys = table(groups)
+    keys.update({k: v for k, v in table().items() if k in set(extra)})
     raw = {}
     if path:
         import yaml
@@ -144,6 +145,27 @@ def load_fit_config(path: str = None, overrides: Iterable[str] = ()) -> SMEMSFCo
     values = read_values(path, overrides, ('smemsf',))
     try:
         return SMEMSFConfig.from_dict(values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f'bad config: {exc}') from None
+
+
+FIT_EXTRA = ('free_space_window',)
+"""Mapper keys the batch fit (``fit``) reads too: ``free_space_window`` > 0 fits a log's,
+bag's or drive's points with their beams (``smemsf.fit(points, origins=...)``)."""
+
+
+def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
+    """
+    Return (SMEMSFConfig, free_space_window) of the batch fit from a config file and --set.
+
+    As ``load_fit_config``, plus the mapper's ``free_space_window`` (``incremental.`` in a ROS 2
+    parameter file): 0 (the default) fits bare points, N > 0 the beams with their evidence
+    decaying over N looks, as ``replay --set free_space_window=N``.
+    """
+    values = read_values(path, overrides, ('smemsf',), FIT_EXTRA)
+    window = values.pop('free_space_window', 0)
+    try:
+        return SMEMSFConfig.from_dict(values), window
     except (TypeError, ValueError) as exc:
         raise ConfigError(f'bad config: {exc}') from None
 

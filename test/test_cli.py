@@ -76,6 +76,13 @@ def test_fit_carmen_log_registers_scans(tmp_path):
     data = json.loads(out.read_text())
     assert len(data['segments']) == 4 and data['stats']['mean_distance'] < 0.012
     assert '1 malformed' in data['stats']['input_type']
+    # with the free-space evidence on, the log's beams go into the fit: the walls stay
+    out = tmp_path / 'beams.json'
+    assert main(['fit', str(path), '-o', str(out), '-q', '--set', 'free_space_window=10']) == 0
+    data = json.loads(out.read_text())
+    stats = data['stats']
+    assert stats['free_space_window'] == 10 and stats['free_space_beams'] == stats['points']
+    assert len(data['segments']) == 4 and stats['contradicted_share'] == 0.0
 
 
 def test_offline_demo_fits_the_office(tmp_path, capsys):
@@ -85,3 +92,28 @@ def test_offline_demo_fits_the_office(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert 15 <= data['stats']['segments'] <= 45 and data['stats']['coverage_0_10m'] > 0.99
     assert png.exists()
+
+
+def test_fit_of_bare_points_with_free_space_evidence_warns_once(tmp_path, capsys):
+    # A point file has no beams: asked for the evidence, fit warns in one line, fits the points
+    # as without it and its stats say no beams were used.
+    pts = square_room_points(np.random.default_rng(3))
+    src = tmp_path / 'room.npy'
+    np.save(src, pts)
+    maps = []
+    for extra in (['--set', 'free_space_window=10'], []):
+        out = tmp_path / f'm{len(maps)}.json'
+        assert main(['fit', str(src), '-o', str(out), '-q'] + extra) == 0
+        err = capsys.readouterr().err.strip().splitlines()
+        maps.append(read_map(str(out)))
+        if extra:
+            assert len(err) == 1, err
+            assert err[0].startswith('polyline-mapper: warning: ') and \
+                'free_space_window=10 cannot be applied' in err[0] and 'no beams' in err[0]
+        else:
+            assert err == []
+    stats = maps[0]['stats']
+    assert stats['beams'] == 0 and stats['contradicted_share'] is None
+    assert stats['free_space_window'] == stats['free_space_beams'] == stats['free_squares'] == 0
+    assert np.array_equal(maps[0].value.segments, maps[1].value.segments)
+    assert len(maps[0].value.segments) == 4

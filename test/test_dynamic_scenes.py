@@ -132,6 +132,31 @@ def test_replay_of_the_dynamic_office_from_the_command_line(tmp_path):
     assert_walls_stay_and_what_moved_is_gone(data.value.segments, drive)
 
 
+def test_fit_of_the_dynamic_office_from_the_command_line_uses_the_beams(tmp_path):
+    # `fit` of the drive with `--set free_space_window=10` (the key replay takes): the batch fit
+    # gets the beams, says so in its stats and clears what moved; by default it fits the bare
+    # points and the door leaf, the box and the corridor walker's track stay.
+    drive = make_drive('sim:office_dynamic')
+    world = drive.world
+    maps = {}
+    for window in ('10', '0'):
+        out = tmp_path / f'map{window}.json'
+        assert main(['fit', 'sim:office_dynamic', '--set', f'free_space_window={window}',
+                     '-o', str(out), '-q']) == 0
+        maps[window] = read_map(out)
+    on, off = maps['10'], maps['0']
+    stats = on['stats']
+    assert stats['free_space_window'] == 10 and stats['free_squares'] > 0
+    assert stats['free_space_beams'] == stats['beams'] == stats['points'] > 0
+    assert stats['contradicted_share'] <= 0.02
+    assert_walls_stay_and_what_moved_is_gone(on.value.segments, drive)
+    stats = off['stats']
+    assert stats['free_space_window'] == stats['free_space_beams'] == stats['free_squares'] == 0
+    assert stats['beams'] == stats['points'] and stats['contradicted_share'] > 0.05
+    left = [obj.name for obj in world.dynamic if on_object(off.value.segments, world, obj).any()]
+    assert {'door', 'box', 'corridor walker'} <= set(left), left
+
+
 def test_without_free_space_evidence_the_door_stays_shut(dynamic):
     # The door leaf, seen shut early in the drive, closes the doorway for good without the
     # evidence (clear_max_length only clears segments up to 0.9 m; the leaf merged with the

@@ -288,7 +288,8 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
 
 
 def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray,
-                   origins: np.ndarray, r: float, tol: float, min_support: float) -> tuple:
+                   origins: np.ndarray, r: float, tol: float, min_support: float,
+                   window: float = EVIDENCE_WINDOW) -> tuple:
     """
     Cut out the LSS squares of ``segments`` that the beams see through (batch free space).
 
@@ -296,8 +297,9 @@ def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray
     order of the recording) is counted per 2r square as a hit or a pass
     (``cleanup.beam_evidence``, noise margin ``tol`` plus 3 % of the range), scan after scan
     into decaying, capped counts exactly as the incremental mapper does
-    (``split.accumulate_evidence`` over ``split.EVIDENCE_WINDOW`` looks), so the map shows the
-    scene as the recording leaves it: a door seen shut and later open is open. Squares whose
+    (``split.accumulate_evidence`` over ``window`` looks, ``split.EVIDENCE_WINDOW`` unless
+    given), so the map shows the scene as the recording leaves it: a door seen shut and later
+    open is open. Squares whose
     passes outweigh their hits are removed (``split.free_squares``, ``split.cut_squares``).
     Pieces keep their share of the support and need ``min_support``. Returns (segments,
     support, squares cut).
@@ -308,7 +310,7 @@ def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray
     counts = np.zeros((int(n_sub.sum()), 2))
     for a, b, o in origin_runs(origins):
         hits, passes = beam_evidence(segments, n_sub, o, points[a:b], tol)
-        counts = accumulate_evidence(counts, hits, passes, EVIDENCE_WINDOW)
+        counts = accumulate_evidence(counts, hits, passes, window)
     free = free_squares(counts)
     if not free.any():
         return segments, support, 0
@@ -320,7 +322,8 @@ def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray
 
 
 def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
-        progress: Callable = None, origins=None) -> FitResult:
+        progress: Callable = None, origins=None,
+        free_space_window: int = EVIDENCE_WINDOW) -> FitResult:
     """
     Fit a segment map to 2D points with SMEMSF.
 
@@ -341,6 +344,9 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         after the loop, squares that more beams pass through than end on are cut out
         (``free_space_cut``: doorways, people's tracks, things moved during the recording).
         None (bare points): nothing changes, and ``FitResult.beams`` is 0.
+    free_space_window : int
+        With ``origins``: the looks at a square over which its evidence decays (>= 1; the
+        incremental mapper's ``free_space_window``), by default ``split.EVIDENCE_WINDOW``.
 
     Returns
     -------
@@ -371,6 +377,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     config = config or SMEMSFConfig()
     pts, weights = check_fit_input(points, weights)
     origins = as_origins(origins, len(pts))
+    if origins is not None and not free_space_window >= 1:
+        raise ValueError(f'free_space_window must be >= 1 with origins, got {free_space_window!r}')
     rng = np.random.default_rng(config.seed)
     index = PointIndex(pts, weights)
     floor = _noise_floor(pts, config, rng)
@@ -403,7 +411,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     cut = 0
     if origins is not None:
         segments, support, cut = free_space_cut(segments, support, pts, origins, r,
-                                                config.kappa * sigma, config.min_support)
+                                                config.kappa * sigma, config.min_support,
+                                                free_space_window)
     # Pieces the refit made collinear are joined before chaining.
     segments, support, _ = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
