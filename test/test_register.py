@@ -69,6 +69,10 @@ def test_refusals_keep_the_prediction():
     assert match_scan(pts, truth, np.zeros((0, 2, 2)), 0.01).reason == 'no map'
     m = match_scan(pts, truth + (0.4, 0.0, 0.0), ROOM, sigma=0.01, max_shift=0.1)
     assert not m.ok and m.reason == 'correction too large'
+    # the refused pose comes along (the session takes it when the next scans agree)
+    assert np.hypot(*(m.proposal[:2] - truth[:2])) < 0.01 and abs(m.proposal[2] - 0.3) < 0.003
+    ok = match_scan(pts, truth + (0.05, 0.0, 0.0), ROOM, sigma=0.01)
+    assert ok.ok and ok.proposal is None and ok.share > 0.95
 
 
 @pytest.mark.parametrize('error', [(0.8, 0.0, 0.0), (-0.5, 0.6, 0.1), (0.0, -0.9, -0.15)])

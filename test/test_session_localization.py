@@ -146,6 +146,36 @@ def test_a_slip_beyond_the_match_gate_is_relocalized_and_leaves_the_map_whole(of
     assert scores['f1'] == 1.0, scores
 
 
+def test_a_heading_jump_beyond_the_turn_limit_maps_nothing_until_it_is_found(office_drive):
+    # A bump turns the odometry 0.5 rad at scan 30 (in the robot's frame), beyond the 0.35 rad
+    # a match may correct. Before, the refused scan was mapped at the prediction and the
+    # localizer then followed it (walls F1 0.30). Now the session is lost from the first
+    # refusal: the scans are not mapped (nor their poses written) until one is matched again.
+    import importlib
+    import sys
+    from conftest import REPO
+    sys.path.insert(0, str(REPO / 'benchmarks'))
+    walls = importlib.import_module('baselines').wall_scores
+    truth = _base(office_drive)
+    odom = truth.copy()
+    step = se2_compose(se2_inverse(truth[29]), truth[30:])
+    odom[30:] = se2_compose(se2_compose(truth[29], np.array([0.0, 0.0, 0.5])), step)
+    warned = []
+    session, locs = _run(office_drive, odom, warn=lambda cause, text: warned.append(cause))
+    assert session.matches['correction too large'] == 2
+    assert session.matches['relocalized'] == 1
+    assert session.stats()['skipped'] == {'not mapped: lost': 2}
+    assert session.stats()['match_jumps'] == {'correction': 1}
+    rows = np.asarray(session.map_value(trajectory=True).trajectory)
+    assert len(rows) == len(truth) - 2 and not np.isin([30.0, 31.0], rows[:, 0]).any()
+    pose = np.array([loc.pose for loc in locs])
+    assert not locs[30].matched and not locs[31].matched and locs[32].matched
+    assert np.hypot(*(pose[32:, :2] - truth[32:, :2]).T).max() < 0.05
+    scores = walls(session.map_value().segments, office_drive.world.walls,
+                   office_drive.world.distance, points=office_drive.points())
+    assert scores['f1'] == 1.0, scores
+
+
 def test_a_residual_far_above_its_running_median_warns(office_drive):
     # From scan 40 each reading is 4 cm too short or too long at random (a worse laser, or
     # clutter on the walls): the first such scan's residual jumps against the running median.

@@ -86,6 +86,11 @@ class ScanMatch(NamedTuple):
     """Number of directions of (x, y, yaw) kept at the prediction."""
     relocalized: bool = False
     """Whether the pose comes from the wider search (``relocalize``), not the prediction's."""
+    proposal: Optional[np.ndarray] = None
+    """With reason 'correction too large': the refused pose (x, y, yaw), else None."""
+    share: float = math.nan
+    """Share of the scan's (matched) points within the final gate of the map at ``pose`` (NaN
+    when there is no map)."""
 
 
 def transform(points: np.ndarray, pose) -> np.ndarray:
@@ -238,7 +243,7 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
                        scale, prior, int(iterations), float(degenerate))
     m, share = _refine(problem, pred, turns, max_shift, max_turn)
     if not relocalize or share >= RELOCALIZE_SHARE:
-        return m
+        return m._replace(share=share)
     # Few of the scan's points are on the map where the prediction (or the match from it)
     # puts them: a wheel slip or a bump beyond the match gate, or new ground. A coarse search
     # over shifts within ``relocalize`` metres and the heading turns, then Gauss-Newton from
@@ -253,8 +258,8 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     shift = np.hypot(*(again.pose[:2] - pred[:2]))
     if (again.ok and gate < shift <= relocalize + max_shift and share_again >= RELOCALIZE_SHARE
             and share_again >= RELOCALIZE_GAIN * share):
-        return again._replace(relocalized=True)
-    return m
+        return again._replace(relocalized=True, share=share_again)
+    return m._replace(share=share)
 
 
 class _Problem(NamedTuple):
@@ -360,7 +365,7 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
     rms = float(np.sqrt(np.mean(res ** 2))) if len(res) else math.nan
     if shift > max_shift or turn > max_turn:
         return (ScanMatch(pred, prior, False, 'correction too large', int(len(res)), rms,
-                          int((~good).sum())), on_pred)
+                          int((~good).sum()), proposal=pose.copy()), on_pred)
     # Covariance in the scaled coordinates (yaw x scale): sigma^2 / eigenvalue along the
     # constrained directions, the prior's variance along the others; then metres and radians.
     vals = np.linalg.eigvalsh(info)
