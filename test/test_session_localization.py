@@ -149,8 +149,9 @@ def test_a_slip_beyond_the_match_gate_is_relocalized_and_leaves_the_map_whole(of
 def test_a_heading_jump_beyond_the_turn_limit_maps_nothing_until_it_is_found(office_drive):
     # A bump turns the odometry 0.5 rad at scan 30 (in the robot's frame), beyond the 0.35 rad
     # a match may correct. Before, the refused scan was mapped at the prediction and the
-    # localizer then followed it (walls F1 0.30). Now the session is lost from the first
-    # refusal: the scans are not mapped (nor their poses written) until one is matched again.
+    # localizer then followed it (walls F1 0.28, poses up to 7.8 m off). Now the session is
+    # lost from the first refusal: the scans are not mapped (nor their poses written) until one
+    # is matched again.
     import importlib
     import sys
     from conftest import REPO
