@@ -966,6 +966,11 @@ class MappingSession:
         self._correction = se2_compose(m.pose, se2_inverse(given))
         return m.pose, None
 
+    @property
+    def lost(self) -> bool:
+        """Whether scan matching refused the predicted pose and no scan has matched since."""
+        return bool(self._proposals)
+
     def _confirm(self, local: np.ndarray, given: np.ndarray, m: ScanMatch, near: np.ndarray,
                  sigma: float, degenerate: float) -> ScanMatch:
         """

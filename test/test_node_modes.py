@@ -72,3 +72,14 @@ def test_without_any_transform_scans_are_skipped_once_warned(office_drive, tmp_p
     assert len(node.lines('[no_tf]')) == 1
     got = re.search(r'(\d+) scans received, 0 used .* no_tf (\d+)', node.lines('summary:')[0])
     assert got and int(got[1]) == int(got[2]) >= 4, node.lines('summary:')
+
+
+def test_the_diagnostics_status_says_lost_first():
+    from polyline_mapper.ros.node import mapping_status
+    level, message = mapping_status(10, 0, 0, 50, True, '/scan')
+    assert level == 1 and message.startswith('lost: scan matching refuses the predicted pose')
+    assert mapping_status(10, 0, 0, 50, False, '/scan') == (
+        1, '10 scans received, none used (see the warnings)')
+    assert mapping_status(10, 8, 2, 50, False, '/scan')[0] == 1
+    assert mapping_status(0, 0, 0, 0, False, '/scan') == (0, 'waiting for scans on /scan')
+    assert mapping_status(10, 10, 0, 50, False, '/scan') == (0, 'mapping')

@@ -175,6 +175,10 @@ def test_a_heading_jump_beyond_the_turn_limit_maps_nothing_until_it_is_found(off
     scores = walls(session.map_value().segments, office_drive.world.walls,
                    office_drive.world.distance, points=office_drive.points())
     assert scores['f1'] == 1.0, scores
+    assert not session.lost
+    # stopped right after the jump, the session says it is lost (the node's /diagnostics WARN)
+    session, _ = _run(office_drive, odom[:31])
+    assert session.lost and session.stats()['skipped'] == {'not mapped: lost': 1}
 
 
 def test_a_residual_far_above_its_running_median_warns(office_drive):

@@ -24,7 +24,8 @@ Topics (relative names, remappable):
 
 ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period``: scans received,
 used and dropped, map size, sigma, update time and latency percentiles (ms) over the run; WARN
-when scans came in since the last report but none could be used, or some were dropped.
+when scan matching is lost (``mapping_status``), when scans came in since the last report but
+none could be used, or some were dropped.
 
 Services: ``~/reset`` and ``~/save_map`` (std_srvs/Trigger). Parameters: see ``params``.
 
@@ -345,14 +346,10 @@ class PolylineMapperNode(Node):
                                    st['dropped'] - self._diag_mark[2])
         self._diag_mark = (st['scans'], st['scans_used'], st['dropped'])
         self._last_diag = now
-        level, message = 0, 'mapping'
-        if received and not used:
-            level, message = 1, f'{received} scans received, none used (see the warnings)'
-        elif dropped:
-            level, message = 1, f'{dropped} scans dropped: updates fall behind'
-        elif not st['scans']:
-            message = f'waiting for scans on {self.resolve_topic_name("scan")}'
+        level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
+                                        self.resolve_topic_name('scan'))
         values = {'segments': len(p.mapper.segments), 'sigma_m': p.mapper.sigma or 0.0,
+                  'lost': int(p.lost),
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}
         for key in ('update_ms', 'latency_ms'):
@@ -381,6 +378,26 @@ class PolylineMapperNode(Node):
                          f"max {v['max']:.1f}")
         line += f'; map {len(self.session.mapper.segments)} segments'
         self.get_logger().info(line)
+
+
+def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
+                   topic: str) -> tuple:
+    """
+    Return the /diagnostics (level, message) of one period: 0 OK, 1 WARN.
+
+    ``received`` / ``used`` / ``dropped``: scans in the period; ``total``: scans ever
+    received; ``lost``: scan matching refuses the predicted pose (``MappingSession.lost``).
+    """
+    if lost:
+        return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
+                   'robot?); scans are not mapped until one matches the map again')
+    if received and not used:
+        return 1, f'{received} scans received, none used (see the warnings)'
+    if dropped:
+        return 1, f'{dropped} scans dropped: updates fall behind'
+    if not total:
+        return 0, f'waiting for scans on {topic}'
+    return 0, 'mapping'
 
 
 def session_options(settings) -> SessionOptions:
