@@ -839,8 +839,9 @@ class MappingSession:
                         if self._proposals and (m is None or not m.ok):
                             # lost: the scans say the prediction is wrong, and where the robot
                             # is instead is not confirmed. Mapped nowhere, no motion.
+                            why = m.reason if m is not None else 'no map near the prediction'
                             self._skip('not mapped', 'lost', f'the scan at {scan.stamp:.3f} s: '
-                                       f'{m.reason} after a refused jump')
+                                       f'{why} after a refused jump')
                             return notes
                 pts = (scan_to_points(scan.ranges, angles, xyz, scan.range_min, limit)
                        if motion is None else transform(local, xyz))

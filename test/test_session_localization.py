@@ -197,6 +197,12 @@ def test_a_heading_jump_beyond_the_turn_limit_maps_nothing_until_it_is_found(off
     # stopped right after the jump, the session says it is lost (the node's /diagnostics WARN)
     session, _ = _run(office_drive, odom[:31])
     assert session.lost and session.stats()['skipped'] == {'not mapped: lost': 1}
+    # lost, and then the odometry puts the robot 50 m away from any map: still not mapped
+    far = odom[:34].copy()
+    far[31:, 0] += 50.0
+    session, _ = _run(office_drive, far)
+    assert session.lost and session.stats()['skipped'] == {'not mapped: lost': 4}
+    assert session.matches['no map yet'] == 4
 
 
 def test_a_residual_far_above_its_running_median_warns(office_drive):
