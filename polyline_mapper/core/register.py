@@ -137,6 +137,25 @@ def _fit(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate: float
     return float(np.clip(1.0 - (d / gate) ** 2, 0.0, None).sum()), float(np.isfinite(d).mean())
 
 
+def _placements(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, turns,
+                shifts: np.ndarray, gate: float) -> np.ndarray:
+    """
+    Score ``pts`` placed at ``pose`` turned by each of ``turns`` and moved by each of ``shifts``.
+
+    Returns (T, S): sum over points of max(0, 1 - (d / gate)^2), d the distance to the nearest
+    segment sample. One k-d tree query for all T x S x N placed points.
+    """
+    ang = pose[2] + np.asarray(turns, dtype=np.float64).reshape(-1)[:, None, None]   # (T, 1, 1)
+    c, s = np.cos(ang), np.sin(ang)
+    bx = (pose[0] + shifts[:, 0])[:, None]                                  # (S, 1)
+    by = (pose[1] + shifts[:, 1])[:, None]
+    xs = bx + c * pts[:, 0] - s * pts[:, 1]                                 # (T, S, N)
+    ys = by + s * pts[:, 0] + c * pts[:, 1]
+    d, _ = near.tree.query(np.stack([xs.ravel(), ys.ravel()], axis=1), k=1,
+                           distance_upper_bound=gate)
+    return np.clip(1.0 - (d.reshape(xs.shape) / gate) ** 2, 0.0, None).sum(axis=2)
+
+
 def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate: float,
                turns: np.ndarray) -> float:
     """
@@ -153,13 +172,7 @@ def _best_turn(near: '_SegmentSamples', pts: np.ndarray, pose: np.ndarray, gate:
     # can beat it by the margin (a score is at most len(pts)), so the other turns need no query.
     if _fit(near, pts, pose, gate)[0] * TURN_MARGIN >= len(pts):
         return 0.0
-    ang = pose[2] + np.asarray(turns, dtype=np.float64)[:, None]          # (T, 1)
-    c, s = np.cos(ang), np.sin(ang)
-    xs = pose[0] + c * pts[:, 0] - s * pts[:, 1]                            # (T, N)
-    ys = pose[1] + s * pts[:, 0] + c * pts[:, 1]
-    d, _ = near.tree.query(np.stack([xs.ravel(), ys.ravel()], axis=1), k=1,
-                           distance_upper_bound=gate)
-    scores = np.clip(1.0 - (d.reshape(xs.shape) / gate) ** 2, 0.0, None).sum(axis=1)
+    scores = _placements(near, pts, pose, turns, np.zeros((1, 2)), gate)[:, 0]
     best = int(np.argmax(scores))
     at_zero = scores[int(np.argmin(np.abs(turns)))]
     # The prediction wins ties: a turn is taken only when it explains clearly more points.
@@ -246,9 +259,9 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     need = min(min_inliers, max(3, int(np.ceil(min_share * len(pts)))))
     problem = _Problem(pts, segs, normal, near, float(sigma), gate, gate_min, kernel, need,
                        scale, prior, int(iterations), float(degenerate))
-    m, share = _refine(problem, pred, turns, max_shift, max_turn)
-    if not relocalize or share >= relocalize_share:
-        return m._replace(share=share)
+    m = _refine(problem, pred, turns, max_shift, max_turn)
+    if not relocalize or m.share >= relocalize_share:
+        return m
     # Few of the scan's points are on the map where the prediction (or the match from it)
     # puts them: a wheel slip or a bump beyond the match gate, or new ground. A coarse search
     # over shifts within ``relocalize`` metres and the heading turns, then Gauss-Newton from
@@ -259,12 +272,12 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     # loop; without loop closure it bends the map: on the drifted CSAIL log, seed 0, one such
     # jump of 0.11 m and 0.30 rad doubled the trajectory error).
     start = _search(near, pts, pred, float(relocalize), turns)
-    again, share_again = _refine(problem, start, (0.0,), np.inf, np.inf)
+    again = _refine(problem, start, (0.0,), np.inf, np.inf)
     shift = np.hypot(*(again.pose[:2] - pred[:2]))
-    if (again.ok and gate < shift <= relocalize + max_shift and share_again >= relocalize_share
-            and share_again >= RELOCALIZE_GAIN * share):
-        return again._replace(relocalized=True, share=share_again)
-    return m._replace(share=share)
+    if (again.ok and gate < shift <= relocalize + max_shift and again.share >= relocalize_share
+            and again.share >= RELOCALIZE_GAIN * m.share):
+        return again._replace(relocalized=True)
+    return m
 
 
 class _Problem(NamedTuple):
@@ -291,8 +304,8 @@ def _search(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, radius: fl
     Return the pose, of shifts within ``radius`` and heading ``turns``, that the map explains best.
 
     The shifts form a grid ``RELOCALIZE_STEP`` apart; each placement of (at most
-    ``TURN_POINTS`` of) the points is scored as in ``_best_turn``, within 1.5 steps (a pose
-    half a step off still scores). One k-d tree query for all of them.
+    ``TURN_POINTS`` of) the points is scored as in ``_best_turn`` (``_placements``), within 1.5
+    steps (a pose half a step off still scores).
     """
     pts = spread(pts, TURN_POINTS)
     k = int(np.ceil(radius / RELOCALIZE_STEP))
@@ -300,23 +313,19 @@ def _search(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, radius: fl
     dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
     inside = np.hypot(dx, dy) <= radius + 1e-9
     shifts = np.column_stack([dx[inside], dy[inside]])                   # (S, 2)
-    ang = pose[2] + np.asarray(turns, dtype=np.float64).reshape(-1)       # (T,)
-    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    rot = np.stack([c * pts[:, 0] - s * pts[:, 1], s * pts[:, 0] + c * pts[:, 1]], axis=-1)
-    world = pose[:2] + shifts[None, :, None, :] + rot[:, None, :, :]      # (T, S, N, 2)
-    gate = 1.5 * RELOCALIZE_STEP
-    d, _ = near.tree.query(world.reshape(-1, 2), k=1, distance_upper_bound=gate)
-    score = np.clip(1.0 - (d / gate) ** 2, 0.0, None).reshape(world.shape[:3]).sum(axis=2)
+    turns = np.asarray(turns, dtype=np.float64).reshape(-1)
+    score = _placements(near, pts, pose, turns, shifts, 1.5 * RELOCALIZE_STEP)
     t, i = np.unravel_index(int(np.argmax(score)), score.shape)
-    return np.array([pose[0] + shifts[i, 0], pose[1] + shifts[i, 1], ang[t]])
+    return np.array([pose[0] + shifts[i, 0], pose[1] + shifts[i, 1], pose[2] + turns[t]])
 
 
-def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: float) -> tuple:
+def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
+            max_turn: float) -> ScanMatch:
     """
-    Gauss-Newton from ``pred`` (``match_scan``'s steps); return (ScanMatch, share on the map).
+    Gauss-Newton from ``pred`` (``match_scan``'s steps); return the ScanMatch.
 
-    The share: of the scan's points, those within the final gate of the map at the result (at
-    the prediction when the match is refused).
+    Its ``share``: of the scan's points, those within the final gate of the map at its pose
+    (the prediction when the match is refused).
     """
     pts, segs, normal, near, sigma = p.pts, p.segs, p.normal, p.near, p.sigma
     gate, gate_min, kernel, need, scale = p.gate, p.gate_min, p.kernel, p.need, p.scale
@@ -334,8 +343,8 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
         world = transform(pts, pose)
         pt, sg = near.pairs(world, g)
         if len(pt) < need:
-            return (ScanMatch(pred, prior, False, 'too few inliers', int(len(pt)), np.nan, 3),
-                    _fit(near, pts, pred, gate_min)[1])
+            return ScanMatch(pred, prior, False, 'too few inliers', int(len(pt)), np.nan, 3,
+                             share=_fit(near, pts, pred, gate_min)[1])
         n = normal[sg]
         res = np.einsum('ij,ij->i', n, world[pt] - segs[sg, 0])
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -369,8 +378,8 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
     turn = abs((pose[2] - pred[2] + np.pi) % (2 * np.pi) - np.pi)
     rms = float(np.sqrt(np.mean(res ** 2))) if len(res) else math.nan
     if shift > max_shift or turn > max_turn:
-        return (ScanMatch(pred, prior, False, 'correction too large', int(len(res)), rms,
-                          int((~good).sum()), proposal=pose.copy()), on_pred)
+        return ScanMatch(pred, prior, False, 'correction too large', int(len(res)), rms,
+                         int((~good).sum()), proposal=pose.copy(), share=on_pred)
     # Covariance in the scaled coordinates (yaw x scale): sigma^2 / eigenvalue along the
     # constrained directions, the prior's variance along the others; then metres and radians.
     vals = np.linalg.eigvalsh(info)
@@ -379,7 +388,8 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float, max_turn: fl
                    np.einsum('ik,ij,jk->k', vecs, prior_scaled, vecs))
     unscale = np.diag([1.0, 1.0, 1.0 / scale])
     cov = unscale @ ((vecs * var) @ vecs.T) @ unscale
-    return ScanMatch(pose, cov, True, '', int(len(res)), rms, int((~good).sum())), on_pose
+    return ScanMatch(pose, cov, True, '', int(len(res)), rms, int((~good).sum()),
+                     share=on_pose)
 
 
 def spread(points: np.ndarray, n: int) -> np.ndarray:
