@@ -28,8 +28,7 @@ from common import HERE, stamp, write_readme
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
-from polyline_mapper.formats.records import Scan
-from polyline_mapper.recordings import make_drive, robot_messages, SIM_MOUNT, SIM_START
+from polyline_mapper.recordings import drive_messages, make_drive, SIM_MOUNT, SIM_START
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -50,13 +49,8 @@ def one(drive, at: int, slip) -> dict:
     """Map the drive with one slip; return its row."""
     mount = np.asarray(SIM_MOUNT, dtype=np.float64)
     base = se2_compose(drive.poses, se2_inverse(mount))
-    odom = slipped(base, at, slip)
-    spec = drive.spec
     stamps = SIM_START + np.asarray(drive.stamps, dtype=np.float64)
-    scans = (Scan(t, 'laser', spec.angle_min, spec.angle_increment, spec.range_min,
-                  spec.range_max, np.asarray(r, dtype=np.float32))
-             for t, r in zip(stamps.tolist(), drive.ranges))
-    records = flat(robot_messages(stamps, se2_compose(odom, mount), scans, mount=mount))
+    records = flat(drive_messages(drive, odometry=slipped(base, at, slip)))
     session = replay_records(records, options=SessionOptions(
         pose_source='odom', scan_matching=True, keep_points=True))
     rows = np.asarray(session.map_value().trajectory)           # one per scan used

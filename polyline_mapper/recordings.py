@@ -356,7 +356,7 @@ def make_drive(name: str, seed: int = 1, noise: float = 0.01, beams: int = 541):
 
 def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down: bool = False,
                    map_to_odom=SIM_MAP_TO_ODOM, odom_drift: Optional[int] = None,
-                   **options) -> Iterator[tuple]:
+                   odometry: Optional[np.ndarray] = None, **options) -> Iterator[tuple]:
     """
     Yield ``(log_time, topic, record)`` for a SimulatedDrive, as a robot would record it.
 
@@ -365,9 +365,10 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
     ``upside_down``), odom at ``map_to_odom`` in map. ``odom_drift`` (a seed): instead, a robot
     without a localizer, as ``carmen_messages`` writes one: /odom and /tf odom -> base_link
     follow the true base poses with ``OdometryDrift`` added (its heading random walk per
-    second, at the drive's rate), and there is no map frame (the first pose is true). A moving
-    sensor's scans carry the drive's ``time_increment`` and ``scan_time``. ``options`` go to
-    ``robot_messages``.
+    second, at the drive's rate), and there is no map frame (the first pose is true).
+    ``odometry`` ((P, 3) base poses, not with ``odom_drift``): the same with these poses as the
+    odometry (a slip, ``benchmarks/slips.py``). A moving sensor's scans carry the drive's
+    ``time_increment`` and ``scan_time``. ``options`` go to ``robot_messages``.
     """
     spec = drive.spec
     stamps = start + np.asarray(drive.stamps, dtype=np.float64)
@@ -378,10 +379,13 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
                   spec.range_max, np.asarray(ranges, dtype=np.float32), **extra)
              for t, ranges in zip(stamps.tolist(), drive.ranges))
     laser = drive.poses
-    if odom_drift is not None:
+    if odom_drift is not None and odometry is not None:
+        raise ValueError('give odom_drift or odometry, not both')
+    if odom_drift is not None or odometry is not None:
         m = np.asarray(mount, dtype=np.float64)
-        base = OdometryDrift().apply(se2_compose(laser, se2_inverse(m)), odom_drift,
-                                     stamps=stamps)
+        base = (np.asarray(odometry, dtype=np.float64) if odometry is not None else
+                OdometryDrift().apply(se2_compose(laser, se2_inverse(m)), odom_drift,
+                                      stamps=stamps))
         laser, map_to_odom = se2_compose(base, m), None
     return robot_messages(stamps, laser, scans, mount=mount, upside_down=upside_down,
                           map_to_odom=map_to_odom, **options)
