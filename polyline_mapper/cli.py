@@ -421,6 +421,12 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
         return read_input(path, range_max, not args.quiet)
     if range_max is not None:
         raise CliError('--range-max applies to CARMEN logs only')
+    res = _register(path, args)
+    return res.points, res.session.origins(), res.map_value.stats.get('input_type', 'scans')
+
+
+def _register(path: str, args):
+    """Replay ``path`` without mapping (the scans registered as replay does); the result."""
     from .replay import run_replay
     options = _replay_options(args)
     res = run_replay(path, None, options, args.scan_topic, args.odom_topic,
@@ -429,12 +435,54 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
         raise CliError(f'{path}: {res.nothing_mapped()}')
-    return res.points, res.session.origins(), res.map_value.stats.get('input_type', 'scans')
+    return res
 
 
-def read_points_any(path: str, args) -> np.ndarray:
-    """Points of a point file, a CARMEN log, or a bag (registered like replay, not mapped)."""
-    return read_beams_any(path, args)[0]
+STAMP_MATCH = 1e-5
+"""Seconds: a scan and a map's trajectory row closer in stamp are the same scan (rows: 1 us)."""
+
+
+def _beams_for_map(args, value: MapValue) -> tuple:
+    """
+    Beams of ``--points`` where the map placed them: ``(points, origins, note)``.
+
+    A map with a trajectory (``replay``; with ``--scan-matching`` the poses are the mapper's
+    own, not the input's) has one row per scan it used: the input's scans are registered as
+    replay does, without mapping, and each is moved rigidly from its pose to the row of the
+    same stamp, so the beams are those the map's stats judged; scans without a row are left
+    out. Without a trajectory, or when no stamp matches (another recording: warned), the
+    input as ``read_beams_any`` gives it. ``note``: the summary's words on it, or ''.
+    """
+    from .core.geometry import se2_compose, se2_inverse
+    from .recordings import kind_of
+    traj = value.trajectory
+    if traj is None or not len(traj) or kind_of(args.points) == 'points':
+        return read_beams_any(args.points, args)[:2] + ('',)
+    res = _register(args.points, args)
+    points, origins = res.points, res.session.origins()
+    own, sizes = res.map_value.trajectory, res.session.scan_sizes()
+    order = np.argsort(traj[:, 0], kind='stable')
+    stamps = traj[order, 0]
+    hi = np.clip(np.searchsorted(stamps, own[:, 0]), 0, len(stamps) - 1)
+    lo = np.maximum(hi - 1, 0)
+    row = np.where(np.abs(stamps[lo] - own[:, 0]) < np.abs(stamps[hi] - own[:, 0]), lo, hi)
+    found = np.abs(stamps[row] - own[:, 0]) <= STAMP_MATCH
+    if len(own) != len(sizes) or not found.any():
+        print(f"polyline-mapper: warning: {args.points}: none of its scans is in the map's "
+              'trajectory (stamps differ: another recording?); drawn at its own poses',
+              file=sys.stderr)
+        return points, origins, ''
+    fix = se2_compose(traj[order[row[found]], 1:], se2_inverse(own[found, 1:]))
+    keep = np.repeat(found, sizes)
+    fix = np.repeat(fix, sizes[found], axis=0)
+    c, s = np.cos(fix[:, 2]), np.sin(fix[:, 2])
+
+    def move(q):
+        q = q[keep]
+        return np.column_stack([fix[:, 0] + c * q[:, 0] - s * q[:, 1],
+                                fix[:, 1] + s * q[:, 0] + c * q[:, 1]])
+    return move(points), move(origins), (f" at the map's trajectory ({int(found.sum())} of "
+                                         f'{len(found)} scans)')
 
 
 def cmd_plot(args) -> int:
@@ -447,13 +495,13 @@ def cmd_plot(args) -> int:
     value = data.value
     if args.free_space:
         return _plot_free_space(args, value, inputs)
-    points = read_points_any(args.points, args) if args.points else None
+    points, _, note = _beams_for_map(args, value) if args.points else (None, None, '')
     title = args.title or (f'{os.path.basename(args.map)}: {len(value)} segments, '
                            f'{len(value.polylines)} polylines')
     save_map(value, points, None, args.output, title=title, inputs=inputs)
     if not args.quiet:
         print(f'wrote {args.output}: {len(value)} segments'
-              + (f' over {len(points)} points' if points is not None else ''))
+              + (f' over {len(points)} points{note}' if points is not None else ''))
     return 0
 
 
@@ -461,7 +509,7 @@ def _plot_free_space(args, value: MapValue, inputs: list) -> int:
     """``plot --free-space``: beams of ``--points`` under the map, contradicted segments red."""
     from .core.freespace import judge
     from .plot import plot_free_space
-    points, origins, _ = read_beams_any(args.points, args)
+    points, origins, note = _beams_for_map(args, value)
     if origins is None:
         raise CliError(f'{args.points}: a point file has no beams; --free-space needs a CARMEN '
                        'log or a bag')
@@ -474,7 +522,7 @@ def _plot_free_space(args, value: MapValue, inputs: list) -> int:
         out.add(args.output)
         out.put(args.output, png.getvalue())
     if not args.quiet:
-        print(f'wrote {args.output}: {len(value)} segments, {verdict.beams} beams, '
+        print(f'wrote {args.output}: {len(value)} segments, {verdict.beams} beams{note}, '
               f'{int(verdict.contradicted.sum())} segments contradicted '
               f'({verdict.share * 100:.1f}% of map length)')
     return 0
@@ -663,7 +711,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument('map', help='map JSON (from fit or replay)')
     pl.add_argument('-o', '--output', required=True, help='PNG to write')
     pl.add_argument('--points', metavar='INPUT', help='point file, CARMEN log or bag whose '
-                    'points to draw underneath (bags are registered as replay does)')
+                    'points to draw underneath (bags are registered as replay does; a map with '
+                    'a trajectory, e.g. from replay --scan-matching, places each scan at its '
+                    'row of the same stamp, as its stats did)')
     pl.add_argument('--free-space', action='store_true', help='draw the beams of --points '
                     '(a CARMEN log or bag) and the segments they contradict in red')
     pl.add_argument('--title', help='figure title')

@@ -1185,6 +1185,11 @@ class MappingSession:
                 return np.zeros((0, 2))
             return np.concatenate([np.repeat(o, c, axis=0) for o, c in self._origins])
 
+    def scan_sizes(self) -> np.ndarray:
+        """Return each mapped scan's number of points, (S,) int, in the order of ``points()``."""
+        with self._lock:
+            return np.array([n for _, c in self._origins for n in c], dtype=np.intp)
+
     def map_value(self, trajectory: Optional[bool] = None) -> MapValue:
         """
         Return the current map: segments, aligned support, polylines, frame, stamp, stats.

@@ -1,6 +1,7 @@
 """The free-space metric: beams that pass through or end on map segments (kernel, stats, CLI)."""
 
 import json
+import re
 
 from bag_helpers import drive_messages, room_drive, write_bag, write_carmen
 import numpy as np
@@ -215,3 +216,35 @@ def test_plot_free_space_draws_beams_and_refuses_a_point_file_in_one_line(room, 
         assert len(err) == 1 and err[0].startswith('polyline-mapper: error: ') and \
             '--free-space' in err[0], err
         assert not bad.exists()
+
+
+def test_plot_judges_a_scan_matched_maps_beams_where_the_map_placed_them(tmp_path, capsys):
+    # drifting odometry, scan matching: the map's trajectory, not /odom, placed the scans;
+    # plot --free-space (and plot --points) draws and judges them there, as replay's stats did
+    # (at the odometry's poses the same beams contradict 3 segments, 4.9 % of map length)
+    drive = 'sim:office,odom_drift=3,step=0.5'
+    mp = tmp_path / 'm.json'
+    assert main(['replay', drive, '--pose-source', 'odom', '--scan-matching', '-o', str(mp),
+                 '-q']) == 0
+    stats = json.loads(mp.read_text())['stats']
+    png = tmp_path / 'fs.png'
+    assert main(['plot', str(mp), '--points', drive, '--pose-source', 'odom', '--free-space',
+                 '-o', str(png)]) == 0
+    out = capsys.readouterr().out
+    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
+    assert int(said.group(1)) == stats['contradicted_segments'], out
+    assert float(said.group(2)) == pytest.approx(100 * stats['contradicted_share'], abs=0.05)
+    n = stats['scans_used']
+    assert f"beams at the map's trajectory ({n} of {n} scans)" in out, out
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    # a trajectory none of whose stamps is a scan of the input: one warning, the input's poses
+    data = json.loads(mp.read_text())
+    data['trajectory'] = [[t + 0.05] + rest for t, *rest in data['trajectory']]
+    moved = tmp_path / 'moved.json'
+    moved.write_text(json.dumps(data))
+    assert main(['plot', str(moved), '--points', drive, '--pose-source', 'odom', '--free-space',
+                 '-o', str(tmp_path / 'other.png')]) == 0
+    cap = capsys.readouterr()
+    err = cap.err.strip().splitlines()
+    assert len(err) == 1 and "none of its scans is in the map's trajectory" in err[0], err
+    assert "at the map's trajectory" not in cap.out and 'segments contradicted' in cap.out
