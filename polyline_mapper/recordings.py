@@ -37,6 +37,7 @@ from typing import Callable, Iterator, Optional
 
 import numpy as np
 
+from .core.register import ODOMETRY_NOISE
 from .formats.bag import BAG_SUFFIXES
 from .formats.records import Odometry, Scan
 from .poses import mount_quaternion, planar_transform, se2_compose, se2_inverse
@@ -223,14 +224,14 @@ class OdometryDrift:
     bend every moving-sensor scan.
     """
 
-    translation: float = 0.05
-    """Std of each axis's error, as a share of the step's length."""
-    rotation: float = 0.02
-    """Std of the heading error of every step, radians."""
-    rotation_per_m: float = float(np.deg2rad(1.0))
-    """Std of the heading error per metre travelled, radians."""
-    period: float = 1.0
-    """Seconds of the model's step (for ``apply`` with stamps)."""
+    translation: float = ODOMETRY_NOISE.translation
+    """Std of each axis's error, as a share of the step's length (0.05)."""
+    rotation: float = ODOMETRY_NOISE.rotation
+    """Std of the heading error of every step, radians (0.02)."""
+    rotation_per_m: float = ODOMETRY_NOISE.rotation_per_m
+    """Std of the heading error per metre travelled, radians (1 deg)."""
+    period: float = ODOMETRY_NOISE.period
+    """Seconds of the model's step (for ``apply`` with stamps; 1)."""
 
     def apply(self, poses, rng, stamps=None) -> np.ndarray:
         """

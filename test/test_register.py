@@ -1,7 +1,8 @@
 """Scan-to-map registration: recovery, robustness, the degeneracy guard, refusals."""
 
 import numpy as np
-from polyline_mapper.core.register import match_scan, predict_constant_velocity, transform
+from polyline_mapper.core.register import (match_scan, odometry_covariance,
+                                           predict_constant_velocity, transform)
 from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
 import pytest
 
@@ -58,6 +59,40 @@ def test_a_featureless_corridor_keeps_the_prediction_along_its_axis():
     assert m.pose[0] == pytest.approx(0.3, abs=1e-6)     # along: the prediction, untouched
     assert abs(m.pose[1]) < 0.01 and abs(m.pose[2]) < 0.003     # across and heading: fixed
     assert m.covariance[0, 0] > 100 * m.covariance[1, 1]    # the covariance says so
+
+
+def circle(centre, radius=0.25, sides=16):
+    """Return a circle as ``sides`` segments (a person, seen from above)."""
+    a = np.linspace(0, 2 * np.pi, sides + 1)
+    p = np.stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a)], axis=1)
+    return np.stack([p[:-1], p[1:]], axis=1)
+
+
+def test_a_person_walking_ahead_in_a_corridor_does_not_drag_the_match():
+    # A 2 m corridor seen to 4 m (a short-range lidar): nothing but a person walking 1 m ahead
+    # tells where the robot is along the axis. The map has the person where the last scan
+    # saw them; they have walked on 0.1 m. The odometry (here right) says where the robot is.
+    walls = np.array([[[-50, -1], [50, -1]], [[-50, 1], [50, 1]]], dtype=float)
+    truth = np.zeros(3)
+    pts = cast(np.concatenate([walls, circle((1.1, 0.2))]), truth)
+    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < 4.0]
+    mapped = np.concatenate([walls, circle((1.0, 0.2))])
+    step = odometry_covariance((0.25, 0.0, 0.0))       # the odometry's error over a 0.25 m step
+    dragged = match_scan(pts, truth, mapped, sigma=0.01)
+    assert dragged.ok and dragged.pose[0] < -0.08      # without the odometry: follows the person
+    m = match_scan(pts, truth, mapped, sigma=0.01, prediction_cov=step)
+    assert m.ok and m.held == 1 and m.degenerate == 1
+    assert abs(m.pose[0]) < 1e-4 and abs(m.pose[1]) < 0.005 and abs(m.pose[2]) < 0.002
+    assert np.sqrt(m.covariance[0, 0]) == pytest.approx(0.1, rel=1e-3)    # the prior, held axis
+    assert np.hypot(*(m.proposal[:2] - dragged.pose[:2])) < 0.01   # what was not taken
+    # what long-seen walls say is taken, whatever the odometry says (a loop's return)
+    old = np.r_[np.zeros(len(walls), dtype=bool), np.ones(16, dtype=bool)]
+    wall = match_scan(pts, truth, mapped, sigma=0.01, prediction_cov=step, established=old)
+    assert wall.held == 0 and wall.pose[0] == pytest.approx(dragged.pose[0], abs=1e-6)
+    # and a correction the odometry's error explains is taken: a slow step of 2 m
+    slow = match_scan(pts, truth, mapped, sigma=0.01,
+                      prediction_cov=odometry_covariance((2.0, 0.0, 0.0)))
+    assert slow.held == 0 and slow.pose[0] < -0.08
 
 
 def test_refusals_keep_the_prediction():
