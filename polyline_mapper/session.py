@@ -414,7 +414,7 @@ class PoseSource:
 
     def robot_pose(self, scan: Scan) -> np.ndarray:
         """
-        Return (x, y, yaw) of the robot carrying the laser of ``scan``, in the fixed frame.
+        Return (x, y, yaw) of the robot carrying the laser of ``scan``, in ``pose``'s frame.
 
         The robot is the frame the laser is mounted on (its parent by a static transform: the
         odometry child frame with ``mount``), or the laser itself when it has no mount (or the
@@ -427,8 +427,9 @@ class PoseSource:
             frame = MOUNT_FRAME
         if scan.pose is not None or frame not in self._static or frame not in self._parents:
             return laser.xyz
+        target = self.odom_frame if self.localizer else self.fixed_frame   # as ``pose``'s
         try:
-            return self.buffer.lookup_planar(self.fixed_frame, self._parents[frame], scan.stamp,
+            return self.buffer.lookup_planar(target, self._parents[frame], scan.stamp,
                                              self.options.tolerance).xyz
         except TransformLookupError:
             return laser.xyz
@@ -589,8 +590,8 @@ class MappingSession:
         self._recent_pose = None
         """Scan matching: the pose of the newest keyframe in ``_recent``."""
         self._anchor = None
-        """Scan matching: the given pose (TF / odometry) of the last matched scan: the start of
-        the motion whose odometry error the next prediction carries."""
+        """Scan matching: the robot base's given pose (TF / odometry) at the last matched scan:
+        the start of the motion whose odometry error the next prediction carries."""
         self.held = 0
         """Scan matching: matched scans with a direction held at the prediction (``held``)."""
         self._found = False
@@ -845,7 +846,7 @@ class MappingSession:
                     if len(local):
                         before, self._last_match = self._correction, None
                         given = xyz
-                        xyz, note = self._match(local, xyz)
+                        xyz, note = self._match(local, xyz, self.poses.robot_pose(scan))
                         notes += [note] if note is not None else []
                         notes += self._localize(scan.stamp, given, xyz, before)
                         m = self._last_match
@@ -952,11 +953,12 @@ class MappingSession:
         self._recent.append(scan_chords(transform(local, pose)))
         self._recent_pose = np.asarray(pose, dtype=np.float64).copy()
 
-    def _match(self, local: np.ndarray, given: np.ndarray) -> tuple:
+    def _match(self, local: np.ndarray, given: np.ndarray, base: np.ndarray) -> tuple:
         """
         Refine ``given`` (the pose TF or odometry gives) against the map; (pose, note).
 
-        With TF or odometry, the prediction's covariance is the odometry's over the motion
+        ``base``: the robot base's pose, as given (the odometry's motion is the base's). With
+        TF or odometry, the prediction's covariance is the odometry's over the base's motion
         since the last matched scan (``odometry_covariance``): the matcher holds a weakly
         constrained direction at the prediction when the match disagrees beyond it and the
         established walls (support >= ``ESTABLISHED_SUPPORT``) do not carry it
@@ -966,7 +968,7 @@ class MappingSession:
         prediction = se2_compose(self._correction, given)
         cov = None
         if self.options.pose_source != 'scan' and self._anchor is not None:
-            cov = odometry_covariance(se2_compose(se2_inverse(self._anchor), given))
+            cov = odometry_covariance(se2_compose(se2_inverse(self._anchor), base))
         sigma = self.mapper.sigma
         segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
         support = self.mapper.support if sigma is not None else np.zeros(0)
@@ -982,7 +984,7 @@ class MappingSession:
             self.matches['no map yet'] += 1
             if not self._proposals:                 # (lost: not where the map is)
                 self._keyframe(local, prediction)
-                self._anchor = np.asarray(given, dtype=np.float64).copy()
+                self._anchor = np.asarray(base, dtype=np.float64).copy()
             return prediction, None
         near = np.concatenate([segs, recent])
         degenerate = MATCH_DEGENERATE[self.options.pose_source]
@@ -1006,7 +1008,7 @@ class MappingSession:
                                 f'{m.reason} ({m.inliers} inliers){kept}')
         self.matches['relocalized' if m.relocalized else 'matched'] += 1
         self.held += m.held > 0
-        self._anchor = np.asarray(given, dtype=np.float64).copy()
+        self._anchor = np.asarray(base, dtype=np.float64).copy()
         self._shares.append(m.share)
         self._keyframe(local, m.pose)
         self._correction = se2_compose(m.pose, se2_inverse(given))

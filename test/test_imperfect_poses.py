@@ -18,10 +18,10 @@ from polyline_mapper.core.incremental import IncrementalConfig
 from polyline_mapper.core.register import transform
 from polyline_mapper.formats.records import Odometry, Scan, Transform
 from polyline_mapper.recordings import (drive_messages, make_drive, OdometryDrift, open_recording,
-                                        sim_options)
+                                        SIM_MOUNT, sim_options)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import MappingSession, SessionOptions
-from polyline_mapper.sim import corridor_loop, LaserSpec, simulate_drive
+from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive
 import pytest
 
 sys.path.insert(0, str(REPO / 'benchmarks'))
@@ -250,6 +250,27 @@ def test_a_featureless_corridor_does_not_slide():
     assert across.max() < 0.15 and yaw.max() < 0.01, (across.max(), yaw.max())
     assert np.abs(odom[:, 1] - drive.poses[:, 1]).max() > 1.0   # the odometry drifts across
     assert np.abs(np.angle(np.exp(1j * (odom[:, 2] - drive.poses[:, 2])))).max() > 0.05
+
+
+@pytest.mark.parametrize('pose_source', ['odom', 'tf'])
+def test_a_localizer_trajectory_has_the_base_poses(pose_source):
+    # The node's setting: scan matching into the fixed frame 'map' (it broadcasts map -> odom),
+    # the laser 0.2 m ahead of base_link. The trajectory rows (MAP.json, export) are the base's
+    # poses; they were the laser's (0.2 m off) when the base was looked up in 'map', which only
+    # the session itself provides, and the odometry's motion was then the laser's.
+    drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), step=0.4, rng=7)
+    mount = np.asarray(SIM_MOUNT, dtype=float)
+    truth = se2_compose(drive.poses, se2_inverse(mount))
+    odom = OdometryDrift().apply(truth, 0)
+    moved = dataclasses.replace(drive, poses=se2_compose(odom, mount))
+    recs = [r for _, _, rec in drive_messages(moved, map_to_odom=None)
+            for r in (rec if isinstance(rec, list) else [rec])]
+    session = replay_records(recs, options=SessionOptions(
+        pose_source=pose_source, scan_matching=True, fixed_frame='map', keep_points=True))
+    traj = session.map_value().trajectory
+    err = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
+    assert len(traj) == len(truth) and np.sqrt(np.mean(err ** 2)) < 0.03, err.max()
+    assert np.abs(np.hypot(*(odom[:, :2] - truth[:, :2]).T)).max() > 1.0   # the odometry drifts
 
 
 def test_drifting_odometry_and_a_moving_sensor_map_as_true_poses_do():
