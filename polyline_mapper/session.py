@@ -825,7 +825,7 @@ class MappingSession:
         t0 = time.perf_counter()
         limit = min(float(scan.range_max), self.mapper.config.max_mapping_range)
         notes = []
-        xyz = pose.xyz
+        xyz, base = pose.xyz, None
         scan_mode = self.options.pose_source == 'scan'
         try:
             with np.errstate(invalid='ignore', over='ignore'):
@@ -846,7 +846,8 @@ class MappingSession:
                     if len(local):
                         before, self._last_match = self._correction, None
                         given = xyz
-                        xyz, note = self._match(local, xyz, self.poses.robot_pose(scan))
+                        base = self.poses.robot_pose(scan)
+                        xyz, note = self._match(local, xyz, base)
                         notes += [note] if note is not None else []
                         notes += self._localize(scan.stamp, given, xyz, before)
                         m = self._last_match
@@ -869,7 +870,9 @@ class MappingSession:
         self._motion.append((scan.stamp, xyz))
         if self.options.keep_points or self.options.scan_matching:
             # The robot base (the frame the laser is mounted on), where the laser went.
-            mount_to_base = se2_compose(se2_inverse(pose.xyz), self.poses.robot_pose(scan))
+            if base is None:
+                base = self.poses.robot_pose(scan)
+            mount_to_base = se2_compose(se2_inverse(pose.xyz), base)
             self._trajectory.append((scan.stamp, *se2_compose(xyz, mount_to_base)))
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes

@@ -384,8 +384,8 @@ class _Steps(NamedTuple):
     """Signed distances of the paired points to their lines (last iteration)."""
     pairs: int
     """Points paired in the last iteration."""
-    info_established: Optional[np.ndarray] = None
-    """The last information matrix (all directions) from pairs with established segments."""
+    last: tuple = ()
+    """(jacobian, weights, segment ids) of the last iteration's pairs (all directions)."""
 
 
 def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _Steps:
@@ -403,14 +403,14 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _St
     vecs = np.eye(3)
     res = np.zeros(0)
     pt = np.zeros(0)
-    info_est = None
+    last = ()
     stage, at_stage = 0, 0
     for it in range(int(p.iterations)):
         g = max(gate * 0.6 ** stage, gate_min)
         world = transform(pts, pose)
         pt, sg = near.pairs(world, g)
         if len(pt) < p.need:
-            return _Steps(None, info, vals, vecs, good, res, int(len(pt)), info_est)
+            return _Steps(None, info, vals, vecs, good, res, int(len(pt)))
         n = normal[sg]
         res = np.einsum('ij,ij->i', n, world[pt] - segs[sg, 0])
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -421,9 +421,7 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _St
         w = 1.0 / (1.0 + (res / k) ** 2)
         info = jac.T @ (w[:, None] * jac)
         grad = -jac.T @ (w * res)
-        if p.established is not None:
-            e = p.established[sg]
-            info_est = jac[e].T @ (w[e, None] * jac[e])
+        last = (jac, w, sg)
         top = None
         if free is not None:            # the problem restricted to the free directions
             top = np.linalg.eigvalsh(info)[-1]
@@ -443,7 +441,7 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _St
             break
         if small or at_stage >= 3:          # converged at this gate (or slow): narrow it
             stage, at_stage = stage + 1, 0
-    return _Steps(pose, info, vals, vecs, good, res, int(len(pt)), info_est)
+    return _Steps(pose, info, vals, vecs, good, res, int(len(pt)), last)
 
 
 def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> np.ndarray:
@@ -462,12 +460,14 @@ def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> 
     d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
     along = np.abs(st.vecs.T @ (d * scaled))
     sd = np.sqrt(np.einsum('ik,ij,jk->k', st.vecs, cov * scaled[:, None] * scaled, st.vecs))
-    weak = st.vals < WEAK_SHARE * max(st.vals[-1], 1e-12)
-    young = True
-    if st.info_established is not None:
-        est = np.einsum('ik,ij,jk->k', st.vecs, st.info_established, st.vecs)
-        young = est < ESTABLISHED_SHARE * np.maximum(st.vals, 1e-12)
-    return weak & young & (along > WEAK_SIGMAS * sd) & (along > p.kernel)
+    out = (st.vals < WEAK_SHARE * max(st.vals[-1], 1e-12)) & (along > WEAK_SIGMAS * sd) & (
+        along > p.kernel)
+    if out.any() and p.established is not None:
+        jac, w, sg = st.last
+        e = p.established[sg]
+        est = np.einsum('ik,ij,jk->k', st.vecs, jac[e].T @ (w[e, None] * jac[e]), st.vecs)
+        out &= est < ESTABLISHED_SHARE * np.maximum(st.vals, 1e-12)
+    return out
 
 
 def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
