@@ -395,8 +395,9 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _St
     ``free``: (3, m) orthonormal directions in (x, y, yaw x scale) the steps may move along
     (None: all three); the pose keeps its component along the others.
     """
-    pts, segs, normal, near = p.pts, p.segs, p.normal, p.near
-    gate, gate_min, kernel, scale = p.gate, p.gate_min, p.kernel, p.scale
+    near, gate, gate_min, kernel, scale = p.near, p.gate, p.gate_min, p.kernel, p.scale
+    px, py = np.ascontiguousarray(p.pts[:, 0]), np.ascontiguousarray(p.pts[:, 1])
+    world = np.empty(p.pts.shape)
     info = np.zeros((3, 3))
     vals = np.zeros(3)
     good = np.zeros(3, dtype=bool)
@@ -407,16 +408,19 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _St
     stage, at_stage = 0, 0
     for it in range(int(p.iterations)):
         g = max(gate * 0.6 ** stage, gate_min)
-        world = transform(pts, pose)
+        # transform(pts, pose) and its derivative along yaw, from the same four products
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        cx, sy, sx, cy = c * px, s * py, s * px, c * py
+        world[:, 0] = pose[0] + cx - sy
+        world[:, 1] = pose[1] + sx + cy
         pt, sg = near.pairs(world, g)
         if len(pt) < p.need:
             return _Steps(None, info, vals, vecs, good, res, int(len(pt)))
-        n = normal[sg]
-        res = np.einsum('ij,ij->i', n, world[pt] - segs[sg, 0])
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        lp = pts[pt]
-        dworld = np.stack([-s * lp[:, 0] - c * lp[:, 1], c * lp[:, 0] - s * lp[:, 1]], axis=1)
-        jac = np.column_stack([n, np.einsum('ij,ij->i', n, dworld) / scale])
+        n0, n1 = p.normal[sg, 0], p.normal[sg, 1]
+        res = n0 * (world[pt, 0] - p.segs[sg, 0, 0]) + n1 * (world[pt, 1] - p.segs[sg, 0, 1])
+        jac = np.empty((len(pt), 3))
+        jac[:, 0], jac[:, 1] = n0, n1
+        jac[:, 2] = (n0 * (-sx[pt] - cy[pt]) + n1 * (cx[pt] - sy[pt])) / scale
         k = max(kernel, g / 3.0)          # the kernel widens with the gate: a far start pulls
         w = 1.0 / (1.0 + (res / k) ** 2)
         info = jac.T @ (w[:, None] * jac)
