@@ -54,7 +54,7 @@ from typing import Callable, Iterable, NamedTuple, Optional
 
 import numpy as np
 
-from .core.geometry import se2_compose, se2_inverse
+from .core.geometry import se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
@@ -885,7 +885,7 @@ class MappingSession:
         if not (0 < t1 - t0 <= MAX_MOTION_GAP and 0 <= stamp - t1 <= MAX_MOTION_GAP):
             return None
         step = se2_compose(se2_inverse(p0), p1)
-        step[2] = (step[2] + math.pi) % (2 * math.pi) - math.pi
+        step[2] = wrap_angle(step[2])
         return step / (t1 - t0)
 
     def _predict(self, stamp: float) -> np.ndarray:
@@ -936,7 +936,7 @@ class MappingSession:
                 return None
             rel = velocity[None] * knots[1:, None]
         rel = np.vstack([np.zeros(3), rel])
-        rel[:, 2] = np.unwrap((rel[:, 2] + math.pi) % (2 * math.pi) - math.pi)
+        rel[:, 2] = np.unwrap(wrap_angle(rel[:, 2]))
         return np.column_stack([np.interp(times, knots, rel[:, k]) for k in range(3)])
 
     def _keyframe(self, local: np.ndarray, pose: np.ndarray) -> None:
@@ -951,7 +951,7 @@ class MappingSession:
         if last is not None:
             step = se2_compose(se2_inverse(last), pose)
             if (math.hypot(step[0], step[1]) < KEYFRAME_STEP[0]
-                    and abs(math.remainder(step[2], 2 * math.pi)) < KEYFRAME_STEP[1]):
+                    and abs(wrap_angle(step[2])) < KEYFRAME_STEP[1]):
                 return
         self._recent.append(scan_chords(transform(local, pose)))
         self._recent_pose = np.asarray(pose, dtype=np.float64).copy()
@@ -1044,7 +1044,7 @@ class MappingSession:
             return m
         c = np.array(self._proposals)
         d = c - c[-1]
-        d[:, 2] = (d[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        d[:, 2] = wrap_angle(d[:, 2])
         if (np.hypot(d[:, 0], d[:, 1]).max() > CONFIRM_AGREE[0]
                 or np.abs(d[:, 2]).max() > CONFIRM_AGREE[1]):
             return m
@@ -1091,7 +1091,7 @@ class MappingSession:
             self._residuals.append(residual)
         # The jump of map -> odom, seen at the laser: the match against the prediction.
         dx, dy, dyaw = se2_compose(se2_inverse(se2_compose(before, given)), laser)
-        dyaw = (dyaw + math.pi) % (2 * math.pi) - math.pi
+        dyaw = wrap_angle(dyaw)
         found, self._found = self._found, False             # (warned at the run's first scan)
         if (math.hypot(dx, dy) > JUMP_SHIFT or abs(dyaw) > JUMP_TURN) and not found:
             self.jumps['correction'] += 1

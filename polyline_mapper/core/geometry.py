@@ -199,6 +199,16 @@ def se2_compose(a, b) -> np.ndarray:
                      a[..., 1] + s * b[..., 0] + c * b[..., 1], a[..., 2] + b[..., 2]], axis=-1)
 
 
+def wrap_angle(angle):
+    """
+    Wrap angles (radians; a float or an array) into [-pi, pi).
+
+    >>> float(wrap_angle(3 * np.pi / 2)), wrap_angle(np.array([np.pi, -np.pi])).tolist()
+    (-1.5707963267948966, [-3.141592653589793, -3.141592653589793])
+    """
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
 def se2_inverse(a) -> np.ndarray:
     """Invert planar poses: (..., 3) arrays of (x, y, yaw) -> (..., 3), se2_compose(a, inv) = 0."""
     a = np.asarray(a, dtype=float)

@@ -41,7 +41,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import as_points, se2_compose, se2_inverse
+from .geometry import as_points, se2_compose, se2_inverse, wrap_angle
 
 
 TURN_MARGIN = 1.1
@@ -461,7 +461,7 @@ def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> 
     """
     scaled = np.array([1.0, 1.0, p.scale])
     d = st.pose - pred
-    d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+    d[2] = wrap_angle(d[2])
     along = np.abs(st.vecs.T @ (d * scaled))
     sd = np.sqrt(np.einsum('ik,ij,jk->k', st.vecs, cov * scaled[:, None] * scaled, st.vecs))
     out = (st.vals < WEAK_SHARE * max(st.vals[-1], 1e-12)) & (along > WEAK_SIGMAS * sd) & (
@@ -512,7 +512,7 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
     if fit_pose < fit_pred:
         pose, on_pose = pred.copy(), on_pred
     shift = np.hypot(*(pose[:2] - pred[:2]))
-    turn = abs((pose[2] - pred[2] + np.pi) % (2 * np.pi) - np.pi)
+    turn = abs(wrap_angle(pose[2] - pred[2]))
     rms = float(np.sqrt(np.mean(res ** 2))) if len(res) else math.nan
     if shift > max_shift or turn > max_turn:
         return ScanMatch(pred, prior, False, 'correction too large', int(len(res)), rms,

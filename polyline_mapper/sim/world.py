@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.geometry import wrap_angle
+
 
 @dataclass
 class Arc:
@@ -223,9 +225,9 @@ def path_poses(waypoints, step: float, turn: float = None) -> np.ndarray:
         yaw = np.arctan2(v[1], v[0])
         if turn is not None and out:
             before = out[-1][-1, 2]
-            change = (yaw - before + np.pi) % (2 * np.pi) - np.pi
+            change = wrap_angle(yaw - before)
             k = np.arange(int(np.ceil(abs(change) / turn)))     # arrive, then turn
-            turning = (before + change * k / max(len(k), 1) + np.pi) % (2 * np.pi) - np.pi
+            turning = wrap_angle(before + change * k / max(len(k), 1))
             out.append(np.column_stack([np.full(len(k), a[0]), np.full(len(k), a[1]),
                                         turning]))
         out.append(np.column_stack([a[0] + s * v[0], a[1] + s * v[1], np.full(n, yaw)]))
