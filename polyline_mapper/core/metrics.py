@@ -2,7 +2,9 @@
 
 import numpy as np
 
+from .geometry import se2_compose, se2_inverse
 from .index import nearest_distance, PointIndex
+from .register import scan_chords, transform
 
 
 def map_metrics(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,
@@ -111,3 +113,37 @@ def trajectory_error(estimate: np.ndarray, reference: np.ndarray) -> dict:
     return {'rms': float(np.sqrt(np.mean(err ** 2))),
             'ate': float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1)))),
             'final': float(err[-1]), 'alignment': al}
+
+
+def scan_consistency(scans: list, poses: np.ndarray, gate: float = 0.10) -> dict:
+    """
+    How well consecutive scans agree where ``poses`` put them: a reference-free pose check.
+
+    Each scan's points (``scans[k]``: (N_k, 2) in its laser frame, metres) are placed by the
+    relative pose ``poses[k-1]``^-1 ∘ ``poses[k]`` (laser poses, (K, 3)) onto the previous
+    scan's chords (``register.scan_chords``: its own polyline). Two trajectories of the same
+    scans compare without ground truth: the one whose steps are right puts each scan closer to
+    the one before.
+
+    Returns
+    -------
+    dict with ``mean`` (metres: mean distance of the points within ``gate`` of the previous
+    scan's chords), ``share`` (of all points, those within ``gate``) and ``pairs`` (scan pairs
+    used: both scans with points, the previous with chords).
+
+    """
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if len(scans) != len(poses):
+        raise ValueError(f'{len(scans)} scans for {len(poses)} poses')
+    rel = se2_compose(se2_inverse(poses[:-1]), poses[1:])
+    total, near, dist, pairs = 0, 0, 0.0, 0
+    for k in range(1, len(scans)):
+        chords = scan_chords(scans[k - 1])
+        if not len(chords) or not len(scans[k]):
+            continue
+        d, _ = nearest_distance(transform(scans[k], rel[k - 1]), chords)
+        inside = d < gate
+        total, near, dist = total + len(d), near + int(inside.sum()), dist + float(d[inside].sum())
+        pairs += 1
+    return {'mean': dist / near if near else float('nan'),
+            'share': near / total if total else float('nan'), 'pairs': pairs}
