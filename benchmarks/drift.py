@@ -4,7 +4,7 @@ Mapping with drifting wheel odometry: the Radish logs as a robot without a local
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/drift.py [--datasets DIR] [--only NAME ...] [--seeds 0 1 2 3 4]
-        [--modes corrected odometry matching]
+        [--modes corrected odometry matching exact-matching]
 
 For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes a bag whose
 /odom and /tf odom -> base_link follow the corrected poses with wheel-odometry-like drift added
@@ -12,7 +12,9 @@ For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes 
 0.02 rad + 1 deg per metre of heading; the first pose true; no map frame), and
 ``polyline-mapper replay BAG --pose-source odom`` maps it, as given (``odometry``) and with
 ``--scan-matching`` (``matching``). The same log replayed with its corrected poses is the
-reference (``corrected``). Scores:
+reference (``corrected``), and so is scan matching on odometry that follows the corrected poses
+exactly (``exact-matching``: ``OdometryDrift`` with every noise 0, still no map frame): what
+the matching does where the odometry is perfect. Scores:
 
 - the poses the mapper used (the map's trajectory, base frame) against the corrected ones: RMS
   as they stand (both start at the first true pose) and the absolute trajectory error (ATE:
@@ -40,13 +42,14 @@ from polyline_mapper.core.metrics import trajectory_error
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.poses import se2_compose, se2_inverse
+from polyline_mapper.recordings import OdometryDrift
 from polyline_mapper.replay import run_replay
 from polyline_mapper.session import SessionOptions
 
 LOGS = ['intel-corrected', 'csail-corrected', 'freiburg-079-corrected']
 
 
-MODES = ('corrected', 'odometry', 'matching')
+MODES = ('corrected', 'odometry', 'matching', 'exact-matching')
 
 
 def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
@@ -56,9 +59,11 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
             res = run_replay(str(path), options=SessionOptions(keep_points=True), progress=True)
         else:
             bag = os.path.join(tmp, 'bag')
-            carmen_to_bag(str(path), bag, drift_seed=seed)
+            exact = mode == 'exact-matching'
+            carmen_to_bag(str(path), bag, drift_seed=0 if exact else seed,
+                          drift_model=OdometryDrift(0.0, 0.0, 0.0) if exact else None)
             res = run_replay(bag, options=SessionOptions(
-                pose_source='odom', keep_points=True, scan_matching=mode == 'matching'),
+                pose_source='odom', keep_points=True, scan_matching=mode != 'odometry'),
                 progress=True)
     segs = res.map_value.segments
     used = np.asarray(res.map_value.trajectory)[:, 1:]          # base poses, one per scan used
@@ -109,7 +114,7 @@ def main() -> int:
     meta = stamp('.venv/bin/python benchmarks/drift.py ' + ' '.join(sys.argv[1:]))
     rows = []
     runs = [(name, mode, seed) for name in args.only or LOGS for mode in args.modes
-            for seed in ([None] if mode == 'corrected' else args.seeds)]
+            for seed in ([None] if mode in ('corrected', 'exact-matching') else args.seeds)]
     logs = {}
     for k, (name, mode, seed) in enumerate(runs):
         print(f'[{k + 1}/{len(runs)}] {name} {mode} seed {seed}', file=sys.stderr, flush=True)
@@ -158,7 +163,8 @@ def report(meta: dict, rows: list, logs: list, modes: list) -> int:
                 continue
             seeds = ', '.join('-' if r['seed'] is None else str(r['seed']) for r in group)
             label = {'corrected': 'corrected', 'odometry': 'drifted odometry',
-                     'matching': 'drifted odometry + scan matching'}[mode]
+                     'matching': 'drifted odometry + scan matching',
+                     'exact-matching': 'exact odometry + scan matching'}[mode]
             lines.append(
                 f'| {name} | {label} | {seeds} | {cell(group, "mean_cm", 1)} / '
                 f'{cell(group, "coverage", 1)} | {cell(group, "aligned_mean_cm", 1)} / '

@@ -29,7 +29,8 @@ from ..recordings import carmen_messages, OdometryDrift
 
 
 def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period: float = 1.0,
-                  progress=None, drift_seed: int = None) -> dict:
+                  progress=None, drift_seed: int = None,
+                  drift_model: OdometryDrift = None) -> dict:
     """
     Convert a CARMEN log to a new rosbag2 folder ``out_path`` (sqlite3 or mcap storage).
 
@@ -41,6 +42,8 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
 
     ``drift_seed``: write a robot without a localizer instead (``recordings.OdometryDrift``,
     seeded): /odom and /tf odom -> base_link drift like wheel odometry, no map frame.
+    ``drift_model``: that drift's model (default ``OdometryDrift()``, issue 19's; all zero:
+    odometry that follows the corrected poses exactly, still without a map frame).
     """
     if storage not in ('sqlite3', 'mcap'):
         raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
@@ -54,7 +57,8 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
     tmp = tempfile.mkdtemp(prefix='.tmp-bag-', dir=parent)
     try:
         bag = os.path.join(tmp, os.path.basename(os.path.abspath(out_path)))
-        drift = None if drift_seed is None else (OdometryDrift(), int(drift_seed))
+        drift = (None if drift_seed is None
+                 else (drift_model or OdometryDrift(), int(drift_seed)))
         messages = carmen_messages(log, stamps, drift)
         with BagWriter(bag, storage) as out:
             for t, topic, record in (messages if progress is None else progress(messages)):
