@@ -201,13 +201,18 @@ def is_transient(counts: np.ndarray, min_passes: int = 1) -> np.ndarray:
     return (counts[:, 0] >= min_passes) & (counts[:, 0] > counts[:, 1])
 
 
-def make_map(path: pathlib.Path, mode: str, window: int) -> tuple:
-    """Map one log: ``(segments, points, origins, seconds, update median ms or None)``."""
+def make_map(path: pathlib.Path, mode: str, window: int, extra: dict = None) -> tuple:
+    """
+    Map one log: ``(segments, points, origins, seconds, update median ms or None)``.
+
+    ``extra``: more ``IncrementalConfig`` fields for a replay with ``window`` > 0.
+    """
     t0 = time.perf_counter()
     if mode == 'replay':
         from polyline_mapper.core.incremental import IncrementalConfig
         from polyline_mapper.replay import run_replay
-        res = run_replay(str(path), IncrementalConfig(free_space_window=window))
+        more = extra if window > 0 and extra else {}
+        res = run_replay(str(path), IncrementalConfig(free_space_window=window, **more))
         st = res.map_value.stats
         return (res.map_value.segments, res.points, res.session.origins(),
                 time.perf_counter() - t0, st.get('update_ms_median'))
@@ -289,7 +294,8 @@ def table(rows: list) -> str:
     out += ['', '| log | mode | lost (% of points) | transient: >= 1 / >= 3 later passes, '
             'more than later ends (% of lost) | seen through earlier only (% of lost) | '
             'lost, transient / static (% of points) | mean growth (cm) | '
-            'of it on transient lost points | control: kept points transient | window map without transient lost points: '
+            'of it on transient lost points | control: kept points transient | '
+            'window map without transient lost points: '
             'mean (cm), coverage (%) |', '|---|---|---:|---:|---:|---:|---:|---:|---:|---:|']
     for r in rows:
         s = r['cut_static']
@@ -314,10 +320,19 @@ def main(argv=None) -> int:
     ap.add_argument('--modes', nargs='*', default=['replay', 'batch'],
                     choices=['replay', 'batch'])
     ap.add_argument('--window', type=int, default=10, help='free_space_window when on')
+    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=INT',
+                    help='more IncrementalConfig fields of the window replay (integers)')
+    ap.add_argument('--name', default='transient',
+                    help='README markers and results/NAME.json (default: transient)')
     ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
     args = ap.parse_args(argv)
     if args.window < 1:
         print('transient.py: error: --window must be >= 1', file=sys.stderr)
+        return 2
+    try:
+        extra = {k: int(v) for k, v in (item.split('=', 1) for item in args.set)}
+    except ValueError:
+        print(f'transient.py: error: --set takes KEY=INT, got {args.set}', file=sys.stderr)
         return 2
     meta = stamp('.venv/bin/python benchmarks/transient.py '
                  + ' '.join(argv if argv is not None else sys.argv[1:]))
@@ -332,22 +347,25 @@ def main(argv=None) -> int:
         for mode in args.modes:
             base, points, origins, s0, ms0 = make_map(path, mode, 0)
             print(f'{name} {mode} window 0: {len(base)} segments, {s0:.0f} s', flush=True)
-            cut, _, _, s1, ms1 = make_map(path, mode, args.window)
+            cut, _, _, s1, ms1 = make_map(path, mode, args.window, extra)
             print(f'{name} {mode} window {args.window}: {len(cut)} segments, {s1:.0f} s',
                   flush=True)
-            row = {'log': name, 'mode': mode, 'window': args.window, 'base_seconds': s0,
+            row = {'log': name, 'mode': mode, 'window': args.window, 'set': extra,
+                   'base_seconds': s0,
                    'cut_seconds': s1, 'base_update_ms': ms0, 'cut_update_ms': ms1,
                    **classify(points, origins, base, cut)}
             rows.append(row)
             print(json.dumps(row), flush=True)
     out = HERE / 'results'
     out.mkdir(exist_ok=True)
-    (out / 'transient.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1)
-                                        + '\n')
+    text = json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n'
+    (out / f'{args.name}.json').write_text(text)
     block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
              f"`{meta['command']}`. Window 0: the default map (replay: `polyline-mapper "
              f'replay LOG`; batch: `fit` of the bare points); window {args.window}: '
-             f'`--set free_space_window={args.window}` (batch: `fit` with the beams). '
+             f'`--set free_space_window={args.window}`'
+             + ''.join(f' `{k}={v}`' for k, v in extra.items())
+             + ' (batch: `fit` with the beams). '
              "Contradicted: `core/freespace.py`, every scan's beams. *Lost*: points the "
              'window map leaves farther than 0.10 m that the default map covers; *transient*: '
              'beams of later scans pass through the point (cross its surface within '
@@ -358,7 +376,7 @@ def main(argv=None) -> int:
              'test on 20000 points both maps cover (in brackets: any later pass).\n\n'
              + table(rows))
     if not args.no_readme:
-        write_readme('transient', block)
+        write_readme(args.name, block)
     print(block)
     return 0
 
