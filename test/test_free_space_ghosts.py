@@ -41,8 +41,8 @@ def test_dynamic_office_with_ghosts(seed):
 
 def test_ghosts_lower_the_contradicted_share_on_intel():
     # Intel, incremental, window 10: 1.24 % of the map's length contradicted without ghosts,
-    # 0.6-0.7 % with them, mean 2.71 -> 2.8 cm and coverage 97.4 -> 96.6-96.9 % (issue 18's
-    # bars: at most +15 % and -2 points against the default map).
+    # 0.60 % with them, mean 2.71 -> 2.70 cm and coverage 97.4 -> 97.1 % (issue 18's bars: at
+    # most +15 % and -2 points against the default map).
     from polyline_mapper.formats.carmen import read_carmen
     log = read_carmen(str(radish_log('intel-corrected.log.gz')))
     mapper = IncrementalMapper(GHOSTS)

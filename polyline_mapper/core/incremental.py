@@ -140,8 +140,9 @@ class IncrementalConfig:
     replaces ``clear_max_length``. Needs the laser position of each scan."""
     free_space_ghosts: int = 0
     """With ``free_space_window`` > 0: the most cut squares remembered (0: none, the default).
-    A square cut out as free leaves a *ghost* (its centre, direction and counts); a refit
-    segment's new square takes the counts of the nearest old square or ghost
+    A square cut out as free with at least twice as many passes as hits leaves a *ghost* (its
+    centre, direction and counts; a marginal cut leaves none: remembering every cut held real
+    structure out of the map, CSAIL 3.93 against 3.32 cm); a refit segment's new square takes the counts of the nearest old square or ghost
     (``split.carry_evidence``), so pieces that a refit or merge joins again across a cut gap
     do not bridge it with their neighbours' hits; the oldest ghosts go first beyond this many
     (memory: 48 bytes a ghost). With ghosts, a single square left between two cuts or beside
@@ -571,7 +572,8 @@ class IncrementalMapper:
         if self.config.free_space_ghosts > 0 and free.any():
             centre, direction = square_centres(group, n_sub)
             most = int(self.config.free_space_ghosts)
-            self._ghosts = tuple(np.concatenate([g, new[free]])[-most:] for g, new in
+            sure = free & (counts[:, 1] >= 2.0 * counts[:, 0])      # clearly seen through
+            self._ghosts = tuple(np.concatenate([g, new[sure]])[-most:] for g, new in
                                  zip(self._ghosts, (centre, direction, counts)))
         size = last - first + 1
         whole = (parent >= n_new) & (size == n_sub[parent])
