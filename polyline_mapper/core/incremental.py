@@ -142,12 +142,13 @@ class IncrementalConfig:
     """With ``free_space_window`` > 0: the most cut squares remembered (0: none, the default).
     A square cut out as free with at least twice as many passes as hits leaves a *ghost* (its
     centre, direction and counts; a marginal cut leaves none: remembering every cut held real
-    structure out of the map, CSAIL 3.93 against 3.32 cm); a refit segment's new square takes the counts of the nearest old square or ghost
-    (``split.carry_evidence``), so pieces that a refit or merge joins again across a cut gap
-    do not bridge it with their neighbours' hits; the oldest ghosts go first beyond this many
-    (memory: 48 bytes a ghost). With ghosts, a single square left between two cuts or beside
-    one goes too once a beam passed through it (as a piece of its own its crossing window
-    would shrink to its middle half, so a 5 cm sliver of a box or a person's track stayed)."""
+    structure out of the map, CSAIL 3.93 against 3.32 cm). A refit segment's new square takes
+    the counts of the nearest old square or ghost (``split.carry_evidence``), so pieces that a
+    refit or merge joins again across a cut gap do not bridge it with their neighbours' hits;
+    the oldest ghosts go first beyond this many (memory: 48 bytes a ghost). With ghosts, a
+    single square left between two cuts or beside one goes too once a beam passed through it
+    (as a piece of its own its crossing window would shrink to its middle half, so a 5 cm
+    sliver of a box or a person's track stayed)."""
     max_mapping_range: float = 100.0
     """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
     range_max says: far returns set neither r, sigma nor the work of an update. The shared logs
