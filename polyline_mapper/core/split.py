@@ -77,7 +77,7 @@ def square_centres(segments: np.ndarray, n_sub: np.ndarray) -> tuple:
 
 def carry_evidence(centres: np.ndarray, dirs: np.ndarray, counts: np.ndarray,
                    segments: np.ndarray, n_sub: np.ndarray, r: float,
-                   max_angle: float = np.deg2rad(30.0)) -> np.ndarray:
+                   max_angle: float = np.deg2rad(30.0), return_source: bool = False):
     """
     Carry per-square evidence from old squares to the squares of new segments.
 
@@ -87,17 +87,22 @@ def carry_evidence(centres: np.ndarray, dirs: np.ndarray, counts: np.ndarray,
     less than r across it and shifts its squares by at most one along it) whose direction is
     within ``max_angle`` of its segment's; so a merge of twins does not add their counts up and
     a crossing wall's squares are not taken. New squares with no such old square (a wall's new
-    extension) start at 0. Returns (n_sub.sum(), C).
+    extension) start at 0. Returns (n_sub.sum(), C); with ``return_source`` also the old
+    square each new one took its counts from ((n_sub.sum(),), -1 for none).
     """
     total = int(np.sum(n_sub))
     out = np.zeros((total, counts.shape[1]))
+    source = np.full(total, -1, dtype=np.intp)
     if total == 0 or len(centres) == 0:
-        return out
+        return (out, source) if return_source else out
     mine, u = square_centres(segments, n_sub)
     dist, j = cKDTree(centres).query(mine, k=1, distance_upper_bound=1.5 * r)
     ok = np.flatnonzero(np.isfinite(dist))
     ok = ok[np.abs(np.sum(dirs[j[ok]] * u[ok], axis=1)) >= np.cos(max_angle)]
     out[ok] = counts[j[ok]]
+    if return_source:
+        source[ok] = j[ok]
+        return out, source
     return out
 
 
