@@ -160,7 +160,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     options = dataclasses.replace(options or SessionOptions(), keep_points=True,
                                   mapping=mapping)
     odometry = options.pose_source == 'odom'
-    with open_recording(path, scan_topic, odom_topic, odometry=odometry) as source:
+    with open_recording(path, scan_topic, odom_topic, odometry=odometry,
+                        pose_source=options.pose_source) as source:
         bar = None
         if progress:
             import sys

@@ -1,8 +1,11 @@
 """Hostile inputs to scan matching, localization and their tools (issue 19 audit)."""
 
 import dataclasses
+import json
 
 import numpy as np
+from polyline_mapper.cli import main
+from polyline_mapper.formats.bag import BagWriter
 from polyline_mapper.poses import se2_compose, se2_inverse
 from polyline_mapper.recordings import open_recording, SIM_MOUNT
 from polyline_mapper.session import MappingSession, SessionOptions
@@ -64,3 +67,27 @@ def test_pose_data_stamped_as_an_earlier_one_is_skipped_not_mapped(drifted, sour
     skipped = session.stats()['skipped']
     assert skipped.get('pose data: stamp_order', 0) >= 30, skipped
     assert 'stamp_order' in {c for c, _ in warned}
+
+
+@pytest.fixture(scope='module')
+def scan_only_bag(drifted, tmp_path_factory):
+    """Write the drifting office drive's first 40 scans as a bag of /scan only."""
+    path = tmp_path_factory.mktemp('scan_only') / 'bag'
+    scans = [m for m in drifted[0] if m[1] == '/scan'][:40]
+    with BagWriter(str(path), 'sqlite3') as out:
+        for t, topic, record in scans:
+            out.write(topic, record, t)
+    return path
+
+
+def test_a_scan_only_bag_points_to_the_scan_pose_source(scan_only_bag, tmp_path, capsys):
+    # It pointed to --pose-source odom, which then failed: the bag has no odometry either.
+    out = tmp_path / 'map.json'
+    assert main(['replay', str(scan_only_bag), '--scan-matching', '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err
+    assert '--pose-source scan' in err and '--pose-source odom' not in err
+    assert not out.exists()
+    assert main(['replay', str(scan_only_bag), '--pose-source', 'scan', '-o', str(out),
+                 '-q']) == 0
+    assert 'warning' not in capsys.readouterr().err
+    assert len(json.loads(out.read_text())['trajectory']) == 40
