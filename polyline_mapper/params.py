@@ -333,6 +333,14 @@ def settings_from(values: dict) -> tuple:
         raise ValueError(f'initial_pose must be 3 finite numbers (x, y, yaw: m, m, rad), got '
                          f'{list(pose)}')
     node['initial_pose'] = pose
+    if not node['map_input_path'].strip():
+        # As replay's --no-mapping / --initial-pose without --map: nothing to keep or place.
+        if not node['mapping']:
+            raise ValueError('mapping false keeps a saved map fixed: give map_input_path (without '
+                             'one nothing would ever be mapped)')
+        if any(pose):
+            raise ValueError(f'initial_pose {list(pose)} places the robot in a saved map: give '
+                             'map_input_path (or leave initial_pose at [0.0, 0.0, 0.0])')
     if node['update_every_n_scans'] > node['scan_buffer_size']:
         raise ValueError(f"update_every_n_scans ({node['update_every_n_scans']}) must be at most "
                          f"scan_buffer_size ({node['scan_buffer_size']})")

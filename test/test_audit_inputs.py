@@ -6,6 +6,7 @@ import json
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.formats.bag import BagWriter
+from polyline_mapper.params import defaults, settings_from
 from polyline_mapper.poses import se2_compose, se2_inverse
 from polyline_mapper.recordings import open_recording, SIM_MOUNT
 from polyline_mapper.session import MappingSession, SessionOptions
@@ -91,3 +92,19 @@ def test_a_scan_only_bag_points_to_the_scan_pose_source(scan_only_bag, tmp_path,
                  '-q']) == 0
     assert 'warning' not in capsys.readouterr().err
     assert len(json.loads(out.read_text())['trajectory']) == 40
+
+
+@pytest.mark.parametrize('name, value, match', [
+    ('mapping', False, 'mapping false keeps a saved map fixed: give map_input_path'),
+    ('initial_pose', [1.0, 2.0, 0.5], r'initial_pose \[1.0, 2.0, 0.5\] places the robot in a '
+                                      'saved map: give map_input_path'),
+])
+def test_the_node_refuses_localization_parameters_without_a_saved_map(name, value, match):
+    # They were accepted and ignored: mapping:=false alone started a node that never mapped
+    # a scan (replay refuses --no-mapping and --initial-pose without --map).
+    values = defaults()
+    values[name] = value
+    with pytest.raises(ValueError, match=match):
+        settings_from(values)
+    values['map_input_path'] = 'saved.json'
+    settings_from(values)
