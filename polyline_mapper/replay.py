@@ -119,19 +119,25 @@ def free_space_text(stats: dict) -> str:
             f"({stats['contradicted_segments']} segments, {stats['beams']} beams)")
 
 
+REPORTED = ('time_increment', 'time_jump')
+"""Session warnings a replay prints (the first, with a count): input problems that no skip
+count shows (a scan used without motion compensation, pose data dropped at a clock jump)."""
+
+
 def replay_records(records, config: IncrementalConfig = None,
                    options: SessionOptions = None, progress=None, start_map=None,
-                   initial_pose=None) -> MappingSession:
+                   initial_pose=None, warn=None) -> MappingSession:
     """
     Map records on data time: feed them to a new session, flush it at the end, return it.
 
     ``progress(session)`` is called after each scan record. ``start_map``: a saved map to
     start from (a ``formats.mapjson.MapFile`` as ``read_map`` returns it, or a MapValue) with
     the robot at ``initial_pose`` (x, y, yaw; m, rad) at the first scan
-    (``MappingSession.load_map``; None: where the poses say).
+    (``MappingSession.load_map``; None: where the poses say). ``warn(cause, text)``: the
+    session's warnings.
     """
     options = options or SessionOptions()
-    session = MappingSession(config, options)
+    session = MappingSession(config, options, warn=warn)
     if start_map is not None:
         value = getattr(start_map, 'value', start_map)
         session.load_map(value, initial_pose, getattr(start_map, 'grid', None))
@@ -168,6 +174,12 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
             from tqdm import tqdm
             bar = tqdm(total=source.scan_count, desc='replay', unit='scan', leave=False,
                        disable=None, file=sys.stderr)
+        noted = {}
+
+        def warn(cause, text):
+            if cause in REPORTED:
+                n, first = noted.get(cause, (0, text))
+                noted[cause] = (n + 1, first)
 
         def tick(session):
             bar.update(1)
@@ -175,7 +187,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
                 bar.set_postfix(segments=len(session.mapper.segments))
         try:
             session = replay_records(source.records(), config, options,
-                                     tick if bar is not None else None, start_map, initial_pose)
+                                     tick if bar is not None else None, start_map, initial_pose,
+                                     warn)
         finally:
             if bar is not None:
                 bar.close()
@@ -192,7 +205,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
               update_ms_median=round(ms['p50'], 3) if ms else None,
               update_ms_p99=round(ms['p99'], 3) if ms else None,
               seconds=round(time.perf_counter() - t0, 3))
-    warnings = list(source.warnings)
+    warnings = list(source.warnings) + [f'{text} ({n} time{"s" if n > 1 else ""})'
+                                        for n, text in noted.values()]
     if session.received < source.scan_count:
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')

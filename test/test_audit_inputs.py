@@ -108,3 +108,21 @@ def test_the_node_refuses_localization_parameters_without_a_saved_map(name, valu
         settings_from(values)
     values['map_input_path'] = 'saved.json'
     settings_from(values)
+
+
+@pytest.mark.parametrize('increment', [float('nan'), -1e-4, 1.0])
+def test_replay_says_when_a_scans_time_increment_is_ignored(drifted, tmp_path, capsys,
+                                                            increment):
+    # NaN, negative, or beams spanning 541 s: the node warns and maps without motion
+    # compensation; replay did the same without a word.
+    bag = tmp_path / 'bag'
+    with BagWriter(str(bag), 'sqlite3') as out:
+        for t, topic, record in [m for m in drifted[0] if m[1] == '/scan'][:20]:
+            out.write(topic, dataclasses.replace(record, time_increment=increment,
+                                                 scan_time=0.1), t)
+    out = tmp_path / 'map.json'
+    assert main(['replay', str(bag), '--pose-source', 'scan', '-o', str(out), '-q']) == 0
+    err = capsys.readouterr().err
+    line = [w for w in err.splitlines() if 'time_increment' in w]
+    assert len(line) == 1 and ' s ignored (no motion compensation)' in line[0], err
+    assert line[0].endswith('(20 times)')
