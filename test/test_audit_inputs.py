@@ -126,3 +126,27 @@ def test_replay_says_when_a_scans_time_increment_is_ignored(drifted, tmp_path, c
     line = [w for w in err.splitlines() if 'time_increment' in w]
     assert len(line) == 1 and ' s ignored (no motion compensation)' in line[0], err
     assert line[0].endswith('(20 times)')
+
+
+@pytest.fixture(scope='module')
+def office_map(tmp_path_factory):
+    """Return the office mapped with its true poses (MAP.json)."""
+    path = tmp_path_factory.mktemp('saved') / 'office.json'
+    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
+    return path
+
+
+@pytest.mark.parametrize('start, off', [(None, False), ('--initial-pose=0.5,0.3,20', True),
+                                        ('--initial-pose=100,100,0', True)])
+def test_replay_warns_when_the_first_scans_are_not_on_the_saved_map(office_map, tmp_path,
+                                                                    capsys, start, off):
+    # A start 0.58 m / 20 deg off (beyond what matching pulls in) or 100 m away: every scan
+    # was counted "matched" (against the scans before it) and the localization ended with
+    # exit 0 and no warning, the trajectory never registered to the saved map.
+    out = tmp_path / 'loc.json'
+    argv = ['replay', 'sim:office,odom_drift=2', '--map', str(office_map), '--no-mapping',
+            '--every', '3', '-o', str(out), '-q'] + ([start] if start else [])
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert ('of their points on the saved map (within 0.10 m): is the initial pose right'
+            in err) is off, err
