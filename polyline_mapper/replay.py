@@ -104,7 +104,8 @@ class ReplayResult:
                 + (f' ({skips} skipped)' if skips else '')
                 + (f', mean distance {mean * 100:.2f} cm, p95 '
                    f"{stats['p95_distance'] * 100:.2f} cm, coverage "
-                   f"{stats['coverage_0_10m'] * 100:.1f}%" if mean is not None else '')
+                   f"{stats['coverage_0_10m'] * 100:.1f}%"
+                   if mean is not None and np.isfinite(mean) else '')
                 + free_space_text(stats)
                 + (f", update median {ms['p50']:.1f} ms, p99 {ms['p99']:.1f} ms" if ms else '')
                 + f", {stats.get('total_seconds', self.seconds):.1f} s")
@@ -207,6 +208,13 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
               seconds=round(time.perf_counter() - t0, 3))
     warnings = list(source.warnings) + [f'{text} ({n} time{"s" if n > 1 else ""})'
                                         for n, text in noted.values()]
+    if mapping and session.used and not len(value.segments) and session.mapper.sigma is None:
+        k = -(-session.used // options.update_every_n_scans)
+        warnings.append(f'{path}: no segment: the mapper estimates the noise scale over its first '
+                        f'{session.mapper.config.noise_updates} map updates and maps after them; '
+                        f'{session.used} scan(s) made {k} update(s) (one per '
+                        f'{options.update_every_n_scans} scans): give more scans, or lower '
+                        'noise_updates (--set noise_updates=N)')
     if session.received < source.scan_count:
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')

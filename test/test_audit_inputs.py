@@ -150,3 +150,15 @@ def test_replay_warns_when_the_first_scans_are_not_on_the_saved_map(office_map, 
     err = capsys.readouterr().err
     assert ('of their points on the saved map (within 0.10 m): is the initial pose right'
             in err) is off, err
+
+
+def test_a_replay_too_short_to_map_says_why(tmp_path, capsys):
+    # 4 scans (fewer than the 5 noise-estimating updates): an empty map, exit 0, no word why,
+    # and "mean distance nan cm, p95 nan cm" in the summary.
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:office', '--every', '100', '-o', str(out)]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(out.read_text())['segments'] == []
+    assert ('no segment: the mapper estimates the noise scale over its first 5 map updates '
+            'and maps after them; 4 scan(s) made 4 update(s)') in cap.err
+    assert 'nan' not in cap.out and 'from 2099 points of 4 scans' in cap.out
