@@ -375,7 +375,11 @@ def _start_map(args) -> tuple:
         return None, None
     from .formats.mapjson import read_map
     pose = None if args.initial_pose is None else _initial_pose(args.initial_pose)
-    return read_map(args.map), pose
+    saved = read_map(args.map)
+    if args.no_mapping and not len(saved.value):
+        raise CliError(f'{args.map}: the saved map holds no segment: nothing to localize on '
+                       '(--no-mapping would keep it empty)')
+    return saved, pose
 
 
 START_SCANS, START_SHARE = 10, 0.5
@@ -385,6 +389,8 @@ saved map, or replay warns (the robot is placed in the saved map at them)."""
 
 def _off_the_saved_map(res, saved: MapValue) -> str:
     """Return a warning when the first scans do not lie on the saved map, else ''."""
+    if not len(saved):
+        return 'the saved map holds no segment: the scans were matched to each other only'
     sizes = res.session.scan_sizes()[:START_SCANS]
     share = map_metrics(res.points[:int(sizes.sum())], saved.segments)['coverage_0_10m']
     if share >= START_SHARE:

@@ -162,3 +162,27 @@ def test_a_replay_too_short_to_map_says_why(tmp_path, capsys):
     assert ('no segment: the mapper estimates the noise scale over its first 5 map updates '
             'and maps after them; 4 scan(s) made 4 update(s)') in cap.err
     assert 'nan' not in cap.out and 'from 2099 points of 4 scans' in cap.out
+
+
+@pytest.fixture(scope='module')
+def empty_map(tmp_path_factory):
+    """Return a valid MAP.json without a segment (a replay of 4 scans)."""
+    path = tmp_path_factory.mktemp('empty') / 'empty.json'
+    assert main(['replay', 'sim:office', '--every', '100', '-o', str(path), '-q']) == 0
+    assert json.loads(path.read_text())['segments'] == []
+    return path
+
+
+def test_localizing_on_a_saved_map_without_a_segment_is_refused(empty_map, tmp_path, capsys):
+    # replay --no-mapping on it wrote an empty map and a trajectory of scans matched to each
+    # other only, with exit 0; the node with mapping:=false ran with an empty map for ever.
+    out = tmp_path / 'loc.json'
+    assert main(['replay', 'sim:office,odom_drift=2', '--map', str(empty_map), '--no-mapping',
+                 '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'the saved map holds no segment: nothing to localize on' in err[0]
+    assert not out.exists()
+    from rosnode import assert_refused_in_one_line, start_refusals
+    outcome = start_refusals([['-p', f'map_input_path:={empty_map}', '-p', 'mapping:=false']],
+                             timeout=20.0)[0]
+    assert_refused_in_one_line(outcome, ['map_input_path', 'the saved map holds no segment'])
