@@ -186,3 +186,14 @@ def test_localizing_on_a_saved_map_without_a_segment_is_refused(empty_map, tmp_p
     outcome = start_refusals([['-p', f'map_input_path:={empty_map}', '-p', 'mapping:=false']],
                              timeout=20.0)[0]
     assert_refused_in_one_line(outcome, ['map_input_path', 'the saved map holds no segment'])
+
+
+def test_a_saved_map_makes_the_node_a_localizer():
+    # With map_input_path (and the default scan_matching false) the node looked the scans up
+    # in fixed_frame 'map', which only a localizer provides: every scan was skipped ('map' is
+    # unknown); with fixed_frame odom it localized but published neither pose nor map -> odom.
+    values = defaults()
+    assert settings_from(values)[0].scan_matching is False
+    values.update(map_input_path='saved.json', mapping=False)
+    settings = settings_from(values)[0]
+    assert settings.scan_matching is True and settings.fixed_frame == 'map'
