@@ -197,3 +197,17 @@ def test_a_saved_map_makes_the_node_a_localizer():
     values.update(map_input_path='saved.json', mapping=False)
     settings = settings_from(values)[0]
     assert settings.scan_matching is True and settings.fixed_frame == 'map'
+
+
+def test_an_empty_trajectory_is_not_exported_as_an_empty_file(empty_map, tmp_path, capsys):
+    # A map whose "trajectory" is [] (a node's ~/save_map before its first scan) wrote an
+    # empty TUM / CSV file with exit 0 ("0 poses"); a map without one is refused.
+    data = json.loads(empty_map.read_text())
+    data['trajectory'] = []
+    src = tmp_path / 'map.json'
+    src.write_text(json.dumps(data))
+    for name in ('poses.tum', 'poses.csv'):
+        assert main(['export', str(src), '--trajectory', '-o', str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert 'the map holds no trajectory' in err and 'is empty' in err
+        assert not (tmp_path / name).exists()
