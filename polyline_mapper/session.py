@@ -860,12 +860,17 @@ class MappingSession:
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
+                start = None
                 if self._place is not None:     # the first scan on a loaded map
-                    self._correction = se2_compose(self._place,
-                                                   se2_inverse(self.poses.robot_pose(scan)))
+                    if scan_mode:               # no given pose: predicted at the place itself
+                        start, self._correction = np.array(self._place, dtype=np.float64), \
+                            np.zeros(3)
+                    else:
+                        self._correction = se2_compose(
+                            self._place, se2_inverse(self.poses.robot_pose(scan)))
                     self._place = None
                 if scan_mode:
-                    xyz = self._predict(scan.stamp)
+                    xyz = self._predict(scan.stamp) if start is None else start
                 motion = self._beam_motion(scan, pose, notes)
                 if motion is not None:
                     local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)

@@ -211,3 +211,19 @@ def test_an_empty_trajectory_is_not_exported_as_an_empty_file(empty_map, tmp_pat
         err = capsys.readouterr().err
         assert 'the map holds no trajectory' in err and 'is empty' in err
         assert not (tmp_path / name).exists()
+
+
+def test_scans_only_localize_from_the_initial_pose(office_map, tmp_path, capsys):
+    # --pose-source scan on a saved map put the first scan at the map's origin whatever
+    # --initial-pose said: every scan matched the ones before it, the trajectory 6.1 m off.
+    drive = 'sim:office,step=0.1,turn=0.1'
+    out = tmp_path / 'loc.json'
+    assert main(['replay', drive, '--pose-source', 'scan', '--map', str(office_map),
+                 '--no-mapping', '--initial-pose=1.0,6.0,0', '--every', '2', '-o', str(out),
+                 '-q']) == 0
+    assert 'warning' not in capsys.readouterr().err
+    traj = np.array(json.loads(out.read_text())['trajectory'])
+    with open_recording(drive) as rec:
+        laser = np.asarray(rec.drive.poses)[::2]        # no mount: the robot is the laser
+    assert len(traj) == len(laser)
+    assert np.max(np.hypot(*(traj[:, 1:3] - laser[:, :2]).T)) < 0.05
