@@ -375,7 +375,29 @@ def _start_map(args) -> tuple:
         return None, None
     from .formats.mapjson import read_map
     pose = None if args.initial_pose is None else _initial_pose(args.initial_pose)
-    return read_map(args.map), pose
+    saved = read_map(args.map)
+    if args.no_mapping and not len(saved.value):
+        raise CliError(f'{args.map}: the saved map holds no segment: nothing to localize on '
+                       '(--no-mapping would keep it empty)')
+    return saved, pose
+
+
+START_SCANS, START_SHARE = 10, 0.5
+"""--map: the first scans used put at least this share of their points within 0.10 m of the
+saved map, or replay warns (the robot is placed in the saved map at them)."""
+
+
+def _off_the_saved_map(res, saved: MapValue) -> str:
+    """Return a warning when the first scans do not lie on the saved map, else ''."""
+    if not len(saved):
+        return 'the saved map holds no segment: the scans were matched to each other only'
+    sizes = res.session.scan_sizes()[:START_SCANS]
+    share = map_metrics(res.points[:int(sizes.sum())], saved.segments)['coverage_0_10m']
+    if share >= START_SHARE:
+        return ''
+    return (f'the first {len(sizes)} scans put {share * 100:.0f}% of their points on the saved '
+            'map (within 0.10 m): is the initial pose right (--initial-pose X,Y,YAW_DEG), and '
+            'the map of this place? The trajectory and the map are not registered to it')
 
 
 def cmd_replay(args) -> int:
@@ -393,8 +415,10 @@ def cmd_replay(args) -> int:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
         raise CliError(f'{args.input}: {res.nothing_mapped()}')
-    for line in res.skip_lines():
-        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
+    for line in res.skip_lines() + ([_off_the_saved_map(res, start.value)]
+                                    if start is not None else []):
+        if line:
+            print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     value = res.map_value
     value.stats['total_seconds'] = round(time.perf_counter() - t0, 3)
     if start is not None:

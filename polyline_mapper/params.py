@@ -68,7 +68,8 @@ NODE_PARAMS = (
               'Localize as well as map: refine each scan pose (predicted from odometry or TF) '
               'against the map built so far, broadcast fixed_frame -> odometry frame (map -> '
               'odom) on /tf and the base pose on pose (PoseWithCovarianceStamped). Off: the '
-              'poses are used as given (a robot with its own localizer).'),
+              'poses are used as given (a robot with its own localizer). A map_input_path turns '
+              'it on.'),
     ParamSpec('map_odom_post_date', 0.2,
               'scan_matching: seconds the map -> odom transform is stamped after its scan, as '
               "AMCL's transform_tolerance, so transforms at the current time resolve between "
@@ -334,6 +335,19 @@ def settings_from(values: dict) -> tuple:
         raise ValueError(f'initial_pose must be 3 finite numbers (x, y, yaw: m, m, rad), got '
                          f'{list(pose)}')
     node['initial_pose'] = pose
+    if node['map_input_path'].strip():
+        # Localizing on a saved map is matching to it: the node is then the localizer and
+        # broadcasts map -> odom and the pose (without them it localized, unseen, or, with
+        # fixed_frame map, skipped every scan: 'map' unknown).
+        node['scan_matching'] = True
+    else:
+        # As replay's --no-mapping / --initial-pose without --map: nothing to keep or place.
+        if not node['mapping']:
+            raise ValueError('mapping false keeps a saved map fixed: give map_input_path (without '
+                             'one nothing would ever be mapped)')
+        if any(pose):
+            raise ValueError(f'initial_pose {list(pose)} places the robot in a saved map: give '
+                             'map_input_path (or leave initial_pose at [0.0, 0.0, 0.0])')
     if node['update_every_n_scans'] > node['scan_buffer_size']:
         raise ValueError(f"update_every_n_scans ({node['update_every_n_scans']}) must be at most "
                          f"scan_buffer_size ({node['scan_buffer_size']})")

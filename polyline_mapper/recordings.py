@@ -427,7 +427,8 @@ class Recording:
 
 @contextmanager
 def open_recording(path, scan_topic: str = None, odom_topic: str = None, period: float = 1.0,
-                   seed: int = 1, noise: float = 0.01, odometry='auto') -> Iterator[Recording]:
+                   seed: int = 1, noise: float = 0.01, odometry='auto',
+                   pose_source: str = None) -> Iterator[Recording]:
     """
     Open a CARMEN log, a bag or a ``sim:`` drive (context manager yielding a Recording).
 
@@ -437,7 +438,8 @@ def open_recording(path, scan_topic: str = None, odom_topic: str = None, period:
     Odometry topics opens for a caller that does not need odometry). ``period``: seconds
     between a CARMEN log's scans when its times do not increase. ``seed``, ``noise`` (m): of a
     ``sim:`` drive. Raises ValueError (BagError for bags) with one line when the input cannot
-    be used.
+    be used. ``pose_source`` 'scan': the caller places the scans by themselves (a bag
+    without /tf is then not warned about).
     """
     kind = kind_of(path)
     path = str(path)
@@ -466,18 +468,24 @@ def open_recording(path, scan_topic: str = None, odom_topic: str = None, period:
                         warnings)
     else:
         yield from _open_bag(path, scan_topic, odom_topic, 'auto' if odometry is None
-                             else odometry)
+                             else odometry, pose_source == 'scan')
 
 
-def _open_bag(path: str, scan_topic, odom_topic, odometry) -> Iterator[Recording]:
-    from .formats.bag import BagReader
+def _open_bag(path: str, scan_topic, odom_topic, odometry,
+              scans_only: bool = False) -> Iterator[Recording]:
+    from .formats.bag import BagReader, ODOM_TYPE
     with BagReader(path, scan_topic, odom_topic, odometry=odometry) as bag:
         first = [bag]
         topics = [bag.scan_topic] + ([bag.odom_topic] if bag.odom_topic else []) + bag.tf_topics
         warnings = list(bag.warnings)       # e.g. a ROS 1 index rebuilt from the chunks
-        if not bag.tf_topics:
-            warnings.append(f'{path}: no /tf or /tf_static topic: its scans can be placed by '
-                            'odometry only (--pose-source odom)')
+        if not bag.tf_topics and not scans_only:
+            if ODOM_TYPE in bag.topics.values():
+                warnings.append(f'{path}: no /tf or /tf_static topic: its scans can be placed '
+                                'by odometry (--pose-source odom) or by the scans alone '
+                                '(--pose-source scan)')
+            else:
+                warnings.append(f'{path}: no /tf, /tf_static or Odometry topic: its scans can '
+                                'be placed by the scans alone (--pose-source scan)')
 
         def messages():
             if first:                       # the first pass reads the reader opened here

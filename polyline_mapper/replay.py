@@ -104,7 +104,8 @@ class ReplayResult:
                 + (f' ({skips} skipped)' if skips else '')
                 + (f', mean distance {mean * 100:.2f} cm, p95 '
                    f"{stats['p95_distance'] * 100:.2f} cm, coverage "
-                   f"{stats['coverage_0_10m'] * 100:.1f}%" if mean is not None else '')
+                   f"{stats['coverage_0_10m'] * 100:.1f}%"
+                   if mean is not None and np.isfinite(mean) else '')
                 + free_space_text(stats)
                 + (f", update median {ms['p50']:.1f} ms, p99 {ms['p99']:.1f} ms" if ms else '')
                 + f", {stats.get('total_seconds', self.seconds):.1f} s")
@@ -119,19 +120,25 @@ def free_space_text(stats: dict) -> str:
             f"({stats['contradicted_segments']} segments, {stats['beams']} beams)")
 
 
+REPORTED = ('time_increment', 'time_jump')
+"""Session warnings a replay prints (the first, with a count): input problems that no skip
+count shows (a scan used without motion compensation, pose data dropped at a clock jump)."""
+
+
 def replay_records(records, config: IncrementalConfig = None,
                    options: SessionOptions = None, progress=None, start_map=None,
-                   initial_pose=None) -> MappingSession:
+                   initial_pose=None, warn=None) -> MappingSession:
     """
     Map records on data time: feed them to a new session, flush it at the end, return it.
 
     ``progress(session)`` is called after each scan record. ``start_map``: a saved map to
     start from (a ``formats.mapjson.MapFile`` as ``read_map`` returns it, or a MapValue) with
     the robot at ``initial_pose`` (x, y, yaw; m, rad) at the first scan
-    (``MappingSession.load_map``; None: where the poses say).
+    (``MappingSession.load_map``; None: where the poses say). ``warn(cause, text)``: the
+    session's warnings.
     """
     options = options or SessionOptions()
-    session = MappingSession(config, options)
+    session = MappingSession(config, options, warn=warn)
     if start_map is not None:
         value = getattr(start_map, 'value', start_map)
         session.load_map(value, initial_pose, getattr(start_map, 'grid', None))
@@ -160,13 +167,20 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     options = dataclasses.replace(options or SessionOptions(), keep_points=True,
                                   mapping=mapping)
     odometry = options.pose_source == 'odom'
-    with open_recording(path, scan_topic, odom_topic, odometry=odometry) as source:
+    with open_recording(path, scan_topic, odom_topic, odometry=odometry,
+                        pose_source=options.pose_source) as source:
         bar = None
         if progress:
             import sys
             from tqdm import tqdm
             bar = tqdm(total=source.scan_count, desc='replay', unit='scan', leave=False,
                        disable=None, file=sys.stderr)
+        noted = {}
+
+        def warn(cause, text):
+            if cause in REPORTED:
+                n, first = noted.get(cause, (0, text))
+                noted[cause] = (n + 1, first)
 
         def tick(session):
             bar.update(1)
@@ -174,7 +188,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
                 bar.set_postfix(segments=len(session.mapper.segments))
         try:
             session = replay_records(source.records(), config, options,
-                                     tick if bar is not None else None, start_map, initial_pose)
+                                     tick if bar is not None else None, start_map, initial_pose,
+                                     warn)
         finally:
             if bar is not None:
                 bar.close()
@@ -191,7 +206,15 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
               update_ms_median=round(ms['p50'], 3) if ms else None,
               update_ms_p99=round(ms['p99'], 3) if ms else None,
               seconds=round(time.perf_counter() - t0, 3))
-    warnings = list(source.warnings)
+    warnings = list(source.warnings) + [f'{text} ({n} time{"s" if n > 1 else ""})'
+                                        for n, text in noted.values()]
+    if mapping and session.used and not len(value.segments) and session.mapper.sigma is None:
+        k = -(-session.used // options.update_every_n_scans)
+        warnings.append(f'{path}: no segment: the mapper estimates the noise scale over its first '
+                        f'{session.mapper.config.noise_updates} map updates and maps after them; '
+                        f'{session.used} scan(s) made {k} update(s) (one per '
+                        f'{options.update_every_n_scans} scans): give more scans, or lower '
+                        'noise_updates (--set noise_updates=N)')
     if session.received < source.scan_count:
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')

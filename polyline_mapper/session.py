@@ -281,6 +281,8 @@ class PoseSource:
         """Frames whose edge to their parent is static (a mount)."""
         self._under_fixed = set()           # localizer: children of ignored fixed-frame edges
         self._mounted = False
+        self._newest = {}
+        """Child frame -> (stamp, translation, rotation) of its newest dynamic edge sample."""
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -304,6 +306,9 @@ class PoseSource:
                         f'scan matching this session owns the map frame {self.fixed_frame!r} '
                         '(another localizer, or fixed_frame set to the odometry frame?)')
             if not record.static:
+                if not self._in_order(record.parent, record.child, record.stamp,
+                                      record.translation, record.rotation):
+                    return None
                 note = self._time_jump(record.stamp)
             self._set(record.parent, record.child, record.stamp, record.translation,
                       record.rotation, record.static)
@@ -321,6 +326,9 @@ class PoseSource:
                                     f'expected {self.fixed_frame!r} (with pose source odom the '
                                     'map is in the odometry frame)')
             self.base_frame = record.child_frame_id
+            if not self._in_order(record.frame_id, record.child_frame_id, record.stamp,
+                                  record.translation, record.rotation):
+                return None
             note = self._time_jump(record.stamp)
             self._set(record.frame_id, record.child_frame_id, record.stamp, record.translation,
                       record.rotation, False)
@@ -330,6 +338,26 @@ class PoseSource:
                           mount_quaternion(m[2], self.options.mount_upside_down), True)
                 self._mounted = True
         return note
+
+    def _in_order(self, parent, child, stamp, translation, rotation) -> bool:
+        """
+        Return whether to store a dynamic edge sample: False for a copy of the edge's newest.
+
+        Raises RecordSkipped for another pose at or before the newest stamp (a stuck or
+        stepped clock: the pose of another time), as tf2 ignores TF_REPEATED_DATA. A step back
+        beyond the cache is a time jump (``_time_jump`` clears the buffer), not this.
+        """
+        last = self._newest.get(child)
+        if last is None or stamp > last[0] or stamp < self.latest - self.buffer.cache_seconds:
+            return True
+        if stamp == last[0] and np.array_equal(translation, last[1]) \
+                and np.array_equal(rotation, last[2]):
+            return False
+        raise RecordSkipped('stamp_order', f'ignored {parent} -> {child} stamped {stamp:.3f}: '
+                            + ('the same stamp as the previous one with another pose'
+                               if stamp == last[0] else
+                               f'{last[0] - stamp:.3f} s before the previous one')
+                            + ' (pose data must come in stamp order)')
 
     def _set(self, parent, child, stamp, translation, rotation, static) -> None:
         try:
@@ -343,6 +371,7 @@ class PoseSource:
         else:
             self._static.discard(child)
             self.latest = max(self.latest, stamp)
+            self._newest[child] = (stamp, translation, rotation)
 
     def _time_jump(self, stamp: float) -> Optional[tuple]:
         if stamp >= self.latest - self.buffer.cache_seconds:
@@ -352,6 +381,7 @@ class PoseSource:
         gap = self.latest - stamp
         self.buffer.clear(keep_static=True)
         self.latest = -math.inf
+        self._newest.clear()
         return ('time_jump', f'pose data stamped {stamp:.3f}, {gap:.1f} s before the newest: '
                 'the clock jumped back, dropping the stored dynamic transforms')
 
@@ -830,12 +860,17 @@ class MappingSession:
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
+                start = None
                 if self._place is not None:     # the first scan on a loaded map
-                    self._correction = se2_compose(self._place,
-                                                   se2_inverse(self.poses.robot_pose(scan)))
+                    if scan_mode:               # no given pose: predicted at the place itself
+                        start, self._correction = np.array(self._place, dtype=np.float64), \
+                            np.zeros(3)
+                    else:
+                        self._correction = se2_compose(
+                            self._place, se2_inverse(self.poses.robot_pose(scan)))
                     self._place = None
                 if scan_mode:
-                    xyz = self._predict(scan.stamp)
+                    xyz = self._predict(scan.stamp) if start is None else start
                 motion = self._beam_motion(scan, pose, notes)
                 if motion is not None:
                     local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)

@@ -36,13 +36,14 @@ def saved_map(tmp_path_factory):
 def test_the_node_localizes_on_a_saved_map_and_publishes_it_unchanged(saved_map, office,
                                                                       tmp_path):
     # A robot without a localizer: /tf odom -> base_link drifts (issue 19's model), no map
-    # frame, so poses are looked up in odom; the map and the trajectory are in the map's frame.
+    # frame; the saved map makes the node its localizer (scan matching, map -> odom), with
+    # the defaults: the map and the trajectory are in the map's frame.
     # The robot starts at its true pose (the odometry too), 0.8 m, 6 m from the map's origin.
     out = tmp_path / 'saved.json'
     start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
     node = NodeProcess(tmp_path, {'map_input_path': str(saved_map), 'mapping': False,
                                   'initial_pose': [float(v) for v in start],
-                                  'fixed_frame': 'odom', 'map_output_path': str(out),
+                                  'map_output_path': str(out),
                                   'map_publish_period': 0.1, 'transform_timeout': 0.3})
     peer = Peer('test_peer_localization')
     try:

@@ -168,9 +168,9 @@ def export_trajectory(data: dict, path: str, fmt: str = None, inputs=()) -> str:
         raise ValueError(f'{path}: unknown trajectory format {fmt!r} (expected .csv, .tum or '
                          '.txt, or --format csv|tum)')
     traj = map_value_from_dict(data).trajectory
-    if traj is None:
+    if traj is None or not len(traj):
         raise ValueError('the map holds no trajectory (replay writes one: one pose per scan '
-                         'used)')
+                         'used)' + ('' if traj is None else '; its "trajectory" is empty'))
     write_text_atomic(path, (trajectory_csv if fmt == 'csv' else trajectory_tum)(traj), inputs)
     return fmt
 

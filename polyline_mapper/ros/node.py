@@ -114,6 +114,10 @@ class PolylineMapperNode(Node):
         path = self.settings.input_path
         try:
             saved = startup.read_start_map(path)
+            if saved is not None and not self.settings.mapping and not len(saved.value):
+                raise startup.StartupError(f'map_input_path {path}: the saved map holds no '
+                                           'segment: nothing to localize on (mapping false '
+                                           'would keep it empty)')
             if saved is not None:
                 self.session.load_map(saved.value, self.settings.initial_pose, saved.grid)
         except startup.StartupError as exc:
