@@ -17,12 +17,11 @@ segment count.
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 import time
 
-from common import stamp, write_readme
+from common import datasets_argument, stamp, write_readme
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.freespace import judge
 from polyline_mapper.plot import plot_free_space, plot_map
@@ -137,8 +136,7 @@ def table(rows: list) -> str:
 def main(argv=None) -> int:
     """Run the benchmark; return the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--only', nargs='*', default=[], help='dataset names to run')
     ap.add_argument('--sweep', action='store_true', help='also sweep the Intel noise floor')
     ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')

@@ -1,6 +1,7 @@
 """Helpers shared by the benchmark scripts: machine description, commit, README blocks."""
 
 import datetime
+import json
 import os
 import pathlib
 import platform
@@ -74,3 +75,36 @@ def write_readme(name: str, block: str) -> None:
     pre, rest = text.split(begin, 1)
     _, post = rest.split(end, 1)
     path.write_text(f'{pre}{begin}\n{block}{end}{post}')
+
+
+def datasets_argument(parser) -> None:
+    """Add ``--datasets`` (default: $POLYLINE_MAPPER_DATASETS, else ../shared/datasets)."""
+    parser.add_argument('--datasets', default=os.environ.get(
+        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+
+
+def radish_logs(datasets: str, names, only=None):
+    """Yield (name, path) of the Radish logs ``names`` (``only`` those) found under datasets."""
+    for name in names:
+        if only and name not in only:
+            continue
+        path = pathlib.Path(datasets) / 'radish' / f'{name}.log.gz'
+        if not path.is_file():
+            import sys
+            print(f'skip {name}: {path} not found', file=sys.stderr)
+            continue
+        yield name, path
+
+
+def write_results(name: str, meta: dict, rows: list) -> None:
+    """Write ``{'meta', 'rows'}`` to results/``name``.json."""
+    out = HERE / 'results'
+    out.mkdir(exist_ok=True)
+    (out / f'{name}.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
+
+
+def table_header(meta: dict, columns: list) -> list:
+    """Return a README block's first lines: how it was measured, then a table's header."""
+    return [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
+            f"`{meta['command']}`.", '', '| ' + ' | '.join(columns) + ' |',
+            '|' + '---|' * len(columns)]

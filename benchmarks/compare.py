@@ -25,7 +25,7 @@ import time
 from baselines import (em_bic, em_lines, hough_segments, scan_segments, SegmentMerger,
                        sequential_ransac, wall_scores)
 from baselines.walls import observed_walls
-from common import HERE, REPO, stamp
+from common import datasets_argument, HERE, stamp
 import numpy as np
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.freespace import judge
@@ -656,8 +656,7 @@ def report(data: dict, path: pathlib.Path) -> None:
 def main(argv=None) -> int:
     """Run the comparison; return the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--quick', action='store_true',
                     help='sim-office-2cm and the first 500 Intel scans only')
     ap.add_argument('--cap', type=float, default=300.0,

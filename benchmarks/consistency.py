@@ -34,7 +34,7 @@ import pathlib
 import sys
 import tempfile
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, stamp, table_header, write_readme, write_results
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse, wrap_angle
 from polyline_mapper.core.metrics import scan_consistency, trajectory_error
@@ -101,22 +101,16 @@ def one_log(name: str, datasets: str) -> list:
 def main() -> int:
     """Run the logs; write the table and the raw numbers."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--only', nargs='+', choices=LOGS)
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/consistency.py ' + ' '.join(sys.argv[1:]))
     rows = [row for name in args.only or LOGS for row in one_log(name, args.datasets)]
-    out = HERE / 'results'
-    out.mkdir(exist_ok=True)
-    (out / 'consistency.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1)
-                                          + '\n')
-    lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
-             f"`{meta['command']}`.", '',
-             '| log | poses | scan on previous scan: mean (cm) / within 0.10 m (%) | step vs '
-             'corrected step: translation p50 / p90 (cm) | heading p50 / p90 (deg) | ATE '
-             'against the corrected poses (m) |',
-             '|---|---|---|---|---|---|']
+    write_results('consistency', meta, rows)
+    lines = table_header(meta, [
+        'log', 'poses', 'scan on previous scan: mean (cm) / within 0.10 m (%)',
+        'step vs corrected step: translation p50 / p90 (cm)', 'heading p50 / p90 (deg)',
+        'ATE against the corrected poses (m)'])
     for r in rows:
         t, h = r.get('translation_cm'), r.get('heading_deg')
         lines.append(f"| {r['log']} | {r['poses']} | {r['consistency_cm']:.2f} / "

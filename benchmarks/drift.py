@@ -35,7 +35,7 @@ import pathlib
 import sys
 import tempfile
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, HERE, stamp, write_readme
 import numpy as np
 from polyline_mapper.core import map_metrics
 from polyline_mapper.core.metrics import trajectory_error
@@ -93,8 +93,7 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
 def main() -> int:
     """Run the logs and seeds; write the table and the raw numbers."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2, 3, 4])
     ap.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))

@@ -23,12 +23,11 @@ raw numbers to benchmarks/results/free_space_cost.json.
 import argparse
 import dataclasses
 import json
-import os
 import pathlib
 import subprocess
 import sys
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, HERE, stamp, write_readme
 from incremental import log_scans, rss_bytes, run_mapper
 import numpy as np
 from polyline_mapper.core import map_metrics
@@ -69,8 +68,7 @@ def memory(path: pathlib.Path, window: int) -> dict:
 def main() -> int:
     """Time and score both settings; write the table and the raw numbers."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--window', type=int, default=10, help='free_space_window when on')
     ap.add_argument('--repeat', type=int, default=3)
     ap.add_argument('--memory-child', nargs=2, metavar=('LOG', 'WINDOW'),

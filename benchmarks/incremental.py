@@ -29,7 +29,7 @@ import pathlib
 import sys
 import time
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, HERE, stamp, write_readme
 import numpy as np
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
@@ -210,8 +210,7 @@ def memory(path: pathlib.Path) -> dict:
 def main(argv=None) -> int:
     """Run the benchmark; return the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--quick', action='store_true', help='fewer map sizes, no memory run')
     ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
     ap.add_argument('--repeat', type=int, default=3,

@@ -29,7 +29,7 @@ import sys
 import tempfile
 import time
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, HERE, stamp, write_readme
 from polyline_mapper.core import map_metrics
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
@@ -95,8 +95,7 @@ def play_one(name: str, path: pathlib.Path, scan_hz: float, env: dict, tmp: str)
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--scan-hz', type=float, default=25.0,
                     help="scans per second the node gets (sets each log's play rate)")

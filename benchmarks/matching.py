@@ -21,11 +21,10 @@ run with the median median, and every run's median. Writes the table into benchm
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, stamp, table_header, write_readme, write_results
 import numpy as np
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.recordings import (carmen_messages, drive_messages, make_drive,
@@ -69,8 +68,7 @@ def one(records: list, matching: bool) -> dict:
 def main() -> int:
     """Time each input with and without matching; write the table and the raw numbers."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--runs', type=int, default=3)
     ap.add_argument('--quick', action='store_true', help='first 1000 fr079 scans only')
     args = ap.parse_args()
@@ -87,15 +85,10 @@ def main() -> int:
             order = np.argsort([r['p50'] for r in runs])
             rows.append(dict(runs[order[len(order) // 2]], input=name, matching=matching,
                              medians=[r['p50'] for r in runs]))
-    out = HERE / 'results'
-    out.mkdir(exist_ok=True)
-    (out / 'matching.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1)
-                                       + '\n')
-    lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
-             f"`{meta['command']}`.", '',
-             '| input | scan matching | scans | per-scan time p50 / p95 / p99 (ms) | '
-             'medians of all runs (ms) | segments | match outcomes |',
-             '|---|---|---|---|---|---|---|']
+    write_results('matching', meta, rows)
+    lines = table_header(meta, [
+        'input', 'scan matching', 'scans', 'per-scan time p50 / p95 / p99 (ms)',
+        'medians of all runs (ms)', 'segments', 'match outcomes'])
     for r in rows:
         lines.append(f"| {r['input']} | {'on' if r['matching'] else 'off'} | {r['scans']} | "
                      f"{r['p50']:.1f} / {r['p95']:.1f} / {r['p99']:.1f} | "

@@ -29,7 +29,7 @@ import sys
 import tempfile
 import time
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, HERE, radish_logs, stamp, write_readme
 import numpy as np
 from polyline_mapper.core.freespace import judge
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
@@ -119,8 +119,7 @@ def table(rows: list, meta: dict, via_bag: bool) -> str:
 def main(argv=None) -> int:
     """Run the benchmark; return the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--only', nargs='*', default=[], help='log names to run')
     ap.add_argument('--via-bag', action='store_true',
                     help='also convert each log to a rosbag2 and compare the replayed maps')
@@ -129,13 +128,7 @@ def main(argv=None) -> int:
     out_dir = HERE / 'results'
     out_dir.mkdir(exist_ok=True)
     rows = []
-    for name in LOGS:
-        if args.only and name not in args.only:
-            continue
-        path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
-        if not path.is_file():
-            print(f'skip {name}: {path} not found', file=sys.stderr)
-            continue
+    for name, path in radish_logs(args.datasets, LOGS, args.only):
         rows.append(replay_one(name, path, out_dir, args.via_bag))
     if not rows:
         print('no dataset found', file=sys.stderr)

@@ -35,12 +35,11 @@ numbers to benchmarks/results/transient.json.
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 import time
 
-from common import HERE, REPO, stamp, write_readme
+from common import datasets_argument, HERE, radish_logs, stamp, write_readme
 import numpy as np
 from polyline_mapper.core.freespace import (judge, MIN_ANGLE, pair_tests, run_bounds, runs,
                                             span_pairs, TOL)
@@ -314,8 +313,7 @@ def table(rows: list) -> str:
 def main(argv=None) -> int:
     """Map, judge and classify; write the tables and the raw numbers."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--datasets', default=os.environ.get(
-        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')))
+    datasets_argument(ap)
     ap.add_argument('--only', nargs='*', default=[], help='log names to run')
     ap.add_argument('--modes', nargs='*', default=['replay', 'batch'],
                     choices=['replay', 'batch'])
@@ -337,13 +335,7 @@ def main(argv=None) -> int:
     meta = stamp('.venv/bin/python benchmarks/transient.py '
                  + ' '.join(argv if argv is not None else sys.argv[1:]))
     rows = []
-    for name in LOGS:
-        if args.only and name not in args.only:
-            continue
-        path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
-        if not path.is_file():
-            print(f'skip {name}: {path} not found', file=sys.stderr)
-            continue
+    for name, path in radish_logs(args.datasets, LOGS, args.only):
         for mode in args.modes:
             base, points, origins, s0, ms0 = make_map(path, mode, 0)
             print(f'{name} {mode} window 0: {len(base)} segments, {s0:.0f} s', flush=True)
