@@ -908,7 +908,8 @@ class MappingSession:
             if base is None:
                 base = self.poses.robot_pose(scan)
             mount_to_base = se2_compose(se2_inverse(pose.xyz), base)
-            self._trajectory.append((scan.stamp, *se2_compose(xyz, mount_to_base)))
+            row = se2_compose(xyz, mount_to_base)
+            self._trajectory.append((scan.stamp, row[0], row[1], float(wrap_angle(row[2]))))
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
 
