@@ -273,7 +273,7 @@ def test_a_localizer_trajectory_has_the_base_poses(pose_source):
     err = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
     assert len(traj) == len(truth) and np.sqrt(np.mean(err ** 2)) < 0.03, err.max()
     assert np.abs(np.hypot(*(odom[:, :2] - truth[:, :2]).T)).max() > 1.0   # the odometry drifts
-    # The yaw is wrapped into [-pi, pi), as the poses are given (it ran to 3.34 rad here)
+    # The yaw is wrapped into [-pi, pi), as the poses are given (it ran beyond pi before)
     assert traj[:, 3].min() >= -np.pi and traj[:, 3].max() < np.pi
     assert np.abs(np.angle(np.exp(1j * (traj[:, 3] - truth[:, 2])))).max() < 0.05
 
