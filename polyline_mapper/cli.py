@@ -499,12 +499,10 @@ def _beams_for_map(args, value: MapValue) -> tuple:
     fix = se2_compose(traj[order[row[found]], 1:], se2_inverse(own[found, 1:]))
     keep = np.repeat(found, sizes)
     fix = np.repeat(fix, sizes[found], axis=0)
-    c, s = np.cos(fix[:, 2]), np.sin(fix[:, 2])
 
-    def move(q):
+    def move(q):                        # each point by its scan's fix (se2_compose broadcasts)
         q = q[keep]
-        return np.column_stack([fix[:, 0] + c * q[:, 0] - s * q[:, 1],
-                                fix[:, 1] + s * q[:, 0] + c * q[:, 1]])
+        return se2_compose(fix, np.column_stack([q, np.zeros(len(q))]))[:, :2]
     return move(points), move(origins), (f" at the map's trajectory ({int(found.sum())} of "
                                          f'{len(found)} scans)')
 

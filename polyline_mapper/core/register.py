@@ -448,6 +448,11 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None) -> _St
     return _Steps(pose, info, vals, vecs, good, res, int(len(pt)), last)
 
 
+def _along(directions: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Return d^T m d for each column d of ``directions`` (3, k): (k,)."""
+    return np.einsum('ik,ij,jk->k', directions, m, directions)
+
+
 def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> np.ndarray:
     """
     Return which of ``st``'s directions are weakly constrained and disagree with ``pred``.
@@ -463,13 +468,13 @@ def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> 
     d = st.pose - pred
     d[2] = wrap_angle(d[2])
     along = np.abs(st.vecs.T @ (d * scaled))
-    sd = np.sqrt(np.einsum('ik,ij,jk->k', st.vecs, cov * scaled[:, None] * scaled, st.vecs))
+    sd = np.sqrt(_along(st.vecs, cov * scaled[:, None] * scaled))
     out = (st.vals < WEAK_SHARE * max(st.vals[-1], 1e-12)) & (along > WEAK_SIGMAS * sd) & (
         along > p.kernel)
     if out.any() and p.established is not None:
         jac, w, sg = st.last
         e = p.established[sg]
-        est = np.einsum('ik,ij,jk->k', st.vecs, jac[e].T @ (w[e, None] * jac[e]), st.vecs)
+        est = _along(st.vecs, jac[e].T @ (w[e, None] * jac[e]))
         out &= est < ESTABLISHED_SHARE * np.maximum(st.vals, 1e-12)
     return out
 
@@ -523,11 +528,11 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
     vals = np.linalg.eigvalsh(st.info)
     prior_scaled = prior * np.array([1.0, 1.0, scale])[:, None] * np.array([1.0, 1.0, scale])
     var = np.where(good, sigma ** 2 / np.maximum(vals, 1e-12),
-                   np.einsum('ik,ij,jk->k', vecs, prior_scaled, vecs))
+                   _along(vecs, prior_scaled))
     unscale = np.diag([1.0, 1.0, 1.0 / scale])
     cov = unscale @ ((vecs * var) @ vecs.T) @ unscale
     if n_held:                          # the prior's variance along the held directions too
-        vals_h = np.einsum('ik,ij,jk->k', hold_dirs, prior_scaled, hold_dirs)
+        vals_h = _along(hold_dirs, prior_scaled)
         cov += unscale @ ((hold_dirs * vals_h) @ hold_dirs.T) @ unscale
     return ScanMatch(pose, cov, True, '', int(len(res)), rms, degenerate, share=on_pose,
                      held=n_held, proposal=unheld)
