@@ -18,7 +18,10 @@ the matching does where the odometry is perfect. Scores:
 
 - the poses the mapper used (the map's trajectory, base frame) against the corrected ones: RMS
   as they stand (both start at the first true pose) and the absolute trajectory error (ATE:
-  RMS after the best rigid alignment, ``core.metrics.trajectory_error``);
+  RMS after the best rigid alignment, ``core.metrics.trajectory_error``); and the relative
+  pose error (RPE, ``core.metrics.relative_error``: RMS of each motion's error over 1 and over
+  10 scans, the drift per step whatever came before; less chaotic across seeds than the ATE,
+  in which one early heading error dominates);
 - the map against the log's true points (mean distance, coverage within 0.10 m), as it stands
   and laid onto the true frame by that alignment;
 - the map against its own points (as the mapper placed them): the self-consistency a user sees;
@@ -38,7 +41,7 @@ import tempfile
 from common import datasets_argument, HERE, stamp, write_readme
 import numpy as np
 from polyline_mapper.core import map_metrics
-from polyline_mapper.core.metrics import trajectory_error
+from polyline_mapper.core.metrics import relative_error, trajectory_error
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.poses import se2_compose, se2_inverse
@@ -72,6 +75,7 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
     if len(used) != len(true_base):
         raise RuntimeError(f'{len(used)} poses used for {len(true_base)} scans')
     err = trajectory_error(used, true_base)
+    rpe, rpe10 = relative_error(used, true_base), relative_error(used, true_base, 10)
     al = err['alignment']                        # the map, laid onto the true frame as a whole
     c, s = np.cos(al[2]), np.sin(al[2])
     aligned = segs @ np.array([[c, s], [-s, c]]) + al[:2]
@@ -86,6 +90,8 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
             'self_mean_cm': 100 * own['mean_distance'],
             'self_coverage': 100 * own['coverage_0_10m'],
             'traj_rms_m': err['rms'], 'ate_m': err['ate'], 'traj_final_m': err['final'],
+            'rpe_cm': 100 * rpe['translation'], 'rpe_deg': float(np.degrees(rpe['rotation'])),
+            'rpe10_cm': 100 * rpe10['translation'],
             'update_ms_p50': st['update_ms']['p50'], 'update_ms_p95': st['update_ms']['p95'],
             'matches': st.get('scan_matching'), 'jumps': st.get('match_jumps')}
 

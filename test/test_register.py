@@ -184,6 +184,31 @@ def test_trajectory_error_separates_a_rigid_offset_from_drift():
     assert 0.1 < e['rms'] < 0.17 and e['ate'] <= e['rms']
 
 
+def test_relative_error_measures_the_drift_per_step_not_the_frame():
+    from polyline_mapper.core.geometry import se2_compose
+    from polyline_mapper.core.metrics import relative_error, trajectory_error
+    rng = np.random.default_rng(5)
+    steps = np.column_stack([rng.uniform(0.1, 0.3, 300), np.zeros(300), rng.normal(0, 0.1, 300)])
+    truth = np.zeros((301, 3))
+    for k, st in enumerate(steps):                   # a random drive, composed step by step
+        truth[k + 1] = se2_compose(truth[k], st)
+    moved = se2_compose(np.array([2.0, -1.0, 0.3]), truth)          # the whole frame off
+    e = relative_error(moved, truth, 10)
+    assert e['translation'] < 1e-9 and e['rotation'] < 1e-9 and e['pairs'] == 291
+    # each step's motion 1 cm and 0.005 rad off: the error per step is that, whatever the
+    # absolute error builds up to
+    noisy = np.zeros_like(truth)
+    for k, st in enumerate(steps):
+        noisy[k + 1] = se2_compose(noisy[k], st + rng.normal(0, [0.01, 0.01, 0.005]))
+    e1 = relative_error(noisy, truth)
+    assert 0.011 < e1['translation'] < 0.017 and 0.004 < e1['rotation'] < 0.006
+    assert relative_error(noisy, truth, 20)['translation'] > 3 * e1['translation']
+    assert trajectory_error(noisy, truth)['ate'] > 10 * e1['translation']
+    assert relative_error(noisy, truth, 301)['pairs'] == 0
+    with pytest.raises(ValueError, match='corresponding'):
+        relative_error(noisy[:-1], truth)
+
+
 def test_a_big_scan_is_matched_with_a_bounded_number_of_points():
     from polyline_mapper.core.register import spread
     truth = np.array([2.0, 3.0, 0.3])

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .geometry import se2_compose, se2_inverse
+from .geometry import se2_compose, se2_inverse, wrap_angle
 from .index import nearest_distance, PointIndex
 from .register import scan_chords, transform
 
@@ -113,6 +113,45 @@ def trajectory_error(estimate: np.ndarray, reference: np.ndarray) -> dict:
     return {'rms': float(np.sqrt(np.mean(err ** 2))),
             'ate': float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1)))),
             'final': float(err[-1]), 'alignment': al}
+
+
+def relative_error(estimate: np.ndarray, reference: np.ndarray, delta: int = 1) -> dict:
+    """
+    Relative pose error: how far each motion over ``delta`` poses differs from the reference's.
+
+    For each i, the error of the motion from pose i to pose i + ``delta`` (rows correspond;
+    (N, 3) x, y, yaw): (ref_i^-1 ref_i+d)^-1 (est_i^-1 est_i+d). It measures a trajectory's
+    local accuracy (the drift per step), blind to what went before, so a small error early on
+    does not dominate it as it does the absolute error (Kuemmerle et al., "On measuring the
+    accuracy of SLAM algorithms", 2009; the RPE of the TUM RGB-D benchmark).
+
+    >>> ref = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    >>> est = ref + [[5.0, 5.0, 0.0], [5.0, 5.0, 0.0], [5.1, 5.0, 0.0]]
+    >>> round(relative_error(est, ref)['translation'], 4)
+    0.0707
+
+    Returns
+    -------
+    dict with ``translation`` (metres, RMS), ``rotation`` (radians, RMS), ``translation_p50``,
+    ``rotation_p50`` (medians) and ``pairs`` (motions compared).
+
+    """
+    est = np.asarray(estimate, dtype=np.float64).reshape(-1, 3)
+    ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    if len(est) != len(ref):
+        raise ValueError(f'need corresponding poses, got {len(est)} and {len(ref)}')
+    if not 0 < int(delta) < len(est):
+        return {'translation': float('nan'), 'rotation': float('nan'),
+                'translation_p50': float('nan'), 'rotation_p50': float('nan'), 'pairs': 0}
+    d = int(delta)
+    err = se2_compose(se2_inverse(se2_compose(se2_inverse(ref[:-d]), ref[d:])),
+                      se2_compose(se2_inverse(est[:-d]), est[d:]))
+    t = np.hypot(err[:, 0], err[:, 1])
+    r = np.abs(wrap_angle(err[:, 2]))
+    return {'translation': float(np.sqrt(np.mean(t ** 2))),
+            'rotation': float(np.sqrt(np.mean(r ** 2))),
+            'translation_p50': float(np.median(t)), 'rotation_p50': float(np.median(r)),
+            'pairs': int(len(t))}
 
 
 def scan_consistency(scans: list, poses: np.ndarray, gate: float = 0.10) -> dict:
