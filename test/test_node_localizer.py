@@ -130,3 +130,32 @@ def test_without_scan_matching_the_node_broadcasts_nothing(office_drive, tmp_pat
     assert run['peer'].maps and not run['tfs'] and not run['poses']
     assert run['pose_publishers'] == 0
     assert run['scan_matching'] is False and 'scan matching' not in run['node'].stderr()
+
+
+def test_a_second_localizer_on_tf_is_warned_about(office_drive, tmp_path):
+    # A robot with its own localizer (AMCL: map -> odom on /tf) given a map_input_path, or
+    # scan_matching on: both nodes broadcast map -> odom, and TF jumps between them. The node
+    # says so once (its own broadcasts, read back from /tf, are not the other's).
+    from polyline_mapper.ros.messages import planar_transform_msg, time_msg
+    msgs, _, _ = _drifted(office_drive)
+    node = NodeProcess(tmp_path, {'map_output_path': str(tmp_path / 'map.json'),
+                                  'pose_source': 'tf', 'scan_matching': True,
+                                  'transform_timeout': 0.3, 'warning_period': 300.0})
+    peer = Peer('test_peer_two_localizers')
+    try:
+        tfs, _ = _listen(peer)
+        assert peer.wait_for_node(TIMEOUT), node.stderr()
+        peer.play(msgs[:len(msgs) // 3], RATE, mode='tf')     # the node alone: no warning
+        assert peer.spin_until(lambda: len(tfs) > 20, TIMEOUT), node.stderr()[-3000:]
+        assert not node.lines('another node broadcasts'), node.stderr()[-2000:]
+        for _ in range(20):                                     # now a second map -> odom
+            peer.tf_pub.publish(peer.TFMessage(transforms=[planar_transform_msg(
+                'map', 'odom', time_msg(time.time()), (0.1, 0.0, 0.0))]))
+            peer.spin_for(0.05)
+        assert peer.spin_until(lambda: node.lines('another node broadcasts'), 10.0), \
+            node.stderr()[-3000:]
+    finally:
+        peer.close()
+        node.stop()
+    warned = node.lines('another node broadcasts')
+    assert len(warned) == 1 and 'map -> odom on /tf' in warned[0], warned

@@ -20,7 +20,8 @@ Topics (relative names, remappable):
   plus ``map_odom_post_date``, and publishes the base pose with its covariance on ``pose``
   (geometry_msgs/PoseWithCovarianceStamped, reliable + transient local, depth 1). Poses are
   then predicted in the odometry frame; transforms from ``fixed_frame`` (its own map -> odom,
-  read back from /tf) are never used as a pose source.
+  read back from /tf) are never used as a pose source. In tf mode, a ``fixed_frame`` transform
+  on /tf that the node did not send (another localizer) is warned about (``two_localizers``).
 
 ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period``: scans received,
 used and dropped, map size, sigma, update time and latency percentiles (ms) over the run; WARN
@@ -37,6 +38,7 @@ starves the map or /diagnostics, and when updates fall behind the oldest queued 
 Services answer while an update runs (they wait at most for the one in progress).
 """
 
+from collections import deque
 import math
 import signal
 import sys
@@ -142,6 +144,7 @@ class PolylineMapperNode(Node):
                                   'tools/dev.sh setup') from None
             self._tf_message = TFMessage
         self._localized = None              # the Localization last published
+        self._sent = deque(maxlen=256)      # (sec, nanosec) of the map -> odom it broadcast
         if self.settings.scan_matching:
             self.tf_pub = self.create_publisher(TFMessage, '/tf', TF_QOS)
             self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, 'pose', MAP_QOS)
@@ -212,7 +215,24 @@ class PolylineMapperNode(Node):
         self.session.add(scan_from_msg(msg))
 
     def _on_tf(self, msg) -> None:
+        if self.settings.scan_matching:
+            self._check_localizers(msg)
         self.session.add_many(transforms_from_msg(msg, False))
+
+    def _check_localizers(self, msg) -> None:
+        """Warn (throttled) when another node broadcasts fixed_frame -> X as this one does."""
+        frame = self.settings.fixed_frame
+        for t in msg.transforms:
+            if (t.header.frame_id.lstrip('/') == frame
+                    and (t.header.stamp.sec, t.header.stamp.nanosec) not in self._sent):
+                forced = (' (scan_matching is on because map_input_path is given)'
+                          if self.settings.input_path else '')
+                self.warnings.warn('two_localizers', f'another node broadcasts {frame} -> '
+                                   f'{t.child_frame_id.lstrip("/")} on /tf, as this node does '
+                                   f'with scan matching{forced}: two localizers fight over the '
+                                   'robot pose. Stop the other, or run this node without '
+                                   'scan_matching and map_input_path to map with its poses')
+                return
 
     def _on_tf_static(self, msg) -> None:
         self.session.add_many(transforms_from_msg(msg, True))
@@ -313,6 +333,7 @@ class PolylineMapperNode(Node):
                                'odometry frame must differ from fixed_frame with scan matching')
             return
         stamp = time_msg(loc.stamp + self.settings.map_odom_post_date)
+        self._sent.append((stamp.sec, stamp.nanosec))
         self.tf_pub.publish(self._tf_message(transforms=[planar_transform_msg(
             frame, loc.odom_frame, stamp, loc.correction)]))
 
