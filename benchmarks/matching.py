@@ -59,9 +59,11 @@ def one(records: list, matching: bool) -> dict:
     session = replay_records(records, options=SessionOptions(
         pose_source='odom', scan_matching=matching, grid_resolution=None))
     ms = 1e3 * np.asarray(session.update_seconds)
+    convert = 1e3 * np.asarray(session.convert_seconds)
     stats = session.stats()
     return {'scans': int(stats['scans_used']), 'p50': float(np.median(ms)),
             'p95': float(np.percentile(ms, 95)), 'p99': float(np.percentile(ms, 99)),
+            'convert_p50': float(np.median(convert)), 'update_p50': float(np.median(ms - convert)),
             'segments': len(session.mapper.segments), 'matches': stats.get('scan_matching')}
 
 
@@ -88,10 +90,12 @@ def main() -> int:
     write_results('matching', meta, rows)
     lines = table_header(meta, [
         'input', 'scan matching', 'scans', 'per-scan time p50 / p95 / p99 (ms)',
+        'of it, p50: conversion (+ matching) / map update (ms)',
         'medians of all runs (ms)', 'segments', 'match outcomes'])
     for r in rows:
         lines.append(f"| {r['input']} | {'on' if r['matching'] else 'off'} | {r['scans']} | "
                      f"{r['p50']:.1f} / {r['p95']:.1f} / {r['p99']:.1f} | "
+                     f"{r['convert_p50']:.1f} / {r['update_p50']:.1f} | "
                      f"{' / '.join(f'{m:.1f}' for m in r['medians'])} | {r['segments']} | "
                      f"{r['matches'] or '-'} |")
     write_readme('matching', '\n'.join(lines) + '\n')

@@ -611,6 +611,9 @@ class MappingSession:
         self.stamp = None
         """Stamp (s) of the newest scan in the map."""
         self.update_seconds = deque(maxlen=100000)
+        """Per update: the map update plus its scans' conversion (and matching), seconds."""
+        self.convert_seconds = deque(maxlen=100000)
+        """Per update: its scans' conversion (and matching) alone, seconds."""
         self.latency_seconds = deque(maxlen=100000)
         self._last_add = None
         self._correction = np.zeros(3)
@@ -1215,6 +1218,7 @@ class MappingSession:
                     self.updates += 1
                 if ran or not self.options.mapping:     # mapping off: convert and match
                     self.update_seconds.append(seconds)
+                    self.convert_seconds.append(sum(g[3] for g in group))
                     if self.clock is not None:
                         self.latency_seconds.append(self.clock() - group[-1][4])
         if estimating and not self._estimating_noted and self._info is not None:
