@@ -116,29 +116,32 @@ class PointIndex:
         spacing = self.sample_spacing * radius
         n = np.maximum(1, np.ceil(length / spacing).astype(np.intp))
         step = length / n
-        samples, owner = sample_segments(segments, spacing)
-        first = np.cumsum(n + 1) - (n + 1)
+        # The samples of ``sample_segments(segments, spacing)`` (the same arithmetic), with each
+        # one's position ``pos`` on its segment; per-sample copies of the segment quantities
+        # then serve every hit through its sample index alone.
+        owner = np.repeat(np.arange(len(segments)), n + 1)
+        pos = np.arange(owner.size) - np.take(np.cumsum(n + 1) - (n + 1), owner)
+        a = np.take(segments[:, 0], owner, axis=0)
+        samples = a + (np.take(segments[:, 1], owner, axis=0) - a) * (pos / n.take(owner))[:, None]
         reach = np.hypot(radius, 0.5 * step.max()) * (1 + 1e-9)
         hits = cKDTree(samples, balanced_tree=False, compact_nodes=False).sparse_distance_matrix(
             self.tree, reach, output_type='ndarray')
-        si = hits['i']
-        seg = owner.take(si)
-        pt = hits['j'].astype(np.intp)
-        ux, uy, a = u[:, 0].take(seg), u[:, 1].take(seg), segments[:, 0]
-        rx = self.x.take(pt) - a[:, 0].take(seg)
-        ry = self.y.take(pt) - a[:, 1].take(seg)
+        si, pt = hits['i'], hits['j']
+        ux, uy = u[:, 0].take(owner).take(si), u[:, 1].take(owner).take(si)
+        rx = self.x.take(pt) - a[:, 0].take(si)
+        ry = self.y.take(pt) - a[:, 1].take(si)
         along = rx * ux + ry * uy
-        clipped = np.clip(along, 0.0, length.take(seg))
-        safe_step = np.where(step > 0, step, 1.0).take(seg)
-        home = first.take(seg) + np.rint(clipped / safe_step).astype(np.intp)
+        clipped = np.clip(along, 0.0, length.take(owner).take(si))
+        safe_step = np.where(step > 0, step, 1.0).take(owner)
         # Most hits are another sample's: drop them before the distances.
-        h = np.flatnonzero(si == home)
+        h = np.flatnonzero(np.rint(clipped / safe_step.take(si)) == pos.take(si))
         ux, uy, rx, ry, along, clipped = (v.take(h) for v in (ux, uy, rx, ry, along, clipped))
         normal = ux * ry - uy * rx
         dist = np.hypot(normal, clipped - along)
         k = np.flatnonzero(dist <= radius)
         keep = h.take(k)
-        return Pairs(pt.take(keep), seg.take(keep), dist.take(k), along.take(k), normal.take(k))
+        return Pairs(pt.take(keep).astype(np.intp, copy=False), owner.take(si.take(keep)),
+                     dist.take(k), along.take(k), normal.take(k))
 
     def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """Total point weight within ``radius`` of each centre, shape (len(centres),)."""
