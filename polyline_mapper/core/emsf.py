@@ -59,8 +59,10 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     if pairs is None:
         if extend > 0 and len(segments):
             u, _ = directions(segments)
-            segments = np.stack([segments[:, 0] - extend * u, segments[:, 1] + extend * u],
-                                axis=1)
+            longer = np.empty_like(segments)
+            longer[:, 0] = segments[:, 0] - extend * u
+            longer[:, 1] = segments[:, 1] + extend * u
+            segments = longer
         pairs = index.pairs(segments, kappa * sigma)
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
@@ -113,22 +115,31 @@ def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int,
     mass : (k,) total weight.
 
     """
+    return _lines(points[:, 0], points[:, 1], seg, w, k, return_thickness)
+
+
+def _lines(px, py, seg, w, k, return_thickness=False):
+    """Return ``weighted_lines`` of the points with coordinates ``px``, ``py`` (P,) each."""
     mass = np.bincount(seg, weights=w, minlength=k)
     safe = np.where(mass > 0, mass, 1.0)
-    cx = np.bincount(seg, weights=w * points[:, 0], minlength=k) / safe
-    cy = np.bincount(seg, weights=w * points[:, 1], minlength=k) / safe
-    dx = points[:, 0] - cx[seg]
-    dy = points[:, 1] - cy[seg]
+    cx = np.bincount(seg, weights=w * px, minlength=k) / safe
+    cy = np.bincount(seg, weights=w * py, minlength=k) / safe
+    dx = px - cx.take(seg)
+    dy = py - cy.take(seg)
     sxx = np.bincount(seg, weights=w * dx * dx, minlength=k)
     syy = np.bincount(seg, weights=w * dy * dy, minlength=k)
     sxy = np.bincount(seg, weights=w * dx * dy, minlength=k)
     theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    direction = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    direction = np.empty((k, 2))
+    direction[:, 0] = np.cos(theta)
+    direction[:, 1] = np.sin(theta)
+    centre = np.empty((k, 2))
+    centre[:, 0] = cx
+    centre[:, 1] = cy
     if return_thickness:
         lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
-        return (np.stack([cx, cy], axis=1), direction, mass,
-                np.sqrt(np.maximum(lam_min, 0.0) / safe))
-    return np.stack([cx, cy], axis=1), direction, mass
+        return centre, direction, mass, np.sqrt(np.maximum(lam_min, 0.0) / safe)
+    return centre, direction, mass
 
 
 def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, fraction):
@@ -270,9 +281,9 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     if k == 0 or len(est.pairs.pt) == 0:
         est.kept = np.zeros(0, dtype=np.intp)
         return np.zeros((0, 2, 2)), np.zeros(0), est
-    pw = est.weight * index.weights[est.pairs.pt]
-    centre, direction, mass = weighted_lines(np.take(index.points, est.pairs.pt, axis=0),
-                                             est.pairs.seg, pw, k)
+    pt = est.pairs.pt
+    pw = est.weight * index.weights.take(pt)
+    centre, direction, mass = _lines(index.x.take(pt), index.y.take(pt), est.pairs.seg, pw, k)
     sup_pts = np.flatnonzero(est.support >= 0)
     sup_seg = est.support[sup_pts]
     sup_mass = np.bincount(sup_seg, weights=index.weights[sup_pts], minlength=k)
@@ -297,7 +308,10 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
             & (mass > 0) & (hi > lo))
     if tail_fraction > 0:
         keep &= ~redundant_segments(est, segments, r)
-    c, u = centre[keep], direction[keep]
-    new = np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)
-    est.kept = np.flatnonzero(keep)
-    return new, sup_mass[keep], est
+    kept = np.flatnonzero(keep)
+    c, u = np.take(centre, kept, axis=0), np.take(direction, kept, axis=0)
+    new = np.empty((kept.size, 2, 2))
+    new[:, 0] = c + lo.take(kept)[:, None] * u
+    new[:, 1] = c + hi.take(kept)[:, None] * u
+    est.kept = kept
+    return new, sup_mass.take(kept), est
