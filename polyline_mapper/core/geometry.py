@@ -135,7 +135,7 @@ def sample_segments(segments: np.ndarray, step: float) -> tuple:
     n = np.maximum(1, np.ceil(length / step).astype(np.intp)) + 1
     owner = np.repeat(np.arange(len(segments)), n)
     first = np.cumsum(n) - n
-    frac = (np.arange(owner.size) - first[owner]) / (n[owner] - 1)
+    frac = (np.arange(owner.size) - first.take(owner)) / (n.take(owner) - 1)
     a = np.take(segments[:, 0], owner, axis=0)
     b = np.take(segments[:, 1], owner, axis=0)
     return a + (b - a) * frac[:, None], owner

@@ -55,6 +55,27 @@ def in_sorted(values: np.ndarray, table: np.ndarray) -> np.ndarray:
     return table.take(at) == values
 
 
+COUNT_TABLE = 1 << 20
+"""``unique_counts`` counts keys in a table of this many entries at most (8 MB), else sorts."""
+
+
+def unique_counts(keys: np.ndarray, bound: int) -> tuple:
+    """
+    ``np.unique(keys, return_counts=True)`` for int keys in ``[0, bound)``.
+
+    While ``bound`` is at most ``COUNT_TABLE`` the keys are counted in a table (``np.bincount``)
+    instead of sorted: the same sorted keys and counts, in O(keys + bound).
+
+    >>> [a.tolist() for a in unique_counts(np.array([7, 2, 7, 0, 2, 7]), 10)]
+    [[0, 2, 7], [1, 2, 3]]
+    """
+    if bound > COUNT_TABLE:
+        return np.unique(keys, return_counts=True)
+    cnt = np.bincount(keys, minlength=bound)
+    key = np.flatnonzero(cnt)
+    return key, cnt.take(key)
+
+
 @dataclass
 class Pairs:
     """Point-segment pairs closer than a radius, with their projection geometry."""
@@ -126,7 +147,7 @@ class PointIndex:
         reach = np.hypot(radius, 0.5 * step.max()) * (1 + 1e-9)
         hits = cKDTree(samples, balanced_tree=False, compact_nodes=False).sparse_distance_matrix(
             self.tree, reach, output_type='ndarray')
-        si, pt = hits['i'], hits['j']
+        si, pt = np.ascontiguousarray(hits['i']), np.ascontiguousarray(hits['j'])
         ux, uy = u[:, 0].take(owner).take(si), u[:, 1].take(owner).take(si)
         rx = self.x.take(pt) - a[:, 0].take(si)
         ry = self.y.take(pt) - a[:, 1].take(si)
@@ -166,18 +187,18 @@ def piece_pairs(p: Pairs, parent: np.ndarray, start: np.ndarray, length: np.ndar
     """
     order = np.argsort(parent, kind='stable')
     n_seg = int(max(parent.max(initial=-1), p.seg.max(initial=-1))) + 1
-    first = np.searchsorted(parent[order], np.arange(n_seg), 'left')
-    count = np.searchsorted(parent[order], np.arange(n_seg), 'right') - first
-    c = np.take(count, p.seg)
+    count = np.bincount(parent, minlength=n_seg)
+    first = np.cumsum(count) - count              # where each segment's pieces start in order
+    c = count.take(p.seg)
     row = np.repeat(np.arange(p.seg.size), c)
-    piece = np.take(order, np.repeat(np.take(first, p.seg) - (np.cumsum(c) - c), c)
-                    + np.arange(int(c.sum())))
-    along = np.take(p.along, row) - np.take(start, piece)
-    normal = np.take(p.normal, row)
-    dist = np.hypot(normal, np.clip(along, 0.0, np.take(length, piece)) - along)
+    piece = order.take(np.repeat(first.take(p.seg) - (np.cumsum(c) - c), c)
+                       + np.arange(int(c.sum())))
+    along = p.along.take(row) - start.take(piece)
+    normal = p.normal.take(row)
+    dist = np.hypot(normal, np.clip(along, 0.0, length.take(piece)) - along)
     keep = np.flatnonzero(dist <= radius)
-    return Pairs(np.take(np.take(p.pt, row), keep), np.take(piece, keep), np.take(dist, keep),
-                 np.take(along, keep), np.take(normal, keep))
+    return Pairs(p.pt.take(row.take(keep)), piece.take(keep), dist.take(keep), along.take(keep),
+                 normal.take(keep))
 
 
 def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,

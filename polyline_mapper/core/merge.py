@@ -39,8 +39,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import pdtr
 
-from .geometry import directions, label_runs, project, sample_segments
-from .index import PointIndex
+from .geometry import directions, label_runs, lengths, project, sample_segments
+from .index import PointIndex, unique_counts
 
 
 def merged_segment(s1: np.ndarray, s2: np.ndarray) -> dict:
@@ -149,7 +149,7 @@ def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None
         a, b = owner[sp[:, 0]], owner[sp[:, 1]]
         keep = a != b
         lo, hi = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
-        key = np.unique(lo * np.int64(k) + hi)
+        key, _ = unique_counts(lo * np.int64(k) + hi, k * k)
         pairs = np.stack([key // k, key % k], axis=1).astype(np.intp)
     if among is not None:
         pairs = pairs[among[pairs[:, 0]] | among[pairs[:, 1]]]
@@ -274,12 +274,12 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
         i, j = pairs[:, 0], pairs[:, 1]
         ms = merged_segment(np.take(segments, i, axis=0), np.take(segments, j, axis=0))
         cost = grouping_cost(ms, sigma, theta_ref)
-        cost = _second_chance(index, ms, cost, support[i] + support[j], sigma, r, threshold)
+        cost = _second_chance(index, ms, cost, support.take(i) + support.take(j), sigma, r,
+                              threshold)
         cand = np.flatnonzero(cost < threshold)
         if cand.size == 0:
             break
-        _, length = directions(segments)
-        dens = support / np.maximum(length / (2 * r), 1.0)
+        dens = support / np.maximum(lengths(segments) / (2 * r), 1.0)
         ok = gap_supported(index, np.take(ms['gap_ends'], cand, axis=0), ms['gap'][cand], r,
                            np.minimum(dens[i[cand]], dens[j[cand]]), split_fraction, gap_p)
         cand = cand[ok]

@@ -261,7 +261,7 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     covered = np.zeros(len(index), dtype=bool)
     covered[est.pairs.pt] = True
     free = ~covered
-    seeds = seed_segments(np.compress(free, index.points, axis=0), index.weights[free],
+    seeds = seed_segments(np.compress(free, index.points, axis=0), index.weights.compress(free),
                           config.seed_cell * r, config.min_support, config.min_density, r,
                           config.seed_thickness * sigma)
     segments = np.concatenate([segments, seeds])
@@ -287,7 +287,7 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
         np.minimum.at(nearest, est.pairs.pt, est.pairs.dist)
     sup = est.support >= 0
     sup[index.n_real:] = False                 # virtual points sit on their segments exactly
-    resid = nearest[sup]
+    resid = nearest.compress(sup)
     scale = 1.4826 * _median(resid) if resid.size else sigma
     w = index.weights[:index.n_real]
     mean = float(np.sum(w * nearest[:index.n_real]) / max(np.sum(w), 1e-300))
