@@ -147,7 +147,12 @@ class PointIndex:
         reach = np.hypot(radius, 0.5 * step.max()) * (1 + 1e-9)
         hits = cKDTree(samples, balanced_tree=False, compact_nodes=False).sparse_distance_matrix(
             self.tree, reach, output_type='ndarray')
-        si, pt = np.ascontiguousarray(hits['i']), np.ascontiguousarray(hits['j'])
+        # The query reaches as far as the longest step needs; a hit beyond its own segment's
+        # reach cannot be a home pair within radius: drop it first (the kept pairs, their order
+        # and values are the same).
+        own = np.hypot(radius, 0.5 * step) * (1 + 1e-9)
+        mine = np.flatnonzero(hits['v'] <= own.take(owner).take(hits['i']))
+        si, pt = hits['i'].take(mine), hits['j'].take(mine)
         ux, uy = u[:, 0].take(owner).take(si), u[:, 1].take(owner).take(si)
         rx = self.x.take(pt) - a[:, 0].take(si)
         ry = self.y.take(pt) - a[:, 1].take(si)
