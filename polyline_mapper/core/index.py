@@ -148,7 +148,8 @@ class PointIndex:
         hits = cKDTree(samples, balanced_tree=False, compact_nodes=False).sparse_distance_matrix(
             self.tree, reach, output_type='ndarray')
         # The query reaches as far as the longest step needs; a hit beyond its own segment's
-        # reach cannot be a home pair within radius: drop it first (the kept pairs, their order
+        # reach cannot be a home pair within radius: dropped first, few hits on another sample
+        # are left, so the distances are computed for all the rest (the kept pairs, their order
         # and values are the same).
         own = np.hypot(radius, 0.5 * step) * (1 + 1e-9)
         mine = np.flatnonzero(hits['v'] <= own.take(owner).take(hits['i']))
@@ -159,15 +160,12 @@ class PointIndex:
         along = rx * ux + ry * uy
         clipped = np.clip(along, 0.0, length.take(owner).take(si))
         safe_step = np.where(step > 0, step, 1.0).take(owner)
-        # Most hits are another sample's: drop them before the distances.
-        h = np.flatnonzero(np.rint(clipped / safe_step.take(si)) == pos.take(si))
-        ux, uy, rx, ry, along, clipped = (v.take(h) for v in (ux, uy, rx, ry, along, clipped))
+        home = np.rint(clipped / safe_step.take(si)) == pos.take(si)
         normal = ux * ry - uy * rx
         dist = np.hypot(normal, clipped - along)
-        k = np.flatnonzero(dist <= radius)
-        keep = h.take(k)
+        keep = np.flatnonzero(home & (dist <= radius))
         return Pairs(pt.take(keep).astype(np.intp, copy=False), owner.take(si.take(keep)),
-                     dist.take(k), along.take(k), normal.take(k))
+                     dist.take(keep), along.take(keep), normal.take(keep))
 
     def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """Total point weight within ``radius`` of each centre, shape (len(centres),)."""
