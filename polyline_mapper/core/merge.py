@@ -136,11 +136,17 @@ def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None
             i, j = np.minimum(i[ok], j[ok]), np.maximum(i[ok], j[ok])
         lo = np.minimum(segments[:, 0], segments[:, 1]) - reach
         hi = np.maximum(segments[:, 0], segments[:, 1]) + reach
-        meet = (lo[i] <= hi[j]) & (lo[j] <= hi[i])
-        box = meet[:, 0] & meet[:, 1]
-        i, j = i[box], j[box]
-        keep = _segment_distance(segments[i], segments[j]) <= reach
-        return np.stack([i[keep], j[keep]], axis=1).astype(np.intp)
+        lo_i, lo_j = np.take(lo, i, axis=0), np.take(lo, j, axis=0)
+        hi_i, hi_j = np.take(hi, i, axis=0), np.take(hi, j, axis=0)
+        meet = (lo_i <= hi_j) & (lo_j <= hi_i)
+        box = np.flatnonzero(meet[:, 0] & meet[:, 1])
+        i, j = i.take(box), j.take(box)
+        d = _segment_distance(np.take(segments, i, axis=0), np.take(segments, j, axis=0))
+        keep = np.flatnonzero(d <= reach)
+        out = np.empty((keep.size, 2), dtype=np.intp)
+        out[:, 0] = i.take(keep)
+        out[:, 1] = j.take(keep)
+        return out
     else:
         samples, owner = sample_segments(segments, reach)
         # An unbalanced tree without shrunk boxes builds faster and finds the same pairs.
@@ -186,9 +192,10 @@ def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: f
     n = np.maximum(1, np.ceil(gap[check] / (2 * r)).astype(np.intp))
     owner = np.repeat(np.arange(check.size), n)
     first = np.cumsum(n) - n
-    frac = (np.arange(owner.size) - first[owner] + 0.5) / n[owner]
-    a = gap_ends[check, 0][owner]
-    b = gap_ends[check, 1][owner]
+    frac = (np.arange(owner.size) - first.take(owner) + 0.5) / n.take(owner)
+    rows = check.take(owner)
+    a = np.take(gap_ends[:, 0], rows, axis=0)
+    b = np.take(gap_ends[:, 1], rows, axis=0)
     centres = a + (b - a) * frac[:, None]
     counts = index.count_in_disks(centres, r)
     lam = np.maximum(density[check], 1.0)
