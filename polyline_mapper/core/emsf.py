@@ -59,8 +59,10 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     if pairs is None:
         if extend > 0 and len(segments):
             u, _ = directions(segments)
-            segments = np.stack([segments[:, 0] - extend * u, segments[:, 1] + extend * u],
-                                axis=1)
+            longer = np.empty_like(segments)
+            longer[:, 0] = segments[:, 0] - extend * u
+            longer[:, 1] = segments[:, 1] + extend * u
+            segments = longer
         pairs = index.pairs(segments, kappa * sigma)
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
@@ -113,22 +115,31 @@ def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int,
     mass : (k,) total weight.
 
     """
+    return _lines(points[:, 0], points[:, 1], seg, w, k, return_thickness)
+
+
+def _lines(px, py, seg, w, k, return_thickness=False):
+    """Return ``weighted_lines`` of the points with coordinates ``px``, ``py`` (P,) each."""
     mass = np.bincount(seg, weights=w, minlength=k)
     safe = np.where(mass > 0, mass, 1.0)
-    cx = np.bincount(seg, weights=w * points[:, 0], minlength=k) / safe
-    cy = np.bincount(seg, weights=w * points[:, 1], minlength=k) / safe
-    dx = points[:, 0] - cx[seg]
-    dy = points[:, 1] - cy[seg]
+    cx = np.bincount(seg, weights=w * px, minlength=k) / safe
+    cy = np.bincount(seg, weights=w * py, minlength=k) / safe
+    dx = px - cx.take(seg)
+    dy = py - cy.take(seg)
     sxx = np.bincount(seg, weights=w * dx * dx, minlength=k)
     syy = np.bincount(seg, weights=w * dy * dy, minlength=k)
     sxy = np.bincount(seg, weights=w * dx * dy, minlength=k)
     theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    direction = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    direction = np.empty((k, 2))
+    direction[:, 0] = np.cos(theta)
+    direction[:, 1] = np.sin(theta)
+    centre = np.empty((k, 2))
+    centre[:, 0] = cx
+    centre[:, 1] = cy
     if return_thickness:
         lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
-        return (np.stack([cx, cy], axis=1), direction, mass,
-                np.sqrt(np.maximum(lam_min, 0.0) / safe))
-    return np.stack([cx, cy], axis=1), direction, mass
+        return centre, direction, mass, np.sqrt(np.maximum(lam_min, 0.0) / safe)
+    return centre, direction, mass
 
 
 def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, fraction):
@@ -148,24 +159,26 @@ def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, frac
     total = int(nb.sum())
 
     def bins(tt, ss):
-        return off[ss] + np.clip(np.floor((tt - lo[ss]) / width), 0, nb[ss] - 1).astype(np.intp)
+        return off.take(ss) + np.clip(np.floor((tt - lo.take(ss)) / width), 0,
+                                      nb.take(ss) - 1).astype(np.intp)
 
     b_own = bins(t, seg)
     owned = np.bincount(b_own, weights=w, minlength=total)
-    inside = (t_near >= lo[seg_near]) & (t_near <= hi[seg_near])
-    near = np.bincount(bins(t_near[inside], seg_near[inside]), weights=w_near[inside],
-                       minlength=total)
+    inside = (t_near >= lo.take(seg_near)) & (t_near <= hi.take(seg_near))
+    near = np.bincount(bins(t_near.compress(inside), seg_near.compress(inside)),
+                       weights=w_near.compress(inside), minlength=total)
     good = (owned > 0) & (owned >= fraction * np.maximum(near, owned))
     owner = np.repeat(np.arange(k), nb)
-    pos = np.arange(total) - off[owner]
+    pos = np.arange(total) - off.take(owner)
     gi = np.flatnonzero(good)
     first = np.full(k, np.iinfo(np.intp).max, dtype=np.intp)
     last = np.full(k, -1, dtype=np.intp)
-    np.minimum.at(first, owner[gi], pos[gi])
-    np.maximum.at(last, owner[gi], pos[gi])
-    b = b_own - off[seg]
-    keep = (b >= first[seg]) & (b <= last[seg])
-    new_lo, new_hi = group_minmax(t[keep], seg[keep], k)
+    owner_g, pos_g = owner.take(gi), pos.take(gi)
+    np.minimum.at(first, owner_g, pos_g)
+    np.maximum.at(last, owner_g, pos_g)
+    b = b_own - off.take(seg)
+    keep = (b >= first.take(seg)) & (b <= last.take(seg))
+    new_lo, new_hi = group_minmax(t.compress(keep), seg.compress(keep), k)
     gone = ~np.isfinite(new_lo)
     new_lo[gone] = new_hi[gone] = 0.0
     return new_lo, new_hi
@@ -189,23 +202,25 @@ def redundant_segments(est: EStep, segments: np.ndarray, r: float,
     """
     k = len(segments)
     p = est.pairs
-    mine = est.support[p.pt]
+    mine = est.support.take(p.pt)
     other = (mine >= 0) & (p.seg != mine) & (p.dist <= r)
     if not other.any():
         return np.zeros(k, dtype=bool)
     alt_d = np.full(len(est.support), np.inf)
-    np.minimum.at(alt_d, p.pt[other], p.dist[other])
-    win = other & (p.dist == alt_d[p.pt])
+    np.minimum.at(alt_d, p.pt.compress(other), p.dist.compress(other))
+    win = other & (p.dist == alt_d.take(p.pt))
     alt = np.full(len(est.support), -1, dtype=np.intp)
-    alt[p.pt[win]] = p.seg[win]
+    alt[p.pt.compress(win)] = p.seg.compress(win)
     sup = np.flatnonzero(est.support >= 0)
-    owner = est.support[sup]
-    covered = np.bincount(owner, weights=(alt[sup] >= 0).astype(float), minlength=k)
+    owner = est.support.take(sup)
+    alt_sup = alt.take(sup)
+    has = alt_sup >= 0
+    covered = np.bincount(owner, weights=has.astype(float), minlength=k)
     total = np.bincount(owner, minlength=k).astype(float)
     frac = covered / np.maximum(total, 1.0)
     # The most frequent alternative of each segment (mode over its support), via sorted keys.
-    has = alt[sup] >= 0
-    key, cnt = np.unique(owner[has] * np.int64(k) + alt[sup][has], return_counts=True)
+    key, cnt = np.unique(owner.compress(has) * np.int64(k) + alt_sup.compress(has),
+                         return_counts=True)
     seg_of = key // k
     order = np.lexsort((cnt, seg_of))
     last = np.ones(order.size, dtype=bool)
@@ -270,34 +285,37 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     if k == 0 or len(est.pairs.pt) == 0:
         est.kept = np.zeros(0, dtype=np.intp)
         return np.zeros((0, 2, 2)), np.zeros(0), est
-    pw = est.weight * index.weights[est.pairs.pt]
-    centre, direction, mass = weighted_lines(np.take(index.points, est.pairs.pt, axis=0),
-                                             est.pairs.seg, pw, k)
+    pt = est.pairs.pt
+    pw = est.weight * index.weights.take(pt)
+    centre, direction, mass = _lines(index.x.take(pt), index.y.take(pt), est.pairs.seg, pw, k)
     sup_pts = np.flatnonzero(est.support >= 0)
-    sup_seg = est.support[sup_pts]
-    sup_mass = np.bincount(sup_seg, weights=index.weights[sup_pts], minlength=k)
+    sup_seg = est.support.take(sup_pts)
+    sup_mass = np.bincount(sup_seg, weights=index.weights.take(sup_pts), minlength=k)
     t = _along(index, sup_pts, centre, direction, sup_seg)
     lo, hi = group_minmax(t, sup_seg, k)
     if tail_fraction > 0:
         # Points near a segment that count against its ends: its own, and those of segments
         # meeting it at a shallow angle (< 45 deg). Points of a wall crossing at a steep angle
         # (a T-junction or a corner) say nothing about where this one ends.
-        owner = est.support[est.pairs.pt]
+        owner = est.support.take(pt)
         u_old, _ = directions(segments)
         o = np.where(owner >= 0, owner, est.pairs.seg)
         cos = np.abs(np.take(u_old[:, 0], est.pairs.seg) * np.take(u_old[:, 0], o)
                      + np.take(u_old[:, 1], est.pairs.seg) * np.take(u_old[:, 1], o))
         near = (owner >= 0) & (cos > np.cos(np.pi / 4))
-        pn, sn = est.pairs.pt[near], est.pairs.seg[near]
+        pn, sn = pt.compress(near), est.pairs.seg.compress(near)
         t_near = _along(index, pn, centre, direction, sn)
-        lo, hi = _trim_foreign_tails(t, sup_seg, index.weights[sup_pts], t_near, sn,
-                                     index.weights[pn], lo, hi, 2.0 * r, tail_fraction)
+        lo, hi = _trim_foreign_tails(t, sup_seg, index.weights.take(sup_pts), t_near, sn,
+                                     index.weights.take(pn), lo, hi, 2.0 * r, tail_fraction)
     extent = np.where(hi > lo, hi - lo, 0.0)
     keep = ((sup_mass >= min_support) & (sup_mass >= min_density * extent / (2.0 * r))
             & (mass > 0) & (hi > lo))
     if tail_fraction > 0:
         keep &= ~redundant_segments(est, segments, r)
-    c, u = centre[keep], direction[keep]
-    new = np.stack([c + lo[keep, None] * u, c + hi[keep, None] * u], axis=1)
-    est.kept = np.flatnonzero(keep)
-    return new, sup_mass[keep], est
+    kept = np.flatnonzero(keep)
+    c, u = np.take(centre, kept, axis=0), np.take(direction, kept, axis=0)
+    new = np.empty((kept.size, 2, 2))
+    new[:, 0] = c + lo.take(kept)[:, None] * u
+    new[:, 1] = c + hi.take(kept)[:, None] * u
+    est.kept = kept
+    return new, sup_mass.take(kept), est

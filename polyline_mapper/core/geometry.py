@@ -46,8 +46,8 @@ def as_points(points, name: str = 'points') -> np.ndarray:
         raise ValueError(f'{name} must be numeric, got {type(points).__name__}') from exc
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f'{name} must have shape (N, 2), got {arr.shape}')
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
+    if not np.isfinite(arr).all():
+        bad = ~np.isfinite(arr).all(axis=1)
         raise ValueError(f'{name} has {int(bad.sum())} row(s) with NaN or inf '
                          f'(first at row {int(np.argmax(bad))})')
     return arr
@@ -87,7 +87,8 @@ def directions(segments: np.ndarray) -> tuple:
     length = np.hypot(d[:, 0], d[:, 1])
     ok = length > 0
     u = d / np.where(ok, length, 1.0)[:, None]
-    u[~ok] = (1.0, 0.0)
+    if not ok.all():
+        u[~ok] = (1.0, 0.0)
     return u, length
 
 
@@ -134,7 +135,7 @@ def sample_segments(segments: np.ndarray, step: float) -> tuple:
     n = np.maximum(1, np.ceil(length / step).astype(np.intp)) + 1
     owner = np.repeat(np.arange(len(segments)), n)
     first = np.cumsum(n) - n
-    frac = (np.arange(owner.size) - first[owner]) / (n[owner] - 1)
+    frac = (np.arange(owner.size) - first.take(owner)) / (n.take(owner) - 1)
     a = np.take(segments[:, 0], owner, axis=0)
     b = np.take(segments[:, 1], owner, axis=0)
     return a + (b - a) * frac[:, None], owner

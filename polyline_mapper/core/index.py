@@ -55,6 +55,27 @@ def in_sorted(values: np.ndarray, table: np.ndarray) -> np.ndarray:
     return table.take(at) == values
 
 
+COUNT_TABLE = 1 << 20
+"""``unique_counts`` counts keys in a table of this many entries at most (8 MB), else sorts."""
+
+
+def unique_counts(keys: np.ndarray, bound: int) -> tuple:
+    """
+    ``np.unique(keys, return_counts=True)`` for int keys in ``[0, bound)``.
+
+    While ``bound`` is at most ``COUNT_TABLE`` the keys are counted in a table (``np.bincount``)
+    instead of sorted: the same sorted keys and counts, in O(keys + bound).
+
+    >>> [a.tolist() for a in unique_counts(np.array([7, 2, 7, 0, 2, 7]), 10)]
+    [[0, 2, 7], [1, 2, 3]]
+    """
+    if bound > COUNT_TABLE:
+        return np.unique(keys, return_counts=True)
+    cnt = np.bincount(keys, minlength=bound)
+    key = np.flatnonzero(cnt)
+    return key, cnt.take(key)
+
+
 @dataclass
 class Pairs:
     """Point-segment pairs closer than a radius, with their projection geometry."""
@@ -116,29 +137,35 @@ class PointIndex:
         spacing = self.sample_spacing * radius
         n = np.maximum(1, np.ceil(length / spacing).astype(np.intp))
         step = length / n
-        samples, owner = sample_segments(segments, spacing)
-        first = np.cumsum(n + 1) - (n + 1)
+        # The samples of ``sample_segments(segments, spacing)`` (the same arithmetic), with each
+        # one's position ``pos`` on its segment; per-sample copies of the segment quantities
+        # then serve every hit through its sample index alone.
+        owner = np.repeat(np.arange(len(segments)), n + 1)
+        pos = np.arange(owner.size) - np.take(np.cumsum(n + 1) - (n + 1), owner)
+        a = np.take(segments[:, 0], owner, axis=0)
+        samples = a + (np.take(segments[:, 1], owner, axis=0) - a) * (pos / n.take(owner))[:, None]
         reach = np.hypot(radius, 0.5 * step.max()) * (1 + 1e-9)
         hits = cKDTree(samples, balanced_tree=False, compact_nodes=False).sparse_distance_matrix(
             self.tree, reach, output_type='ndarray')
-        si = hits['i']
-        seg = owner.take(si)
-        pt = hits['j'].astype(np.intp)
-        ux, uy, a = u[:, 0].take(seg), u[:, 1].take(seg), segments[:, 0]
-        rx = self.x.take(pt) - a[:, 0].take(seg)
-        ry = self.y.take(pt) - a[:, 1].take(seg)
+        # The query reaches as far as the longest step needs; a hit beyond its own segment's
+        # reach cannot be a home pair within radius: dropped first, few hits on another sample
+        # are left, so the distances are computed for all the rest (the kept pairs, their order
+        # and values are the same).
+        own = np.hypot(radius, 0.5 * step) * (1 + 1e-9)
+        mine = np.flatnonzero(hits['v'] <= own.take(owner).take(hits['i']))
+        si, pt = hits['i'].take(mine), hits['j'].take(mine)
+        ux, uy = u[:, 0].take(owner).take(si), u[:, 1].take(owner).take(si)
+        rx = self.x.take(pt) - a[:, 0].take(si)
+        ry = self.y.take(pt) - a[:, 1].take(si)
         along = rx * ux + ry * uy
-        clipped = np.clip(along, 0.0, length.take(seg))
-        safe_step = np.where(step > 0, step, 1.0).take(seg)
-        home = first.take(seg) + np.rint(clipped / safe_step).astype(np.intp)
-        # Most hits are another sample's: drop them before the distances.
-        h = np.flatnonzero(si == home)
-        ux, uy, rx, ry, along, clipped = (v.take(h) for v in (ux, uy, rx, ry, along, clipped))
+        clipped = np.clip(along, 0.0, length.take(owner).take(si))
+        safe_step = np.where(step > 0, step, 1.0).take(owner)
+        home = np.rint(clipped / safe_step.take(si)) == pos.take(si)
         normal = ux * ry - uy * rx
         dist = np.hypot(normal, clipped - along)
-        k = np.flatnonzero(dist <= radius)
-        keep = h.take(k)
-        return Pairs(pt.take(keep), seg.take(keep), dist.take(k), along.take(k), normal.take(k))
+        keep = np.flatnonzero(home & (dist <= radius))
+        return Pairs(pt.take(keep).astype(np.intp, copy=False), owner.take(si.take(keep)),
+                     dist.take(keep), along.take(keep), normal.take(keep))
 
     def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """Total point weight within ``radius`` of each centre, shape (len(centres),)."""
@@ -163,18 +190,18 @@ def piece_pairs(p: Pairs, parent: np.ndarray, start: np.ndarray, length: np.ndar
     """
     order = np.argsort(parent, kind='stable')
     n_seg = int(max(parent.max(initial=-1), p.seg.max(initial=-1))) + 1
-    first = np.searchsorted(parent[order], np.arange(n_seg), 'left')
-    count = np.searchsorted(parent[order], np.arange(n_seg), 'right') - first
-    c = np.take(count, p.seg)
+    count = np.bincount(parent, minlength=n_seg)
+    first = np.cumsum(count) - count              # where each segment's pieces start in order
+    c = count.take(p.seg)
     row = np.repeat(np.arange(p.seg.size), c)
-    piece = np.take(order, np.repeat(np.take(first, p.seg) - (np.cumsum(c) - c), c)
-                    + np.arange(int(c.sum())))
-    along = np.take(p.along, row) - np.take(start, piece)
-    normal = np.take(p.normal, row)
-    dist = np.hypot(normal, np.clip(along, 0.0, np.take(length, piece)) - along)
+    piece = order.take(np.repeat(first.take(p.seg) - (np.cumsum(c) - c), c)
+                       + np.arange(int(c.sum())))
+    along = p.along.take(row) - start.take(piece)
+    normal = p.normal.take(row)
+    dist = np.hypot(normal, np.clip(along, 0.0, length.take(piece)) - along)
     keep = np.flatnonzero(dist <= radius)
-    return Pairs(np.take(np.take(p.pt, row), keep), np.take(piece, keep), np.take(dist, keep),
-                 np.take(along, keep), np.take(normal, keep))
+    return Pairs(p.pt.take(row.take(keep)), piece.take(keep), dist.take(keep), along.take(keep),
+                 normal.take(keep))
 
 
 def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,

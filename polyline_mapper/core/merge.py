@@ -39,8 +39,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import pdtr
 
-from .geometry import directions, label_runs, project, sample_segments
-from .index import PointIndex
+from .geometry import directions, label_runs, lengths, project, sample_segments
+from .index import PointIndex, unique_counts
 
 
 def merged_segment(s1: np.ndarray, s2: np.ndarray) -> dict:
@@ -66,27 +66,38 @@ def merged_segment(s1: np.ndarray, s2: np.ndarray) -> dict:
     flip = np.einsum('ij,ij->i', d1, d2) < 0
     s2 = np.where(flip[:, None, None], s2[:, ::-1], s2)
     d2 = np.where(flip[:, None], -d2, d2)
-    l1 = np.linalg.norm(d1, axis=1)
-    l2 = np.linalg.norm(d2, axis=1)
+    # Reductions over the short axes (2 coordinates, 2 or 4 ends) column by column: NumPy runs
+    # them one row at a time. The same arithmetic: norm(d, axis=1) is sqrt(0 + x x + y y), and
+    # mean(axis=1) is (0 + a + b) / 2.
+    d1x, d1y, d2x, d2y = d1[:, 0], d1[:, 1], d2[:, 0], d2[:, 1]
+    l1 = np.sqrt(d1x * d1x + d1y * d1y)
+    l2 = np.sqrt(d2x * d2x + d2y * d2y)
     v = d1 + d2
-    vn = np.linalg.norm(v, axis=1)
+    vn = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1])
     u = np.where(vn[:, None] > 0, v / np.where(vn > 0, vn, 1.0)[:, None], [1.0, 0.0])
-    n = np.stack([-u[:, 1], u[:, 0]], axis=1)
-    m1 = s1.mean(axis=1)
-    m2 = s2.mean(axis=1)
+    n = np.empty_like(u)
+    n[:, 0] = -u[:, 1]
+    n[:, 1] = u[:, 0]
+    m1 = (0.0 + s1[:, 0] + s1[:, 1]) / 2
+    m2 = (0.0 + s2[:, 0] + s2[:, 1]) / 2
     wsum = np.where(l1 + l2 > 0, l1 + l2, 1.0)
     c = (l1 * np.einsum('ij,ij->i', n, m1) + l2 * np.einsum('ij,ij->i', n, m2)) / wsum
     ends = np.concatenate([s1, s2], axis=1)                      # (M, 4, 2): A, B, C, D
     t = np.einsum('mkj,mj->mk', ends, u)
-    e = np.abs(np.einsum('mkj,mj->mk', ends, n) - c[:, None]).max(axis=1)
+    off = np.abs(np.einsum('mkj,mj->mk', ends, n) - c[:, None])
+    e = np.maximum(np.maximum(np.maximum(off[:, 0], off[:, 1]), off[:, 2]), off[:, 3])
     base = c[:, None] * n
-    seg = np.stack([base + t.min(axis=1)[:, None] * u, base + t.max(axis=1)[:, None] * u], axis=1)
-    lo1, hi1 = t[:, :2].min(axis=1), t[:, :2].max(axis=1)
-    lo2, hi2 = t[:, 2:].min(axis=1), t[:, 2:].max(axis=1)
+    lo1, hi1 = np.minimum(t[:, 0], t[:, 1]), np.maximum(t[:, 0], t[:, 1])
+    lo2, hi2 = np.minimum(t[:, 2], t[:, 3]), np.maximum(t[:, 2], t[:, 3])
+    seg = np.empty((len(t), 2, 2))
+    seg[:, 0] = base + np.minimum(lo1, lo2)[:, None] * u
+    seg[:, 1] = base + np.maximum(hi1, hi2)[:, None] * u
     g0 = np.minimum(hi1, hi2)
     g1 = np.maximum(lo1, lo2)
     gap = np.maximum(0.0, g1 - g0)
-    gap_ends = np.stack([base + g0[:, None] * u, base + g1[:, None] * u], axis=1)
+    gap_ends = np.empty((len(t), 2, 2))
+    gap_ends[:, 0] = base + g0[:, None] * u
+    gap_ends[:, 1] = base + g1[:, None] * u
     cosang = np.abs(np.einsum('ij,ij->i', d1, d2)) / np.where(l1 * l2 > 0, l1 * l2, 1.0)
     theta = np.arccos(np.clip(cosang, 0.0, 1.0))
     return {'segment': seg, 'theta': theta, 'offset': e, 'gap': gap, 'gap_ends': gap_ends,
@@ -123,19 +134,28 @@ def candidate_pairs(segments: np.ndarray, reach: float, among: np.ndarray = None
             i, j = np.repeat(f, k), np.tile(np.arange(k), f.size)
             ok = (j != i) & ~(among[j] & (j < i))            # each unordered pair once
             i, j = np.minimum(i[ok], j[ok]), np.maximum(i[ok], j[ok])
-        lo = segments.min(axis=1) - reach
-        hi = segments.max(axis=1) + reach
-        box = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
-        i, j = i[box], j[box]
-        keep = _segment_distance(segments[i], segments[j]) <= reach
-        return np.stack([i[keep], j[keep]], axis=1).astype(np.intp)
+        lo = np.minimum(segments[:, 0], segments[:, 1]) - reach
+        hi = np.maximum(segments[:, 0], segments[:, 1]) + reach
+        lo_i, lo_j = np.take(lo, i, axis=0), np.take(lo, j, axis=0)
+        hi_i, hi_j = np.take(hi, i, axis=0), np.take(hi, j, axis=0)
+        meet = (lo_i <= hi_j) & (lo_j <= hi_i)
+        box = np.flatnonzero(meet[:, 0] & meet[:, 1])
+        i, j = i.take(box), j.take(box)
+        d = _segment_distance(np.take(segments, i, axis=0), np.take(segments, j, axis=0))
+        keep = np.flatnonzero(d <= reach)
+        out = np.empty((keep.size, 2), dtype=np.intp)
+        out[:, 0] = i.take(keep)
+        out[:, 1] = j.take(keep)
+        return out
     else:
         samples, owner = sample_segments(segments, reach)
-        sp = cKDTree(samples).query_pairs(reach * 1.5, output_type='ndarray')
+        # An unbalanced tree without shrunk boxes builds faster and finds the same pairs.
+        sp = cKDTree(samples, balanced_tree=False, compact_nodes=False).query_pairs(
+            reach * 1.5, output_type='ndarray')
         a, b = owner[sp[:, 0]], owner[sp[:, 1]]
         keep = a != b
         lo, hi = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
-        key = np.unique(lo * np.int64(k) + hi)
+        key, _ = unique_counts(lo * np.int64(k) + hi, k * k)
         pairs = np.stack([key // k, key % k], axis=1).astype(np.intp)
     if among is not None:
         pairs = pairs[among[pairs[:, 0]] | among[pairs[:, 1]]]
@@ -172,9 +192,10 @@ def gap_supported(index: PointIndex, gap_ends: np.ndarray, gap: np.ndarray, r: f
     n = np.maximum(1, np.ceil(gap[check] / (2 * r)).astype(np.intp))
     owner = np.repeat(np.arange(check.size), n)
     first = np.cumsum(n) - n
-    frac = (np.arange(owner.size) - first[owner] + 0.5) / n[owner]
-    a = gap_ends[check, 0][owner]
-    b = gap_ends[check, 1][owner]
+    frac = (np.arange(owner.size) - first.take(owner) + 0.5) / n.take(owner)
+    rows = check.take(owner)
+    a = np.take(gap_ends[:, 0], rows, axis=0)
+    b = np.take(gap_ends[:, 1], rows, axis=0)
     centres = a + (b - a) * frac[:, None]
     counts = index.count_in_disks(centres, r)
     lam = np.maximum(density[check], 1.0)
@@ -204,7 +225,7 @@ def _second_chance(index, ms, cost, pair_support, sigma, r, threshold):
     idx = np.flatnonzero(short & (cost >= threshold) & (cost < 3.0 * threshold))
     if idx.size == 0:
         return cost
-    p = index.pairs(ms['segment'][idx], 2.0 * sigma)
+    p = index.pairs(np.take(ms['segment'], idx, axis=0), 2.0 * sigma)
     held = np.bincount(p.seg, weights=index.weights[p.pt], minlength=idx.size)
     cost = cost.copy()
     cost[idx[held >= 0.9 * pair_support[idx]]] = 0.0
@@ -258,15 +279,15 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
         if len(pairs) == 0:
             break
         i, j = pairs[:, 0], pairs[:, 1]
-        ms = merged_segment(segments[i], segments[j])
+        ms = merged_segment(np.take(segments, i, axis=0), np.take(segments, j, axis=0))
         cost = grouping_cost(ms, sigma, theta_ref)
-        cost = _second_chance(index, ms, cost, support[i] + support[j], sigma, r, threshold)
+        cost = _second_chance(index, ms, cost, support.take(i) + support.take(j), sigma, r,
+                              threshold)
         cand = np.flatnonzero(cost < threshold)
         if cand.size == 0:
             break
-        _, length = directions(segments)
-        dens = support / np.maximum(length / (2 * r), 1.0)
-        ok = gap_supported(index, ms['gap_ends'][cand], ms['gap'][cand], r,
+        dens = support / np.maximum(lengths(segments) / (2 * r), 1.0)
+        ok = gap_supported(index, np.take(ms['gap_ends'], cand, axis=0), ms['gap'][cand], r,
                            np.minimum(dens[i[cand]], dens[j[cand]]), split_fraction, gap_p)
         cand = cand[ok]
         if cand.size == 0:
@@ -280,7 +301,8 @@ def merge_segments(index: PointIndex, segments: np.ndarray, support: np.ndarray,
                 chosen.append(m)
         chosen = np.asarray(chosen, dtype=np.intp)
         keep = ~used
-        segments = np.concatenate([segments[keep], ms['segment'][chosen]])
+        segments = np.concatenate([np.take(segments, np.flatnonzero(keep), axis=0),
+                                   np.take(ms['segment'], chosen, axis=0)])
         support = np.concatenate([support[keep], support[i[chosen]] + support[j[chosen]]])
         fresh = np.zeros(len(segments), dtype=bool)
         fresh[int(keep.sum()):] = True

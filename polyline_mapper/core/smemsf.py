@@ -226,6 +226,14 @@ def check_fit_input(points, weights=None) -> tuple:
     return pts, weights
 
 
+def _median(values: np.ndarray) -> float:
+    """Return ``float(np.median(values))`` of a non-empty array without NaN (same arithmetic)."""
+    h = values.size // 2
+    lo = h if values.size % 2 else h - 1
+    part = np.partition(values, (lo, h))
+    return float(np.add.reduce(part[lo:h + 1]) / (h + 1 - lo))
+
+
 def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
                      config: SMEMSFConfig, incremental: bool = False) -> tuple:
     """
@@ -252,7 +260,8 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
                                  trim_density, r)
     covered = np.zeros(len(index), dtype=bool)
     covered[est.pairs.pt] = True
-    seeds = seed_segments(index.points[~covered], index.weights[~covered],
+    free = ~covered
+    seeds = seed_segments(np.compress(free, index.points, axis=0), index.weights.compress(free),
                           config.seed_cell * r, config.min_support, config.min_density, r,
                           config.seed_thickness * sigma)
     segments = np.concatenate([segments, seeds])
@@ -278,8 +287,8 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
         np.minimum.at(nearest, est.pairs.pt, est.pairs.dist)
     sup = est.support >= 0
     sup[index.n_real:] = False                 # virtual points sit on their segments exactly
-    resid = nearest[sup]
-    scale = 1.4826 * float(np.median(resid)) if resid.size else sigma
+    resid = nearest.compress(sup)
+    scale = 1.4826 * _median(resid) if resid.size else sigma
     w = index.weights[:index.n_real]
     mean = float(np.sum(w * nearest[:index.n_real]) / max(np.sum(w), 1e-300))
     info = {'r': r, 'residual_scale': scale, 'seeds': int(len(seeds)), 'merges': int(merges),
