@@ -53,6 +53,7 @@ import time
 from typing import Callable, Iterable, NamedTuple, Optional
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from .core.geometry import se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
@@ -129,6 +130,172 @@ misses every start and stop: in a corridor whose only cue along its axis is a fe
 would keep a robot that starts moving standing still (the simulated office, scan only: 2.7 m RMS
 at 0.02, 2.5 cm at 0.005), so weak constraints are used there too.
 """
+GAP_SECONDS, GAP_FACTOR = MAX_MOTION_GAP, 3.0
+"""
+Scan mode: a scan more than this many seconds, and this many times the median interval of
+the last posed scans, after the last posed scan comes after a *gap* (dropped or unusable
+scans): the constant-velocity prediction (extrapolated at most ``MAX_MOTION_GAP``) cannot be
+trusted, and the pose is searched for wider (``search_after_gap``). A 2 s gap on the office
+drive (1 m/s, 1 rad/s) left the robot 0.7 m and 1.4 rad from the last pose: beyond the match's
+gate and heading turns; the track was lost (11 m RMS, walls F1 0.33). Shorter gaps are
+matched from the prediction, as every scan.
+"""
+GAP_SPEED, GAP_TURN_RATE, GAP_REACH = 1.0, 1.0, 3.0
+"""
+Scan mode, after a gap: the search covers the positions within the gap's length times this
+speed (m/s) of the prediction and the headings within its length times this turn rate (rad/s),
+at most half a turn; the speeds before the gap when higher (a corridor looks alike turned by
+half a turn: a heading the robot cannot have is not tried). A gap whose reach exceeds
+``GAP_REACH`` metres is not searched: the session is lost for good.
+"""
+GAP_STEP, GAP_TURN_STEP, GAP_CELL = 0.2, 0.05, 0.05
+"""Scan mode, after a gap: shift grid (m), heading grid (rad) and distance-field cell (m)."""
+GAP_CANDIDATES = 6
+"""Scan mode, after a gap: the best distinct poses of the search refined by scan matching."""
+GAP_KEYFRAMES, GAP_POINTS = 8, 120
+"""
+Scan mode, after a gap: the first keyframes of the scans tracked since, and the points of
+each, searched on the map together (a corridor seen from one place fits anywhere along it;
+with its end or a door in sight it fits once).
+"""
+GAP_SHARE, GAP_RIVAL = 0.9, 0.1
+"""
+Scan mode, after a gap: a pose found is taken when it puts at least ``GAP_SHARE`` times the
+median share of the last matched scans (and ``RELOCALIZE_SHARE``) of the points on the map,
+and no other refined candidate more than 0.5 m or 0.3 rad away comes within ``GAP_RIVAL`` of
+its share (a corridor seen without its ends fits anywhere along it, and turned by half a
+turn). Else the session is lost: no scan is mapped until one is found so.
+"""
+
+
+def search_after_gap(points: np.ndarray, segments: np.ndarray, center, radius: float,
+                     turn: float = math.pi, count: int = GAP_CANDIDATES) -> np.ndarray:
+    """
+    Return the poses (x, y, yaw) where the map best explains a scan, best first: (K, 3).
+
+    ``points`` (N, 2): the scan in the laser frame, metres (at most 120 of them are used);
+    ``segments`` (S, 2, 2): the map. The poses tried are the shifts on a ``GAP_STEP`` grid
+    within ``radius`` metres of ``center`` (3,) at the headings within ``turn`` radians of its
+    own (``GAP_TURN_STEP``); a placement scores the points through a distance field of the
+    segments (``GAP_CELL`` cells): sum of max(0, 1 - (d / tol)^2), tol 1.5 grid steps. K <=
+    ``count`` poses at least 0.5 m or 0.3 rad apart.
+    """
+    pts = spread(np.asarray(points, dtype=np.float64), 120)
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    center = np.asarray(center, dtype=np.float64)
+    if not len(pts) or not len(segs):
+        return np.zeros((0, 3))
+    tol = 1.5 * GAP_STEP
+    reach = radius + float(np.hypot(pts[:, 0], pts[:, 1]).max()) + tol
+    lo = center[:2] - reach
+    size = int(np.ceil(2 * reach / GAP_CELL)) + 1     # a square field around the center
+    # the segments rasterized (samples every half cell), then the distance to them
+    d = segs[:, 1] - segs[:, 0]
+    n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / (0.5 * GAP_CELL)), 1).astype(np.intp)
+    owner = np.repeat(np.arange(len(segs)), n + 1)
+    t = np.arange(len(owner)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+    t = t / np.repeat(n, n + 1)
+    cells = np.floor((segs[owner, 0] + t[:, None] * d[owner] - lo) / GAP_CELL).astype(np.intp)
+    inside = ((cells >= 0) & (cells < size)).all(axis=1)
+    free = np.ones((size, size), dtype=bool)
+    free[cells[inside, 0], cells[inside, 1]] = False
+    if free.all():
+        return np.zeros((0, 3))
+    dist = distance_transform_edt(free) * GAP_CELL
+    field = np.clip(1.0 - (dist / tol) ** 2, 0.0, None).ravel()
+    k = int(np.ceil(radius / GAP_STEP))
+    grid = np.arange(-k, k + 1) * GAP_STEP
+    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
+    keep = np.hypot(dx, dy) <= radius + 1e-9
+    shifts = np.column_stack([dx[keep], dy[keep]]) + center[:2]        # (P, 2)
+    k = int(np.ceil(min(turn, np.pi) / GAP_TURN_STEP))
+    headings = center[2] + np.arange(-k, k + (turn < np.pi)) * GAP_TURN_STEP     # (T,)
+    scores = np.empty((len(headings), len(shifts)))
+    base = (shifts - lo) / GAP_CELL
+    for i, h in enumerate(headings):        # (P, N) placements per heading
+        c, s = math.cos(h), math.sin(h)
+        rx = (c * pts[:, 0] - s * pts[:, 1]) / GAP_CELL
+        ry = (s * pts[:, 0] + c * pts[:, 1]) / GAP_CELL
+        ix = np.floor(base[:, :1] + rx).astype(np.intp)
+        iy = np.floor(base[:, 1:] + ry).astype(np.intp)
+        scores[i] = field[ix * size + iy].sum(axis=1)
+    order = np.argsort(scores, axis=None)[::-1][:50 * count]
+    ti, pi = np.unravel_index(order, scores.shape)
+    poses = np.column_stack([shifts[pi], headings[ti]])
+    out = []
+    for pose in poses:                      # the best, then the best far from those taken
+        if all(math.hypot(*(pose[:2] - q[:2])) > 0.5 or abs(wrap_angle(pose[2] - q[2])) > 0.3
+               for q in out):
+            out.append(pose)
+            if len(out) == count:
+                break
+    return np.array(out).reshape(-1, 3)
+
+
+class GapTrack:
+    """
+    Scan mode, after a gap: the scans tracked against each other until they are found on the map.
+
+    Poses are in the frame of the first scan after the gap (``motion``); ``center`` and
+    ``window``: where that scan is predicted on the map and how far (m, rad) it may be from
+    there. Keyframes (``KEYFRAME_STEP``) keep their chords (the next scans are matched to the
+    last ``RECENT_SCANS``) and ``GAP_POINTS`` of their points (the first ``GAP_KEYFRAMES``):
+    what is searched on the map.
+    """
+
+    def __init__(self, since: float, first: float, center: np.ndarray, window: tuple):
+        self.since = float(since)
+        """Stamp (s) of the last posed scan before the gap."""
+        self.first = float(first)
+        """Stamp (s) of the first scan after it."""
+        self.center = np.asarray(center, dtype=np.float64).copy()
+        self.window = (float(window[0]), float(window[1]))
+        self.motion = deque(maxlen=2)
+        self.chords = deque(maxlen=RECENT_SCANS)
+        self.keys = []
+        self.key_pose = None
+        self.warned = 0
+        """Warnings given: 1 lost, 2 given up."""
+        self.why = ''
+
+    def add(self, stamp: float, local: np.ndarray, sigma: float, degenerate: float) -> bool:
+        """Track one scan ((N, 2), laser frame); return whether it became a keyframe."""
+        pose = np.zeros(3)
+        if self.motion:
+            t1, pose = self.motion[-1]
+            t0 = self.motion[0][0]
+            if len(self.motion) == 2 and 0 < t1 - t0 <= MAX_MOTION_GAP:
+                step = se2_compose(se2_inverse(self.motion[0][1]), pose)
+                step[2] = wrap_angle(step[2])
+                pose = se2_compose(pose, step / (t1 - t0)
+                                   * min(max(stamp - t1, 0.0), MAX_MOTION_GAP))
+            if self.chords:
+                m = match_scan(local, pose, np.concatenate(list(self.chords)), sigma,
+                               degenerate=degenerate)
+                if m.ok:
+                    pose = m.pose
+            if stamp <= t1:
+                self.motion.clear()
+        self.motion.append((stamp, pose))
+        if self.key_pose is not None:
+            step = se2_compose(se2_inverse(self.key_pose), pose)
+            if (math.hypot(step[0], step[1]) < KEYFRAME_STEP[0]
+                    and abs(wrap_angle(step[2])) < KEYFRAME_STEP[1]):
+                return False
+        world = transform(local, pose)
+        self.chords.append(scan_chords(world))
+        self.keys.append(spread(world, GAP_POINTS))
+        self.key_pose = pose
+        return True
+
+    @property
+    def final(self) -> bool:
+        """Whether the scans are not searched again (``GAP_KEYFRAMES``, ``GAP_REACH``)."""
+        return len(self.keys) >= GAP_KEYFRAMES or self.window[0] > GAP_REACH
+
+    def points(self) -> np.ndarray:
+        """Return the keyframes' points, (N, 2) in the first scan's frame."""
+        return np.concatenate(list(self.keys))
 
 
 def beam_span(scan: Scan) -> float:
@@ -639,6 +806,10 @@ class MappingSession:
                             else deque(maxlen=TRAJECTORY_ROWS))
         self._motion = deque(maxlen=2)
         """(stamp, (x, y, yaw)) of the last two posed scans: the matched motion."""
+        self._intervals = deque(maxlen=10)
+        """Scan mode: seconds between the last posed scans (``GAP_FACTOR``)."""
+        self._gap = None
+        """Scan mode: the ``GapTrack`` of the scans after a gap until one is found on the map."""
         self._loaded = None
         """(MapValue, planner map or None, initial base pose or None) of ``load_map``."""
         self._place = None
@@ -698,6 +869,7 @@ class MappingSession:
             self._loaded = (value, grid, pose)
             self._place = pose
             self._correction = np.zeros(3)
+            self._gap = None
             self._recent.clear()
             self._recent_pose = None
             self._proposals.clear()
@@ -872,8 +1044,10 @@ class MappingSession:
                         self._correction = se2_compose(
                             self._place, se2_inverse(self.poses.robot_pose(scan)))
                     self._place = None
+                window = None
                 if scan_mode:
                     xyz = self._predict(scan.stamp) if start is None else start
+                    window = self._gap_window(scan.stamp) if start is None else None
                 motion = self._beam_motion(scan, pose, notes)
                 if motion is not None:
                     local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)
@@ -885,10 +1059,15 @@ class MappingSession:
                         before, self._last_match = self._correction, None
                         given = xyz
                         base = self.poses.robot_pose(scan)
-                        xyz, note = self._match(local, xyz, base)
+                        xyz, note = self._match(local, xyz, base, (scan.stamp, window))
                         notes += [note] if note is not None else []
                         notes += self._localize(scan.stamp, given, xyz, before)
                         m = self._last_match
+                        if self._gap is not None and (m is None or not m.ok):
+                            self._skip('not mapped', 'lost', f'the scan at {scan.stamp:.3f} s: '
+                                       f'not found after a gap in the scans since '
+                                       f'{self._gap.since:.3f} s')
+                            return notes
                         if self._proposals and (m is None or not m.ok):
                             # lost: the scans say the prediction is wrong, and where the robot
                             # is instead is not confirmed. Mapped nowhere, no motion.
@@ -905,6 +1084,9 @@ class MappingSession:
                                f'no reading within the mapping range at {scan.stamp:.3f} s')]
         if self._motion and scan.stamp <= self._motion[-1][0]:
             self._motion.clear()            # time went back: the old motion means nothing
+            self._intervals.clear()
+        if self._motion:
+            self._intervals.append(scan.stamp - self._motion[-1][0])
         self._motion.append((scan.stamp, xyz))
         if self.options.keep_points or self.options.scan_matching:
             # The robot base (the frame the laser is mounted on), where the laser went.
@@ -937,11 +1119,36 @@ class MappingSession:
         """
         if not self._motion:
             return se2_inverse(self._correction)
-        velocity = self._velocity(stamp)
-        last = self._motion[-1][1]
-        guess = last if velocity is None else se2_compose(
-            last, velocity * (stamp - self._motion[-1][0]))
+        t1, last = self._motion[-1]
+        velocity = self._velocity(t1)
+        elapsed = stamp - t1
+        guess = last if velocity is None or elapsed < 0 else se2_compose(
+            last, velocity * min(elapsed, MAX_MOTION_GAP))
         return se2_compose(se2_inverse(self._correction), guess)
+
+    def _gap_window(self, stamp: float) -> Optional[tuple]:
+        """
+        Scan mode: (m, rad) around the prediction to search when the scan comes after a gap.
+
+        A gap: more than ``GAP_SECONDS`` and ``GAP_FACTOR`` times the median interval of the
+        last posed scans since the last posed scan (or lost after one); None when there is
+        none. The window grows with the gap at ``GAP_SPEED`` and ``GAP_TURN_RATE`` (or the
+        speeds before it), the heading up to half a turn.
+        """
+        if not self._motion:
+            return None
+        t1 = self._motion[-1][0]
+        elapsed = stamp - t1
+        limit = GAP_SECONDS
+        if self._intervals:
+            limit = max(limit, GAP_FACTOR * float(np.median(self._intervals)))
+        if not (elapsed > limit or self._gap is not None):
+            return None
+        v = self._velocity(t1)
+        v = np.zeros(3) if v is None else np.abs(v)
+        elapsed = max(elapsed, 0.0)
+        return (max(GAP_SPEED, math.hypot(v[0], v[1])) * elapsed,
+                min(math.pi, max(GAP_TURN_RATE, v[2]) * elapsed))
 
     def _beam_motion(self, scan: Scan, pose: PlanarPose, notes: list) -> Optional[np.ndarray]:
         """
@@ -995,9 +1202,13 @@ class MappingSession:
         self._recent.append(scan_chords(transform(local, pose)))
         self._recent_pose = np.asarray(pose, dtype=np.float64).copy()
 
-    def _match(self, local: np.ndarray, given: np.ndarray, base: np.ndarray) -> tuple:
+    def _match(self, local: np.ndarray, given: np.ndarray, base: np.ndarray,
+               gap: tuple = (None, None)) -> tuple:
         """
         Refine ``given`` (the pose TF or odometry gives) against the map; (pose, note).
+
+        ``gap`` (scan mode): the scan's stamp and, after a gap, the window (m, rad) around the
+        prediction where the pose is searched instead (``_find_after_gap``; None: no gap).
 
         ``base``: the robot base's pose, as given (the odometry's motion is the base's). With
         TF or odometry, the prediction's covariance is the odometry's over the base's motion
@@ -1016,6 +1227,10 @@ class MappingSession:
         support = self.mapper.support if sigma is not None else np.zeros(0)
         sigma = sigma or MATCH_SIGMA
         recent = np.concatenate(list(self._recent)) if self._recent else np.zeros((0, 2, 2))
+        stamp, window = gap
+        if window is not None:
+            return self._find_after_gap(local, given, prediction, np.concatenate([segs, recent]),
+                                        sigma, window, base, stamp)
         world = transform(local, prediction)
         reach = 0.5 + self.mapper.r
         lo, hi = world.min(axis=0) - reach, world.max(axis=0) + reach
@@ -1055,6 +1270,91 @@ class MappingSession:
         self._keyframe(local, m.pose)
         self._correction = se2_compose(m.pose, se2_inverse(given))
         return m.pose, None
+
+    def _find_after_gap(self, local: np.ndarray, given: np.ndarray, prediction: np.ndarray,
+                        segments: np.ndarray, sigma: float, window: tuple, base: np.ndarray,
+                        stamp: float) -> tuple:
+        """
+        Scan mode: find the scan after a gap on the map ``segments``; return (pose, note).
+
+        The scans after the gap are tracked against each other (``GapTrack``, in the frame of
+        the first one). At each of its first ``GAP_KEYFRAMES`` keyframes, the best distinct
+        poses of that first scan (``search_after_gap``, within ``window`` (m, rad) of the
+        ``prediction``) for the keyframes' points are refined by ``match_scan``; the one putting
+        most of them on the map is taken (``GAP_SHARE``, ``GAP_RIVAL``). Until then the session
+        is lost (``_gap``): no scan is mapped; after them, or at once when the window is wider
+        than ``GAP_REACH``, for good (until ``reset``). A warning when the session is lost
+        and when it gives up.
+        """
+        degenerate = MATCH_DEGENERATE['scan']
+        track = self._gap
+        if track is None:
+            track = self._gap = GapTrack(self._motion[-1][0], stamp, prediction, window)
+            if window[0] > GAP_REACH:
+                track.why = (f'the robot may be anywhere within {window[0]:.1f} m, beyond the '
+                             f'{GAP_REACH:g} m scan matching searches')
+        if not track.final and track.add(stamp, local, sigma, degenerate):   # a new keyframe
+            points = track.points()
+            center, (radius, turn) = track.center, track.window
+            far = radius + 0.5 + float(np.hypot(points[:, 0], points[:, 1]).max())
+            near = segments[((segments.max(axis=1) >= center[:2] - far)
+                             & (segments.min(axis=1) <= center[:2] + far)).all(axis=1)]
+            found = [m for m in (match_scan(points, c, near, sigma, degenerate=degenerate)
+                                 for c in search_after_gap(points, near, center, radius, turn))
+                     if m.ok]
+            found.sort(key=lambda m: -m.share)
+            need = RELOCALIZE_SHARE
+            if self._shares:
+                need = max(need, GAP_SHARE * float(np.median(self._shares)))
+            track.why = 'no pose puts the scans on the map'
+            if found:
+                best = found[0]
+                rivals = [m for m in found[1:] if m.share >= best.share - GAP_RIVAL and (
+                    math.hypot(*(m.pose[:2] - best.pose[:2])) > 0.5
+                    or abs(wrap_angle(m.pose[2] - best.pose[2])) > 0.3)]
+                if best.share < need:
+                    track.why = (f'the best pose puts {100 * best.share:.0f} % of the scans on '
+                                 f'the map, under {100 * need:.0f} %')
+                elif rivals:
+                    apart = math.hypot(*(rivals[0].pose[:2] - best.pose[:2]))
+                    track.why = f'places {apart:.1f} m apart explain the scans alike'
+                else:
+                    return self._found_after_gap(best, local, given, base)
+        self._last_match = ScanMatch(prediction, _PRIOR, False, 'not found after a gap', 0,
+                                     math.nan, 3)
+        self.matches['not found after a gap'] += 1
+        gap = (f'a gap of {track.first - track.since:.1f} s in the scans (from '
+               f'{track.since:.3f} s)')
+        if track.final and track.warned < 2:
+            track.warned = 2
+            return prediction, ('scan_gap_given_up', f'scan matching gave up finding the '
+                                f'scans after {gap}: {track.why}; no later scan is mapped (the '
+                                'map stays as it was before the gap)')
+        if track.warned:
+            return prediction, None
+        track.warned = 1
+        return prediction, ('scan_gap', f'scan matching lost the track after {gap}: '
+                            f'{track.why}; scans are not mapped until they are found on the '
+                            'map again')
+
+    def _found_after_gap(self, m: ScanMatch, local: np.ndarray, given: np.ndarray,
+                         base: np.ndarray) -> tuple:
+        """Take ``m``, the gap track's first scan on the map; return (this scan's pose, None)."""
+        track, self._gap = self._gap, None
+        motion = [(t, se2_compose(m.pose, p)) for t, p in track.motion]
+        if len(motion) == 2:        # the tracked motion goes on (this scan is appended next)
+            self._motion.clear()
+            self._motion.append(motion[0])
+        pose = motion[-1][1]
+        self._last_match = m._replace(pose=pose, relocalized=True)
+        self.matches['found after a gap'] += 1
+        self._found = True          # the gap, not the prediction, made the jump
+        self._proposals.clear()
+        self._anchor = np.asarray(base, dtype=np.float64).copy()
+        self._shares.append(m.share)
+        self._keyframe(local, pose)
+        self._correction = se2_compose(pose, se2_inverse(given))
+        return pose, None
 
     def _relocalize_share(self) -> float:
         """Return the share on the map below which a scan starts the relocalization search."""
@@ -1350,6 +1650,8 @@ class MappingSession:
             self._shares.clear()
             self._anchor = None
             self._origins.clear()
+            self._intervals.clear()
+            self._gap = None
         with self._map_lock:
             dropped = len(self.mapper.segments)
             self.mapper.reset()
