@@ -33,12 +33,16 @@ clearly more points on the map (a wheel slip or a bump beyond the gate); new gro
 such pose and keeps the first result. A match with too few inliers or too large a correction
 is refused (``ok`` False, with the reason): the caller keeps the prediction, and the map is not
 corrupted by a scan placed wrong.
+
+``search_after_gap`` is the widest search: every shift and heading the robot can have moved
+during a gap in the scans (scan-only mapping), scored through a distance field of the map.
 """
 
 import math
 from typing import NamedTuple, Optional
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from .geometry import as_points, se2_compose, se2_inverse, wrap_angle
@@ -97,6 +101,12 @@ RELOCALIZE_GAIN = 1.5
 
 RELOCALIZE_STEP = 0.1
 """Metres between the shifts the relocalization search tries (scored within 1.5 steps)."""
+
+
+GAP_STEP, GAP_TURN_STEP, GAP_CELL = 0.2, 0.05, 0.05
+"""``search_after_gap``: shift grid (m), heading grid (rad) and distance-field cell (m)."""
+GAP_CANDIDATES = 6
+"""``search_after_gap``: how many distinct poses it returns (by default)."""
 
 
 class ScanMatch(NamedTuple):
@@ -626,3 +636,67 @@ def predict_constant_velocity(previous: Optional[np.ndarray], last: Optional[np.
     if previous is None:
         return np.asarray(last, dtype=np.float64).copy()
     return se2_compose(last, se2_compose(se2_inverse(previous), last))
+
+
+def search_after_gap(points: np.ndarray, segments: np.ndarray, center, radius: float,
+                     turn: float = math.pi, count: int = GAP_CANDIDATES) -> np.ndarray:
+    """
+    Return the poses (x, y, yaw) where the map best explains a scan, best first: (K, 3).
+
+    ``points`` (N, 2): the scan in the laser frame, metres (at most 120 of them are used);
+    ``segments`` (S, 2, 2): the map. The poses tried are the shifts on a ``GAP_STEP`` grid
+    within ``radius`` metres of ``center`` (3,) at the headings within ``turn`` radians of its
+    own (``GAP_TURN_STEP``); a placement scores the points through a distance field of the
+    segments (``GAP_CELL`` cells): sum of max(0, 1 - (d / tol)^2), tol 1.5 grid steps. K <=
+    ``count`` poses at least 0.5 m or 0.3 rad apart.
+    """
+    pts = spread(np.asarray(points, dtype=np.float64), 120)
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    center = np.asarray(center, dtype=np.float64)
+    if not len(pts) or not len(segs):
+        return np.zeros((0, 3))
+    tol = 1.5 * GAP_STEP
+    reach = radius + float(np.hypot(pts[:, 0], pts[:, 1]).max()) + tol
+    lo = center[:2] - reach
+    size = int(np.ceil(2 * reach / GAP_CELL)) + 1     # a square field around the center
+    # the segments rasterized (samples every half cell), then the distance to them
+    d = segs[:, 1] - segs[:, 0]
+    n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / (0.5 * GAP_CELL)), 1).astype(np.intp)
+    owner = np.repeat(np.arange(len(segs)), n + 1)
+    t = np.arange(len(owner)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+    t = t / np.repeat(n, n + 1)
+    cells = np.floor((segs[owner, 0] + t[:, None] * d[owner] - lo) / GAP_CELL).astype(np.intp)
+    inside = ((cells >= 0) & (cells < size)).all(axis=1)
+    free = np.ones((size, size), dtype=bool)
+    free[cells[inside, 0], cells[inside, 1]] = False
+    if free.all():
+        return np.zeros((0, 3))
+    dist = distance_transform_edt(free) * GAP_CELL
+    field = np.clip(1.0 - (dist / tol) ** 2, 0.0, None).ravel()
+    k = int(np.ceil(radius / GAP_STEP))
+    grid = np.arange(-k, k + 1) * GAP_STEP
+    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
+    keep = np.hypot(dx, dy) <= radius + 1e-9
+    shifts = np.column_stack([dx[keep], dy[keep]]) + center[:2]        # (P, 2)
+    k = int(np.ceil(min(turn, np.pi) / GAP_TURN_STEP))
+    headings = center[2] + np.arange(-k, k + (turn < np.pi)) * GAP_TURN_STEP     # (T,)
+    scores = np.empty((len(headings), len(shifts)))
+    base = (shifts - lo) / GAP_CELL
+    for i, h in enumerate(headings):        # (P, N) placements per heading
+        c, s = math.cos(h), math.sin(h)
+        rx = (c * pts[:, 0] - s * pts[:, 1]) / GAP_CELL
+        ry = (s * pts[:, 0] + c * pts[:, 1]) / GAP_CELL
+        ix = np.floor(base[:, :1] + rx).astype(np.intp)
+        iy = np.floor(base[:, 1:] + ry).astype(np.intp)
+        scores[i] = field[ix * size + iy].sum(axis=1)
+    order = np.argsort(scores, axis=None)[::-1][:50 * count]
+    ti, pi = np.unravel_index(order, scores.shape)
+    poses = np.column_stack([shifts[pi], headings[ti]])
+    out = []
+    for pose in poses:                      # the best, then the best far from those taken
+        if all(math.hypot(*(pose[:2] - q[:2])) > 0.5 or abs(wrap_angle(pose[2] - q[2])) > 0.3
+               for q in out):
+            out.append(pose)
+            if len(out) == count:
+                break
+    return np.array(out).reshape(-1, 3)
