@@ -39,6 +39,36 @@ def test_beams_are_counted_per_square():
     assert graze[0].sum() == 0 and graze[1].sum() == 0
 
 
+def test_with_a_hit_margin_returns_the_margin_cannot_tell_from_the_wall_are_hits():
+    # A 1 m wall on y = 0 in 4 squares, the laser 2 m below its middle; tol 3 cm, hit margin
+    # 3 cm + 0.03 x range (about 9 cm here).
+    wall = np.array([[[0.0, 0.0], [1.0, 0.0]]])
+    n_sub, _ = square_layout(wall, 0.125)
+    origin = np.array([0.5, -2.0])
+    points = np.array([
+        [0.10, 0.08],           # 8 cm beyond square 0: inside the margin
+        [0.40, -0.07],          # 7 cm before square 1
+        [0.62, 0.02],           # on square 2
+        [1.02, 0.01],           # past the wall's end: abreast of nothing
+        [0.80, 0.20],           # 20 cm beyond square 3: a pass, no hit
+    ])
+    crossing = beam_evidence(wall, n_sub, origin, points, tol=0.03)
+    assert crossing[0].tolist() == [0, 0, 1, 0] and crossing[1].tolist() == [0, 0, 0, 1]
+    hits, passes = beam_evidence(wall, n_sub, origin, points, tol=0.03, hit_range_tol=0.03)
+    assert hits.tolist() == [1, 1, 1, 0] and passes.tolist() == [0, 0, 0, 1]
+    # a beam along the wall (6 degrees) ending on it is a hit with the margin, never a pass
+    graze = (np.array([-2.0, -0.25]), np.array([[0.7, 0.02]]))
+    assert beam_evidence(wall, n_sub, *graze, tol=0.03)[0].sum() == 0
+    assert beam_evidence(wall, n_sub, *graze, tol=0.03, hit_range_tol=0.03)[0].tolist() == \
+        [0, 0, 1, 0]
+    # hits count over the stretch passes count on: not within tol of an end
+    edge = beam_evidence(wall, n_sub, origin, np.array([[0.01, 0.0], [0.99, 0.0]]), tol=0.03,
+                         hit_range_tol=0.03)
+    assert edge[0].sum() == 0
+    with pytest.raises(ValueError, match='free_space_hit_margin'):
+        IncrementalConfig(free_space_hit_margin=-0.01)
+
+
 def test_a_wall_hit_many_times_needs_many_passes():
     counts = np.zeros((2, 2))
     for _ in range(30):                     # a wall seen well: 8 hits a scan on both squares

@@ -39,6 +39,15 @@ def test_dynamic_office_with_ghosts(seed):
     assert len(small._ghosts[0]) == 25 and all(len(g) == 25 for g in small._ghosts)
 
 
+@pytest.mark.parametrize('seed', [1, 3])
+def test_dynamic_office_with_ghosts_and_the_hit_margin(seed):
+    # Returns within the margin of a square count as its hits at any angle
+    # (free_space_hit_margin): walls found, the door, the box and the people still gone.
+    drive = simulate_drive(office_dynamic(), LaserSpec(noise=0.01), rng=seed)
+    mapper = run(drive, dataclasses.replace(GHOSTS, free_space_hit_margin=0.03))
+    assert_walls_stay_and_what_moved_is_gone(mapper.polylines().segments, drive)
+
+
 def test_ghosts_lower_the_contradicted_share_on_intel():
     # Intel, incremental, window 10: 1.24 % of the map's length contradicted without ghosts,
     # 0.60 % with them, mean 2.71 -> 2.70 cm and coverage 97.4 -> 97.1 % (issue 18's bars: at

@@ -178,7 +178,7 @@ def seen_through(segs: np.ndarray, origin: np.ndarray, points: np.ndarray, tol: 
 
 def beam_evidence(segs: np.ndarray, n_sub: np.ndarray, origin: np.ndarray, points: np.ndarray,
                   tol: float, range_tol: float = 0.03,
-                  min_sin: float = np.sin(np.deg2rad(20.0))) -> tuple:
+                  min_sin: float = np.sin(np.deg2rad(20.0)), hit_range_tol=None) -> tuple:
     """
     Count one scan's beams that end on and that pass through each square of each segment.
 
@@ -187,11 +187,18 @@ def beam_evidence(segs: np.ndarray, n_sub: np.ndarray, origin: np.ndarray, point
     a square when it crosses the segment inside it, more than ``tol`` from the segment's ends
     (or ``END_SHARE`` of its length, if less: a person's 5 cm segment must be seen through too),
     at >= asin(``min_sin``) to it, and returns beyond its line by more than ``tol + range_tol x
-    range`` (perpendicular); it *hits* the square when its return lies within ``tol`` of the
-    line where it crosses (the same geometry as ``seen_through``: the noise margin grows with
-    sigma through ``tol`` and with range through ``range_tol``, and is measured perpendicular,
-    so as strict at a slant as head-on). Beams ending before the segment are not counted.
-    Returns (hits, passes), two int arrays of ``n_sub.sum()``.
+    range`` (perpendicular: as strict at a slant as head-on).
+
+    With ``hit_range_tol`` None it *hits* the square when it crosses there the same way and
+    its return lies within ``tol`` of the line (the same geometry as ``seen_through``). With a
+    number it hits the square its return projects into when the return lies within ``tol +
+    hit_range_tol x range`` of the segment's line, abreast of the stretch where passes count
+    (the same distance from the ends), at any angle: a return the margin cannot tell from the
+    surface is evidence for it. (Summed over every 5th fr079 scan against its default replay
+    map, passes outnumber hits on 19 % of the map's length with the crossing hits, on 9.8 %
+    with the margin at 0.03, where the map -> beams metric finds 5.8 % contradicted.) Beams
+    ending before the segment, beyond the margin, are not counted. Returns (hits, passes),
+    two int arrays of ``n_sub.sum()``.
 
     Memory: as ``seen_through`` (blocks of at most ``PAIR_BUDGET`` pairs).
     """
@@ -201,14 +208,42 @@ def beam_evidence(segs: np.ndarray, n_sub: np.ndarray, origin: np.ndarray, point
     if len(segs) == 0 or len(points) == 0:
         return hits, passes
     offset = np.cumsum(n_sub) - n_sub
-    sub_len = lengths(segs) / np.maximum(n_sub, 1)
-    for c0, c1, k, through, hit, s in _beam_blocks(segs, origin, points, tol, range_tol,
-                                                   min_sin, END_SHARE):
+    length = lengths(segs)
+    sub_len = np.maximum(length / np.maximum(n_sub, 1), 1e-12)
+    if hit_range_tol is None:
+        for c0, c1, k, through, hit, s in _beam_blocks(segs, origin, points, tol, range_tol,
+                                                       min_sin, END_SHARE):
+            g = k + c0
+            sq = offset[g] + np.clip((s / sub_len[g]).astype(np.intp), 0, n_sub[g] - 1)
+            hits += np.bincount(sq[hit], minlength=total)
+            passes += np.bincount(sq[through], minlength=total)
+        return hits, passes
+    rel = points - origin
+    rng = np.hypot(rel[:, 0], rel[:, 1])
+    w = segs[:, 0] - origin                                   # (K, 2) first end from the laser
+    e = segs[:, 1] - segs[:, 0]
+    ee = np.maximum(length * length, 1e-300)
+    edge = np.minimum(tol, END_SHARE * length) / np.maximum(length, 1e-300)
+    # a return off the line abreast of the segment near an end can lie outside its angular
+    # span: widen the span by tol
+    laser_near = project(np.broadcast_to(origin, (len(segs), 2)), segs)[0] <= tol
+    for c0, c1, k, beam in span_pairs(w, e, rel, tol, laser_near):
+        through, _, s = _crossings(rel, rng, beam, e[c0:c1], w[c0:c1], k, tol, range_tol,
+                                   min_sin, END_SHARE)
         g = k + c0
-        sq = offset[g] + np.clip((s / np.maximum(sub_len[g], 1e-12)).astype(np.intp), 0,
-                                 n_sub[g] - 1)
-        hits += np.bincount(sq[hit], minlength=total)
+        n_g = np.take(n_sub, g)
+        first = np.take(offset, g)
+        sq = first + np.clip((s / np.take(sub_len, g)).astype(np.intp), 0, n_g - 1)
         passes += np.bincount(sq[through], minlength=total)
+        qx = np.take(rel[:, 0], beam) - np.take(w[:, 0], g)
+        qy = np.take(rel[:, 1], beam) - np.take(w[:, 1], g)
+        ex, ey = np.take(e[:, 0], g), np.take(e[:, 1], g)
+        u = (qx * ex + qy * ey) / np.take(ee, g)
+        lo = np.take(edge, g)
+        hit = ((u >= lo) & (u <= 1.0 - lo) & (np.hypot(qx - u * ex, qy - u * ey)
+                                              <= tol + hit_range_tol * np.take(rng, beam)))
+        sq = first + np.clip((u * n_g).astype(np.intp), 0, n_g - 1)
+        hits += np.bincount(sq[hit], minlength=total)
     return hits, passes
 
 

@@ -149,6 +149,13 @@ class IncrementalConfig:
     single square left between two cuts or beside one goes too once a beam passed through it
     (as a piece of its own its crossing window would shrink to its middle half, so a 5 cm
     sliver of a box or a person's track stayed)."""
+    free_space_hit_margin: float = 0.0
+    """With ``free_space_window`` > 0: 0 (the default) counts as a square's hits the beams that
+    cross it at >= 20 deg and return within kappa sigma of its line; > 0 counts every return
+    within kappa sigma + this x its range of the line, abreast of the square, at any angle
+    (``cleanup.beam_evidence``): the same margin as a pass's at 0.03. Crossing hits are so
+    few that cut squares held real structure (fr079, window 10 and 20000 ghosts: 2.78 % /
+    4.53 cm / 90.7 % without, 2.52 % / 3.98 cm / 92.9 % with 0.03)."""
     max_mapping_range: float = 100.0
     """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
     range_max says: far returns set neither r, sigma nor the work of an update. The shared logs
@@ -168,7 +175,8 @@ class IncrementalConfig:
             if int(v) != v or v < lo:
                 raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
         for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 0.01),
-                         ('clear_max_length', 0.0), ('max_mapping_range', 1e-9)):
+                         ('clear_max_length', 0.0), ('max_mapping_range', 1e-9),
+                         ('free_space_hit_margin', 0.0)):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
@@ -558,7 +566,8 @@ class IncrementalMapper:
                                                 np.concatenate([stored[j] for j in redo]),
                                                 seg_j, n_sub[n_new:][redo], r)
         for a, b, o in views:
-            hits, passes = beam_evidence(group, n_sub, o, pts[a:b], tol)
+            hits, passes = beam_evidence(group, n_sub, o, pts[a:b], tol,
+                                         hit_range_tol=self.config.free_space_hit_margin or None)
             counts = accumulate_evidence(counts, hits, passes, self.config.free_space_window)
         free = free_squares(counts)
         if self.config.free_space_ghosts > 0 and free.any():
