@@ -163,6 +163,46 @@ turn). Else the session is lost: no scan is mapped until one is found so.
 """
 
 
+def motion_velocity(motion, stamp: float) -> Optional[np.ndarray]:
+    """
+    Return the motion per second (body frame, (3,)) of ``motion`` usable at ``stamp``, or None.
+
+    ``motion``: the last two (stamp, (x, y, yaw)) poses; None when fewer, more than
+    ``MAX_MOTION_GAP`` apart, or ``stamp`` is not within ``MAX_MOTION_GAP`` after the last.
+    """
+    if len(motion) < 2:
+        return None
+    (t0, p0), (t1, p1) = motion
+    if not (0 < t1 - t0 <= MAX_MOTION_GAP and 0 <= stamp - t1 <= MAX_MOTION_GAP):
+        return None
+    step = se2_compose(se2_inverse(p0), p1)
+    step[2] = wrap_angle(step[2])
+    return step / (t1 - t0)
+
+
+def extrapolate(motion, stamp: float) -> np.ndarray:
+    """
+    Return the last pose of ``motion`` moved on at its velocity to ``stamp``: constant velocity.
+
+    At most ``MAX_MOTION_GAP`` of motion is added; the last pose itself without a velocity
+    (``motion_velocity``) or for a ``stamp`` before it.
+    """
+    t1, last = motion[-1]
+    velocity = motion_velocity(motion, t1)
+    elapsed = stamp - t1
+    return last if velocity is None or elapsed < 0 else se2_compose(
+        last, velocity * min(elapsed, MAX_MOTION_GAP))
+
+
+def far_enough(last: Optional[np.ndarray], pose: np.ndarray) -> bool:
+    """Return whether ``pose`` is ``KEYFRAME_STEP`` or more from keyframe ``last`` (or none)."""
+    if last is None:
+        return True
+    step = se2_compose(se2_inverse(last), pose)
+    return not (math.hypot(step[0], step[1]) < KEYFRAME_STEP[0]
+                and abs(wrap_angle(step[2])) < KEYFRAME_STEP[1])
+
+
 class GapTrack:
     """
     Scan mode, after a gap: the scans tracked against each other until they are found on the map.
@@ -193,13 +233,8 @@ class GapTrack:
         """Track one scan ((N, 2), laser frame); return whether it became a keyframe."""
         pose = np.zeros(3)
         if self.motion:
-            t1, pose = self.motion[-1]
-            t0 = self.motion[0][0]
-            if len(self.motion) == 2 and 0 < t1 - t0 <= MAX_MOTION_GAP:
-                step = se2_compose(se2_inverse(self.motion[0][1]), pose)
-                step[2] = wrap_angle(step[2])
-                pose = se2_compose(pose, step / (t1 - t0)
-                                   * min(max(stamp - t1, 0.0), MAX_MOTION_GAP))
+            t1 = self.motion[-1][0]
+            pose = extrapolate(self.motion, stamp)
             if self.chords:
                 m = match_scan(local, pose, np.concatenate(list(self.chords)), sigma,
                                degenerate=degenerate)
@@ -208,11 +243,8 @@ class GapTrack:
             if stamp <= t1:
                 self.motion.clear()
         self.motion.append((stamp, pose))
-        if self.key_pose is not None:
-            step = se2_compose(se2_inverse(self.key_pose), pose)
-            if (math.hypot(step[0], step[1]) < KEYFRAME_STEP[0]
-                    and abs(wrap_angle(step[2])) < KEYFRAME_STEP[1]):
-                return False
+        if not far_enough(self.key_pose, pose):
+            return False
         world = transform(local, pose)
         self.chords.append(scan_chords(world))
         self.keys.append(spread(world, GAP_POINTS))
@@ -1029,33 +1061,17 @@ class MappingSession:
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
 
-    def _velocity(self, stamp: float) -> Optional[np.ndarray]:
-        """Return the matched motion per second (body frame, (3,)) usable at ``stamp``, or None."""
-        if len(self._motion) < 2:
-            return None
-        (t0, p0), (t1, p1) = self._motion
-        if not (0 < t1 - t0 <= MAX_MOTION_GAP and 0 <= stamp - t1 <= MAX_MOTION_GAP):
-            return None
-        step = se2_compose(se2_inverse(p0), p1)
-        step[2] = wrap_angle(step[2])
-        return step / (t1 - t0)
-
     def _predict(self, stamp: float) -> np.ndarray:
         """
         Scan mode: the given pose whose correction is the constant-velocity prediction.
 
-        The prediction is the last pose moved on by the last motion (``_velocity``), the
+        The prediction is the last pose moved on by the last motion (``extrapolate``), the
         origin for the first scan; returned as ``correction^-1 * prediction`` so that the
         matcher's prediction (correction * given) is it.
         """
         if not self._motion:
             return se2_inverse(self._correction)
-        t1, last = self._motion[-1]
-        velocity = self._velocity(t1)
-        elapsed = stamp - t1
-        guess = last if velocity is None or elapsed < 0 else se2_compose(
-            last, velocity * min(elapsed, MAX_MOTION_GAP))
-        return se2_compose(se2_inverse(self._correction), guess)
+        return se2_compose(se2_inverse(self._correction), extrapolate(self._motion, stamp))
 
     def _gap_window(self, stamp: float) -> Optional[tuple]:
         """
@@ -1075,7 +1091,7 @@ class MappingSession:
             limit = max(limit, GAP_FACTOR * float(np.median(self._intervals)))
         if not (elapsed > limit or self._gap is not None):
             return None
-        v = self._velocity(t1)
+        v = motion_velocity(self._motion, t1)
         v = np.zeros(3) if v is None else np.abs(v)
         elapsed = max(elapsed, 0.0)
         return (max(GAP_SPEED, math.hypot(v[0], v[1])) * elapsed,
@@ -1108,7 +1124,7 @@ class MappingSession:
             except TransformLookupError:
                 rel = None
         if rel is None:
-            velocity = self._velocity(scan.stamp)
+            velocity = motion_velocity(self._motion, scan.stamp)
             if velocity is None:
                 return None
             rel = velocity[None] * knots[1:, None]
@@ -1124,12 +1140,8 @@ class MappingSession:
         their small errors would add up scan after scan (a perfect odometry drifted 0.25 m over
         2400 scans so); matched to keyframes ``KEYFRAME_STEP`` apart they add up per keyframe.
         """
-        last = self._recent_pose
-        if last is not None:
-            step = se2_compose(se2_inverse(last), pose)
-            if (math.hypot(step[0], step[1]) < KEYFRAME_STEP[0]
-                    and abs(wrap_angle(step[2])) < KEYFRAME_STEP[1]):
-                return
+        if not far_enough(self._recent_pose, pose):
+            return
         self._recent.append(scan_chords(transform(local, pose)))
         self._recent_pose = np.asarray(pose, dtype=np.float64).copy()
 
