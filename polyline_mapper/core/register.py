@@ -45,7 +45,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
-from .geometry import as_points, se2_compose, se2_inverse, wrap_angle
+from .geometry import as_points, sample_segments, se2_compose, se2_inverse, wrap_angle
 
 
 TURN_MARGIN = 1.1
@@ -154,12 +154,7 @@ class _SegmentSamples:
     """
 
     def __init__(self, segments: np.ndarray, spacing: float):
-        d = segments[:, 1] - segments[:, 0]
-        n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / spacing).astype(np.intp), 1) + 1
-        self.owner = np.repeat(np.arange(len(segments)), n)
-        start = np.cumsum(n) - n
-        t = (np.arange(len(self.owner)) - np.repeat(start, n)) / np.repeat(n - 1, n)
-        samples = segments[self.owner, 0] + t[:, None] * d[self.owner]
+        samples, self.owner = sample_segments(segments, spacing)
         self.tree = cKDTree(samples)
 
     def pairs(self, points: np.ndarray, gate: float) -> tuple:
@@ -366,15 +361,20 @@ def _search(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, radius: fl
     steps (a pose half a step off still scores).
     """
     pts = spread(pts, TURN_POINTS)
-    k = int(np.ceil(radius / RELOCALIZE_STEP))
-    grid = np.arange(-k, k + 1) * RELOCALIZE_STEP
-    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
-    inside = np.hypot(dx, dy) <= radius + 1e-9
-    shifts = np.column_stack([dx[inside], dy[inside]])                   # (S, 2)
+    shifts = _disk_grid(radius, RELOCALIZE_STEP)                        # (S, 2)
     turns = np.asarray(turns, dtype=np.float64).reshape(-1)
     score = _placements(near, pts, pose, turns, shifts, 1.5 * RELOCALIZE_STEP)
     t, i = np.unravel_index(int(np.argmax(score)), score.shape)
     return np.array([pose[0] + shifts[i, 0], pose[1] + shifts[i, 1], pose[2] + turns[t]])
+
+
+def _disk_grid(radius: float, step: float) -> np.ndarray:
+    """Return the points of a square grid ``step`` apart within ``radius`` of (0, 0): (S, 2)."""
+    k = int(np.ceil(radius / step))
+    grid = np.arange(-k, k + 1) * step
+    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
+    inside = np.hypot(dx, dy) <= radius + 1e-9
+    return np.column_stack([dx[inside], dy[inside]])
 
 
 class _Steps(NamedTuple):
@@ -660,12 +660,7 @@ def search_after_gap(points: np.ndarray, segments: np.ndarray, center, radius: f
     lo = center[:2] - reach
     size = int(np.ceil(2 * reach / GAP_CELL)) + 1     # a square field around the center
     # the segments rasterized (samples every half cell), then the distance to them
-    d = segs[:, 1] - segs[:, 0]
-    n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / (0.5 * GAP_CELL)), 1).astype(np.intp)
-    owner = np.repeat(np.arange(len(segs)), n + 1)
-    t = np.arange(len(owner)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
-    t = t / np.repeat(n, n + 1)
-    cells = np.floor((segs[owner, 0] + t[:, None] * d[owner] - lo) / GAP_CELL).astype(np.intp)
+    cells = np.floor((sample_segments(segs, 0.5 * GAP_CELL)[0] - lo) / GAP_CELL).astype(np.intp)
     inside = ((cells >= 0) & (cells < size)).all(axis=1)
     free = np.ones((size, size), dtype=bool)
     free[cells[inside, 0], cells[inside, 1]] = False
@@ -673,11 +668,7 @@ def search_after_gap(points: np.ndarray, segments: np.ndarray, center, radius: f
         return np.zeros((0, 3))
     dist = distance_transform_edt(free) * GAP_CELL
     field = np.clip(1.0 - (dist / tol) ** 2, 0.0, None).ravel()
-    k = int(np.ceil(radius / GAP_STEP))
-    grid = np.arange(-k, k + 1) * GAP_STEP
-    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
-    keep = np.hypot(dx, dy) <= radius + 1e-9
-    shifts = np.column_stack([dx[keep], dy[keep]]) + center[:2]        # (P, 2)
+    shifts = _disk_grid(radius, GAP_STEP) + center[:2]                  # (P, 2)
     k = int(np.ceil(min(turn, np.pi) / GAP_TURN_STEP))
     headings = center[2] + np.arange(-k, k + (turn < np.pi)) * GAP_TURN_STEP     # (T,)
     scores = np.empty((len(headings), len(shifts)))
