@@ -54,7 +54,7 @@ from typing import Callable, Iterable, NamedTuple, Optional
 
 import numpy as np
 
-from .core.geometry import se2_compose, se2_inverse, wrap_angle
+from .core.geometry import in_box, se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
@@ -1177,8 +1177,7 @@ class MappingSession:
         world = transform(local, prediction)
         reach = 0.5 + self.mapper.r
         lo, hi = world.min(axis=0) - reach, world.max(axis=0) + reach
-        inside = [((s.max(axis=1) >= lo) & (s.min(axis=1) <= hi)).all(axis=1)
-                  for s in (segs, recent)]      # near the predicted scan (bounding boxes)
+        inside = [in_box(s, lo, hi) for s in (segs, recent)]   # near the predicted scan
         segs, recent, support = segs[inside[0]], recent[inside[1]], support[inside[0]]
         if not len(segs) and not len(recent):
             self.matches['no map yet'] += 1
@@ -1240,8 +1239,7 @@ class MappingSession:
             points = track.points()
             center, (radius, turn) = track.center, track.window
             far = radius + 0.5 + float(np.hypot(points[:, 0], points[:, 1]).max())
-            near = segments[((segments.max(axis=1) >= center[:2] - far)
-                             & (segments.min(axis=1) <= center[:2] + far)).all(axis=1)]
+            near = segments[in_box(segments, center[:2] - far, center[:2] + far)]
             found = [m for m in (match_scan(points, c, near, sigma, degenerate=degenerate)
                                  for c in search_after_gap(points, near, center, radius, turn))
                      if m.ok]

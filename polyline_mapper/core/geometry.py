@@ -141,6 +141,17 @@ def sample_segments(segments: np.ndarray, step: float) -> tuple:
     return a + (b - a) * frac[:, None], owner
 
 
+def in_box(segments: np.ndarray, lo, hi) -> np.ndarray:
+    """
+    Return which segments' bounding boxes reach into the box ``lo``..``hi`` (corners, (2,)).
+
+    >>> in_box(np.array([[[0.0, 0.0], [1.0, 1.0]], [[3.0, 3.0], [4.0, 3.0]]]), (0.5, 0.5),
+    ...        (2.0, 2.0)).tolist()
+    [True, False]
+    """
+    return ((segments.max(axis=1) >= lo) & (segments.min(axis=1) <= hi)).all(axis=1)
+
+
 def end_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     Distance between segments matched pair by pair, end to end, either way round.

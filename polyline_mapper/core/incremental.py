@@ -84,7 +84,7 @@ from typing import Optional
 import numpy as np
 
 from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
-from .geometry import as_points, lengths, sample_segments
+from .geometry import as_points, in_box, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
@@ -519,8 +519,7 @@ class IncrementalMapper:
         if views:
             corners = np.concatenate([pts, np.array([o for _, _, o in views])])
             lo, hi = corners.min(axis=0), corners.max(axis=0)
-            box = (self._alive & np.all(self._seg.min(axis=1) <= hi, axis=1)
-                   & np.all(self._seg.max(axis=1) >= lo, axis=1))
+            box = self._alive & in_box(self._seg, lo, hi)
             box[active] = False
             others = np.flatnonzero(box)
         n_new = len(segs)
