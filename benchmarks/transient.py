@@ -4,7 +4,7 @@ Free-space evidence (issue 18): whether the points it leaves unexplained are tra
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/transient.py [--datasets DIR] [--only NAME ...] [--window 10]
-        [--modes replay batch] [--no-readme]
+        [--modes replay batch] [--set KEY=NUMBER ...] [--name NAME] [--no-readme]
 
 For each log (Intel, CSAIL, infinite corridor, fr079) and each mode (``replay``: the
 incremental map ``polyline-mapper replay`` makes, every scan, poses from the log;
@@ -204,7 +204,8 @@ def make_map(path: pathlib.Path, mode: str, window: int, extra: dict = None) -> 
     """
     Map one log: ``(segments, points, origins, seconds, update median ms or None)``.
 
-    ``extra``: more ``IncrementalConfig`` fields for a replay with ``window`` > 0.
+    ``extra``: more ``IncrementalConfig`` fields for a replay with ``window`` > 0 (a batch fit
+    takes ``free_space_hit_margin`` of them).
     """
     t0 = time.perf_counter()
     if mode == 'replay':
@@ -218,8 +219,9 @@ def make_map(path: pathlib.Path, mode: str, window: int, extra: dict = None) -> 
     from polyline_mapper.core import fit
     from polyline_mapper.recordings import read_beams
     points, origins, _ = read_beams(str(path))
-    res = (fit(points, origins=origins, free_space_window=window) if window > 0
-           else fit(points))
+    margin = (extra or {}).get('free_space_hit_margin', 0.0)
+    res = (fit(points, origins=origins, free_space_window=window, free_space_hit_margin=margin)
+           if window > 0 else fit(points))
     return res.segments, points, origins, time.perf_counter() - t0, None
 
 
@@ -318,8 +320,9 @@ def main(argv=None) -> int:
     ap.add_argument('--modes', nargs='*', default=['replay', 'batch'],
                     choices=['replay', 'batch'])
     ap.add_argument('--window', type=int, default=10, help='free_space_window when on')
-    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=INT',
-                    help='more IncrementalConfig fields of the window replay (integers)')
+    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=NUMBER',
+                    help='more IncrementalConfig fields of the window replay (numbers; the '
+                    'batch fit takes free_space_hit_margin)')
     ap.add_argument('--name', default='transient',
                     help='README markers and results/NAME.json (default: transient)')
     ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
@@ -328,9 +331,10 @@ def main(argv=None) -> int:
         print('transient.py: error: --window must be >= 1', file=sys.stderr)
         return 2
     try:
-        extra = {k: int(v) for k, v in (item.split('=', 1) for item in args.set)}
+        extra = {k: float(v) if '.' in v or 'e' in v.lower() else int(v)
+                 for k, v in (item.split('=', 1) for item in args.set)}
     except ValueError:
-        print(f'transient.py: error: --set takes KEY=INT, got {args.set}', file=sys.stderr)
+        print(f'transient.py: error: --set takes KEY=NUMBER, got {args.set}', file=sys.stderr)
         return 2
     meta = stamp('.venv/bin/python benchmarks/transient.py '
                  + ' '.join(argv if argv is not None else sys.argv[1:]))

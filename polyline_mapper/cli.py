@@ -53,7 +53,7 @@ def load_config(path: str = None, overrides: list = ()) -> SMEMSFConfig:
 
 
 def load_fit_options(path: str = None, overrides: list = ()) -> tuple:
-    """Return (fit configuration, ``free_space_window``) of ``--config`` and ``--set``."""
+    """Return (fit configuration, free-space keywords of ``fit``) of ``--config`` and ``--set``."""
     from .config import load_fit_options as load
     return load(path, overrides)
 
@@ -87,11 +87,12 @@ def _progress_factory(enabled: bool, desc: str, unit: str):
 
 
 def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True, origins=None,
-            free_space_window: int = 0):
+            free_space_window: int = 0, free_space_hit_margin: float = 0.0):
     """
     Fit with a progress bar over iterations (shown on a terminal only).
 
-    ``origins`` (N, 2) and ``free_space_window`` > 0: fit with the beams' free-space evidence.
+    ``origins`` (N, 2) and ``free_space_window`` > 0: fit with the beams' free-space evidence
+    (and ``free_space_hit_margin``).
     """
     bar = None
     if progress:
@@ -107,7 +108,8 @@ def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True, ori
         if origins is None or free_space_window <= 0:
             return fit(points, config, progress=tick)
         return fit(points, config, progress=tick, origins=origins,
-                   free_space_window=free_space_window)
+                   free_space_window=free_space_window,
+                   free_space_hit_margin=free_space_hit_margin)
     finally:
         if bar is not None:
             bar.close()
@@ -204,7 +206,8 @@ def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig) -> None:
 def cmd_fit(args) -> int:
     inputs = [args.input, args.config]
     check_outputs([args.output, args.plot], inputs)
-    config, window = load_fit_options(args.config, args.set)
+    config, extra = load_fit_options(args.config, args.set)
+    window = extra['free_space_window']
     t0 = time.perf_counter()
     points, origins, desc = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
@@ -213,13 +216,15 @@ def cmd_fit(args) -> int:
         print(f'polyline-mapper: warning: {args.input}: free_space_window={window} cannot be '
               'applied: a point file has no beams (laser positions); fitting the bare points',
               file=sys.stderr)
-    result = run_fit(points, config, not args.quiet, origins, window)
+    result = run_fit(points, config, not args.quiet, origins, **extra)
     used = window if result.beams else 0
     stats = write_outputs(result, points, config, args.output, args.plot, args.frame_id,
                           title=f'{os.path.basename(args.input)}: {len(result.segments)} segments',
                           extra={'input': os.path.basename(args.input), 'input_type': desc,
                                  'total_seconds': round(time.perf_counter() - t0, 3),
-                                 'free_space_window': used, 'free_space_beams': result.beams,
+                                 'free_space_window': used, 'free_space_hit_margin':
+                                     extra['free_space_hit_margin'] if used else 0.0,
+                                 'free_space_beams': result.beams,
                                  'free_squares': result.free_squares},
                           inputs=inputs, origins=origins)
     _warn_if_empty(args.input, stats, config)

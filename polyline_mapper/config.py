@@ -149,23 +149,26 @@ def load_fit_config(path: str = None, overrides: Iterable[str] = ()) -> SMEMSFCo
         raise ConfigError(f'bad config: {exc}') from None
 
 
-FIT_EXTRA = ('free_space_window',)
+FIT_EXTRA = ('free_space_window', 'free_space_hit_margin')
 """Mapper keys the batch fit (``fit``) reads too: ``free_space_window`` > 0 fits a log's,
-bag's or drive's points with their beams (``smemsf.fit(points, origins=...)``)."""
+bag's or drive's points with their beams (``smemsf.fit(points, origins=...)``), with the
+mapper's ``free_space_hit_margin``."""
 
 
 def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
     """
-    Return (SMEMSFConfig, free_space_window) of the batch fit from a config file and --set.
+    Return (SMEMSFConfig, free-space options) of the batch fit from a config file and --set.
 
-    As ``load_fit_config``, plus the mapper's ``free_space_window`` (``incremental.`` in a ROS 2
-    parameter file): 0 (the default) fits bare points, N > 0 the beams with their evidence
-    decaying over N looks, as ``replay --set free_space_window=N``.
+    As ``load_fit_config``, plus the mapper's ``free_space_window`` and
+    ``free_space_hit_margin`` (``incremental.`` in a ROS 2 parameter file), as a dict of
+    ``smemsf.fit`` keywords: window 0 (the default) fits bare points, N > 0 the beams with
+    their evidence decaying over N looks, as ``replay --set free_space_window=N``.
     """
     values = read_values(path, overrides, ('smemsf',), FIT_EXTRA)
-    window = values.pop('free_space_window', 0)
+    extra = {'free_space_window': values.pop('free_space_window', 0),
+             'free_space_hit_margin': values.pop('free_space_hit_margin', 0.0)}
     try:
-        return SMEMSFConfig.from_dict(values), window
+        return SMEMSFConfig.from_dict(values), extra
     except (TypeError, ValueError) as exc:
         raise ConfigError(f'bad config: {exc}') from None
 

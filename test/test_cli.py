@@ -83,6 +83,12 @@ def test_fit_carmen_log_registers_scans(tmp_path):
     stats = data['stats']
     assert stats['free_space_window'] == 10 and stats['free_space_beams'] == stats['points']
     assert len(data['segments']) == 4 and stats['contradicted_share'] == 0.0
+    assert stats['free_space_hit_margin'] == 0.0
+    # the mapper's hit margin too (the key replay takes)
+    assert main(['fit', str(path), '-o', str(out), '-q', '--set', 'free_space_window=10',
+                 '--set', 'free_space_hit_margin=0.03']) == 0
+    stats = json.loads(out.read_text())['stats']
+    assert stats['free_space_hit_margin'] == 0.03 and stats['segments'] == 4
 
 
 def test_offline_demo_fits_the_office(tmp_path, capsys):

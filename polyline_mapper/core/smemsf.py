@@ -42,6 +42,15 @@ from .seed import seed_segments
 from .split import (accumulate_evidence, cut_squares, EVIDENCE_WINDOW, free_squares,
                     split_segments, square_layout)
 
+EVIDENCE_ROUNDS = 3
+"""A batch fit with beams: iterations after convergence that each start with the free-space cut
+(``free_space_cut``). A single cut after the loop left each cut square's points unexplained,
+those of real structure too (a square cut where the fitted line lay off the wall); the rounds
+refit what the cut leaves and seed what it took again, to be judged again. Against one cut
+(window 10, hit margin 0 / 0.03), mean distance fell on Intel 2.61 -> 2.49 / 2.51 -> 2.39 cm,
+CSAIL 2.95 -> 2.87 / 2.52 -> 2.43, infinite corridor 4.53 -> 4.40 / 4.37 -> 4.25 and fr079
+4.48 -> 4.43 / 4.05 -> 3.94, coverage rose on all eight; 6 rounds did no better than 3."""
+
 
 @dataclass
 class SMEMSFConfig:
@@ -298,13 +307,15 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
 
 def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray,
                    origins: np.ndarray, r: float, tol: float, min_support: float,
-                   window: float = EVIDENCE_WINDOW) -> tuple:
+                   window: float = EVIDENCE_WINDOW, hit_margin: float = 0.0) -> tuple:
     """
     Cut out the LSS squares of ``segments`` that the beams see through (batch free space).
 
     Every beam (``origins[i]`` -> ``points[i]``, one run of equal origins per scan, in the
     order of the recording) is counted per 2r square as a hit or a pass
-    (``cleanup.beam_evidence``, noise margin ``tol`` plus 3 % of the range), scan after scan
+    (``cleanup.beam_evidence``, noise margin ``tol`` plus 3 % of the range; ``hit_margin`` > 0
+    counts as hits the returns within ``tol`` + ``hit_margin`` x range of the line, as the
+    incremental mapper's ``free_space_hit_margin``), scan after scan
     into decaying, capped counts exactly as the incremental mapper does
     (``split.accumulate_evidence`` over ``window`` looks, ``split.EVIDENCE_WINDOW`` unless
     given), so the map shows the scene as the recording leaves it: a door seen shut and later
@@ -318,7 +329,8 @@ def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray
     n_sub, _ = square_layout(segments, r)
     counts = np.zeros((int(n_sub.sum()), 2))
     for a, b, o in origin_runs(origins):
-        hits, passes = beam_evidence(segments, n_sub, o, points[a:b], tol)
+        hits, passes = beam_evidence(segments, n_sub, o, points[a:b], tol,
+                                     hit_range_tol=hit_margin or None)
         counts = accumulate_evidence(counts, hits, passes, window)
     free = free_squares(counts)
     if not free.any():
@@ -332,7 +344,8 @@ def free_space_cut(segments: np.ndarray, support: np.ndarray, points: np.ndarray
 
 def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         progress: Callable = None, origins=None,
-        free_space_window: int = EVIDENCE_WINDOW) -> FitResult:
+        free_space_window: int = EVIDENCE_WINDOW,
+        free_space_hit_margin: float = 0.0) -> FitResult:
     """
     Fit a segment map to 2D points with SMEMSF.
 
@@ -350,12 +363,17 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         ``progress(iteration, info)`` is called after each iteration.
     origins : (N, 2) array_like
         Where the laser was for each point (fixed frame, metres), for free-space evidence:
-        after the loop, squares that more beams pass through than end on are cut out
-        (``free_space_cut``: doorways, people's tracks, things moved during the recording).
-        None (bare points): nothing changes, and ``FitResult.beams`` is 0.
+        once the fit has converged, squares that more beams pass through than end on are cut
+        out (``free_space_cut``: doorways, people's tracks, things moved during the recording),
+        and ``EVIDENCE_ROUNDS`` more iterations each start with that cut, so what the cut
+        leaves is refit and what it took is seeded again and judged again; a last cut ends
+        the fit. None (bare points): nothing changes, and ``FitResult.beams`` is 0.
     free_space_window : int
         With ``origins``: the looks at a square over which its evidence decays (>= 1; the
         incremental mapper's ``free_space_window``), by default ``split.EVIDENCE_WINDOW``.
+    free_space_hit_margin : float
+        With ``origins``: the incremental mapper's ``free_space_hit_margin`` (>= 0; 0, the
+        default, counts only crossing beams as a square's hits).
 
     Returns
     -------
@@ -388,6 +406,9 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     origins = as_origins(origins, len(pts))
     if origins is not None and not free_space_window >= 1:
         raise ValueError(f'free_space_window must be >= 1 with origins, got {free_space_window!r}')
+    if not (np.isfinite(free_space_hit_margin) and free_space_hit_margin >= 0):
+        raise ValueError('free_space_hit_margin must be a finite number >= 0, got '
+                         f'{free_space_hit_margin!r}')
     rng = np.random.default_rng(config.seed)
     index = PointIndex(pts, weights)
     floor = _noise_floor(pts, config, rng)
@@ -415,13 +436,23 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
                                                      info['residual_scale']))
         sigma = max(floor, target)
     r = config.r_over_sigma * sigma
-    segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
-                                     0.0, r, config.tail_fraction)
     cut = 0
     if origins is not None:
-        segments, support, cut = free_space_cut(segments, support, pts, origins, r,
-                                                config.kappa * sigma, config.min_support,
-                                                free_space_window)
+        def cut_free(segments, support):
+            return free_space_cut(segments, support, pts, origins, r, config.kappa * sigma,
+                                  config.min_support, free_space_window, free_space_hit_margin)
+        for k in range(1, EVIDENCE_ROUNDS + 1):
+            segments, support, cut = cut_free(segments, support)
+            segments, support, info = smemsf_iteration(index, segments, sigma, config)
+            info.update(iteration=it + k, sigma=sigma, segments=int(len(segments)),
+                        free_squares=cut)
+            history.append(info)
+            if progress is not None:
+                progress(it + k, info)
+    segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
+                                     0.0, r, config.tail_fraction)
+    if origins is not None:
+        segments, support, cut = cut_free(segments, support)
     # Pieces the refit made collinear are joined before chaining.
     segments, support, _ = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
