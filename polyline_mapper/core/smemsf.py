@@ -187,7 +187,9 @@ class FitResult:
     """Final LSS half-size (m)."""
     seconds: float
     history: list = field(default_factory=list)
-    """One dict per iteration: sigma, r, segments, mean truncated distance, merges, seeds."""
+    """One dict per iteration: sigma, r, segments, mean truncated distance, merges, seeds; with
+    beams, the ``EVIDENCE_ROUNDS`` iterations after convergence follow, each with the squares its
+    cut took (``free_squares``)."""
     beams: int = 0
     """Beams (laser origin -> point) whose free-space evidence the fit used; 0 for bare points
     (``fit`` without ``origins``): then no square was tested against free space."""
