@@ -4,7 +4,8 @@ Mapping with drifting wheel odometry: the Radish logs as a robot without a local
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/drift.py [--datasets DIR] [--only NAME ...] [--seeds 0 1 2 3 4]
-        [--modes corrected odometry matching exact-matching]
+        [--modes corrected odometry matching exact-matching] [--set KEY=VALUE ...]
+        [--json FILE | --from-json FILE ...]
 
 For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes a bag whose
 /odom and /tf odom -> base_link follow the corrected poses with wheel-odometry-like drift added
@@ -55,17 +56,22 @@ LOGS = ['intel-corrected', 'csail-corrected', 'freiburg-079-corrected']
 MODES = ('corrected', 'odometry', 'matching', 'exact-matching')
 
 
-def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
-    """Map ``path`` in ``mode`` (drift ``seed``; None for the corrected poses); return its row."""
+def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None) -> dict:
+    """
+    Map ``path`` in ``mode`` (drift ``seed``; None for the corrected poses); return its row.
+
+    ``config``: the mapper's ``IncrementalConfig`` (None: the defaults).
+    """
     with tempfile.TemporaryDirectory() as tmp:
         if mode == 'corrected':
-            res = run_replay(str(path), options=SessionOptions(keep_points=True), progress=True)
+            res = run_replay(str(path), config, options=SessionOptions(keep_points=True),
+                             progress=True)
         else:
             bag = os.path.join(tmp, 'bag')
             exact = mode == 'exact-matching'
             carmen_to_bag(str(path), bag, drift_seed=0 if exact else seed,
                           drift_model=OdometryDrift(0.0, 0.0, 0.0) if exact else None)
-            res = run_replay(bag, options=SessionOptions(
+            res = run_replay(bag, config, options=SessionOptions(
                 pose_source='odom', keep_points=True, scan_matching=mode != 'odometry'),
                 progress=True)
     segs = res.map_value.segments
@@ -93,7 +99,8 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str) -> dict:
             'rpe_cm': 100 * rpe['translation'], 'rpe_deg': float(np.degrees(rpe['rotation'])),
             'rpe10_cm': 100 * rpe10['translation'],
             'update_ms_p50': st['update_ms']['p50'], 'update_ms_p95': st['update_ms']['p95'],
-            'matches': st.get('scan_matching'), 'jumps': st.get('match_jumps')}
+            'matches': st.get('scan_matching'), 'jumps': st.get('match_jumps'),
+            'contradicted_pct': 100 * st['contradicted_share']}
 
 
 def main() -> int:
@@ -105,6 +112,9 @@ def main() -> int:
     ap.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))
     ap.add_argument('--json', help='write the raw rows here (default: results/drift.json, '
                     'and the README block); with --json the README is not touched')
+    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
+                    help="the mapper's settings for every replay, as replay --set takes them "
+                    '(e.g. free_space_window=10); each row records them')
     ap.add_argument('--from-json', nargs='+', metavar='JSON', help='run nothing: join these '
                     'runs (e.g. two logs run side by side, each with --json) into '
                     'results/drift.json and the README block')
@@ -116,6 +126,12 @@ def main() -> int:
         rows = [row for r in runs for row in r['rows']]
         args.only = [name for name in LOGS if any(row['log'] == name for row in rows)]
         return report(meta, rows, args.only, args.modes)
+    from polyline_mapper.config import ConfigError, load_mapper_config
+    try:
+        config = load_mapper_config(None, args.set)
+    except ConfigError as exc:
+        print(f'drift.py: error: {exc}', file=sys.stderr)
+        return 2
     meta = stamp('.venv/bin/python benchmarks/drift.py ' + ' '.join(sys.argv[1:]))
     rows = []
     runs = [(name, mode, seed) for name in args.only or LOGS for mode in args.modes
@@ -129,7 +145,7 @@ def main() -> int:
             log = read_carmen(str(path))
             logs[name] = (path, log, log.points())
         path, log, truth = logs[name]
-        row = dict(one(path, seed, truth, log, mode), log=name)
+        row = dict(one(path, seed, truth, log, mode, config), log=name, set=args.set)
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:
