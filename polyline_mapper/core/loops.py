@@ -17,9 +17,9 @@ the map bends and doubles its walls. Offline, once the whole trajectory is known
    it holds that part of the trajectory as it is. Where the robot came back within the match
    gate the matcher has already pulled the pose onto the old map, and a loop's match is no
    more accurate than the trajectory there (drifted CSAIL, seed 0: the 21 loops' relative
-   poses are 1-12 cm and 0.1-2 deg from the corrected poses' ones, the trajectory's 1-14 cm
-   and 0.1-1.1 deg); closed on that noise, a 1 deg yaw on a 25 m loop turned the 37 m after
-   it by 0.5 m (ATE 0.235 -> 0.251 m). Only loops beyond the band move the trajectory.
+   poses are 3.2 cm median, at most 13 cm, from the corrected poses' ones, the trajectory's
+   3.1 cm, at most 14 cm); closed on that noise, a 1 deg yaw on a 25 m loop turned the 37 m
+   after it by 0.5 m (ATE 0.235 -> 0.251 m). Only loops beyond the band move the trajectory.
 3. ``optimize``: the keyframe poses are refined by least squares over the steps between
    consecutive keyframes (the matched motion, with the odometry's noise for that motion:
    ``register.odometry_covariance``) and the loops (the match's covariance, floored), with a
