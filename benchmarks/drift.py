@@ -4,7 +4,7 @@ Mapping with drifting wheel odometry: the Radish logs as a robot without a local
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/drift.py [--datasets DIR] [--only NAME ...] [--seeds 0 1 2 3 4]
-        [--modes corrected odometry matching exact-matching] [--set KEY=VALUE ...]
+        [--modes corrected odometry matching exact-matching loops] [--set KEY=VALUE ...]
         [--json FILE | --from-json FILE ...]
 
 For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes a bag whose
@@ -15,7 +15,9 @@ For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes 
 ``--scan-matching`` (``matching``). The same log replayed with its corrected poses is the
 reference (``corrected``), and so is scan matching on odometry that follows the corrected poses
 exactly (``exact-matching``: ``OdometryDrift`` with every noise 0, still no map frame): what
-the matching does where the odometry is perfect. Scores:
+the matching does where the odometry is perfect. ``loops`` (not run unless asked):
+``replay --scan-matching --loop-closure`` on the drifted bag (offline loop closure, README
+"Poses from the scans"). Scores:
 
 - the poses the mapper used (the map's trajectory, base frame) against the corrected ones: RMS
   as they stand (both start at the first true pose) and the absolute trajectory error (ATE:
@@ -53,7 +55,7 @@ from polyline_mapper.session import SessionOptions
 LOGS = ['intel-corrected', 'csail-corrected', 'freiburg-079-corrected']
 
 
-MODES = ('corrected', 'odometry', 'matching', 'exact-matching')
+MODES = ('corrected', 'odometry', 'matching', 'exact-matching', 'loops')
 
 
 def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None) -> dict:
@@ -73,7 +75,7 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None
                           drift_model=OdometryDrift(0.0, 0.0, 0.0) if exact else None)
             res = run_replay(bag, config, options=SessionOptions(
                 pose_source='odom', keep_points=True, scan_matching=mode != 'odometry'),
-                progress=True)
+                progress=True, loop_closure=mode == 'loops')
     segs = res.map_value.segments
     used = np.asarray(res.map_value.trajectory)[:, 1:]          # base poses, one per scan used
     mount = np.asarray(log.laser_offset, dtype=np.float64)
@@ -100,7 +102,9 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None
             'rpe10_cm': 100 * rpe10['translation'],
             'update_ms_p50': st['update_ms']['p50'], 'update_ms_p95': st['update_ms']['p95'],
             'matches': st.get('scan_matching'), 'jumps': st.get('match_jumps'),
-            'contradicted_pct': 100 * st['contradicted_share']}
+            'contradicted_pct': 100 * st['contradicted_share'],
+            'contradicted_share': st.get('contradicted_share'),
+            'loop_closure': st.get('loop_closure')}
 
 
 def main() -> int:
@@ -109,7 +113,7 @@ def main() -> int:
     datasets_argument(ap)
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2, 3, 4])
-    ap.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))
+    ap.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES[:4]))
     ap.add_argument('--json', help='write the raw rows here (default: results/drift.json, '
                     'and the README block); with --json the README is not touched')
     ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
@@ -185,7 +189,8 @@ def report(meta: dict, rows: list, logs: list, modes: list) -> int:
             seeds = ', '.join('-' if r['seed'] is None else str(r['seed']) for r in group)
             label = {'corrected': 'corrected', 'odometry': 'drifted odometry',
                      'matching': 'drifted odometry + scan matching',
-                     'exact-matching': 'exact odometry + scan matching'}[mode]
+                     'exact-matching': 'exact odometry + scan matching',
+                     'loops': 'drifted odometry + scan matching + loop closure'}[mode]
             lines.append(
                 f'| {name} | {label} | {seeds} | {cell(group, "mean_cm", 1)} / '
                 f'{cell(group, "coverage", 1)} | {cell(group, "aligned_mean_cm", 1)} / '

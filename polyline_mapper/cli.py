@@ -410,12 +410,16 @@ def cmd_replay(args) -> int:
     config = load_incremental_config(args.config, args.set)
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
     start, pose = _start_map(args)
+    if args.loop_closure and (not args.scan_matching or start is not None
+                              or args.pose_source != 'odom'):
+        raise CliError('--loop-closure needs --scan-matching and --pose-source odom, '
+                       'and a new map (not --map)')
     options = _replay_options(args, args.every, args.update_every_n_scans,
                               args.scan_matching or start is not None)
     t0 = time.perf_counter()
     res = run_replay(args.input, config, options, args.scan_topic, args.odom_topic,
                      progress=not args.quiet, mapping=not args.no_mapping, start_map=start,
-                     initial_pose=pose)
+                     initial_pose=pose, loop_closure=args.loop_closure)
     for line in res.warnings:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
@@ -720,6 +724,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('--scan-matching', action='store_true',
                    help='refine each scan pose against the map built so far (for odometry '
                    'that drifts or poorly known poses); the map is in the fixed frame')
+    r.add_argument('--loop-closure', action='store_true',
+                   help='with --scan-matching and --pose-source odom: after the replay, close '
+                   'the loops of its trajectory (offline) and map the recording again on the '
+                   'closed trajectory')
     r.add_argument('--update-every-n-scans', type=number(1, 1000, kind=int), default=1,
                    metavar='N', help="one map update per N posed scans, as the node's "
                    'update_every_n_scans parameter (the same map as the node given N)')

@@ -23,9 +23,11 @@ import numpy as np
 
 from .core import map_metrics
 from .core.freespace import free_space_stats
+from .core.geometry import se2_compose
 from .core.incremental import IncrementalConfig
+from .core.loops import chain, corrections, find_loops, optimize, relative, settle
 from .core.mapvalue import MapValue
-from .formats.records import Scan
+from .formats.records import Odometry, Scan
 from .recordings import open_recording
 from .session import MappingSession, SessionError, SessionOptions
 
@@ -130,7 +132,7 @@ starts on a wrong place)."""
 
 def replay_records(records, config: IncrementalConfig = None,
                    options: SessionOptions = None, progress=None, start_map=None,
-                   initial_pose=None, warn=None) -> MappingSession:
+                   initial_pose=None, warn=None, matched_scans: list = None) -> MappingSession:
     """
     Map records on data time: feed them to a new session, flush it at the end, return it.
 
@@ -138,10 +140,12 @@ def replay_records(records, config: IncrementalConfig = None,
     start from (a ``formats.mapjson.MapFile`` as ``read_map`` returns it, or a MapValue) with
     the robot at ``initial_pose`` (x, y, yaw; m, rad) at the first scan
     (``MappingSession.load_map``; None: where the poses say). ``warn(cause, text)``: the
-    session's warnings.
+    session's warnings. ``matched_scans``: a list the session fills with its matched scans
+    (``MappingSession.matched_scans``; loop closure).
     """
     options = options or SessionOptions()
     session = MappingSession(config, options, warn=warn)
+    session.matched_scans = matched_scans
     if start_map is not None:
         value = getattr(start_map, 'value', start_map)
         session.load_map(value, initial_pose, getattr(start_map, 'grid', None))
@@ -156,7 +160,8 @@ def replay_records(records, config: IncrementalConfig = None,
 
 def run_replay(path: str, config: IncrementalConfig = None, options: SessionOptions = None,
                scan_topic: str = None, odom_topic: str = None, progress: bool = False,
-               mapping: bool = True, start_map=None, initial_pose=None) -> ReplayResult:
+               mapping: bool = True, start_map=None, initial_pose=None,
+               loop_closure: bool = False) -> ReplayResult:
     """
     Replay a bag, CARMEN log or ``sim:`` drive through a mapping session; return the result.
 
@@ -164,43 +169,61 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     map is never changed: the scans are only registered (points, counts, poses), the map stays
     empty or, with ``start_map``, as loaded. ``start_map`` (a ``read_map`` MapFile or a
     MapValue) and ``initial_pose``: localization on a saved map (``replay_records``).
+    ``loop_closure`` (scan matching from odometry, a new map): after the replay, the loops of
+    its trajectory are found and closed (``close_loops``), and the recording is mapped again
+    with the odometry moved onto the closed trajectory (``corrected_odometry``, without
+    matching); the result is that second map, or the first when no loop beyond
+    ``core.loops.BAND`` was kept (``close_loops``) or when the second map has a larger
+    contradicted share (``core.freespace``: its beams pass through more of it) than the first;
+    ``stats['loop_closure']`` says which.
     """
     import dataclasses
     t0 = time.perf_counter()
     options = dataclasses.replace(options or SessionOptions(), keep_points=True,
                                   mapping=mapping)
-    odometry = options.pose_source == 'odom'
-    with open_recording(path, scan_topic, odom_topic, odometry=odometry,
-                        pose_source=options.pose_source) as source:
-        bar = None
-        if progress:
-            import sys
-            from tqdm import tqdm
-            bar = tqdm(total=source.scan_count, desc='replay', unit='scan', leave=False,
-                       disable=None, file=sys.stderr)
-        noted = {}
+    if loop_closure and not (options.scan_matching and options.pose_source == 'odom'
+                             and mapping and start_map is None):
+        raise ReplayError('loop closure needs scan matching from odometry (pose source odom) '
+                          'into a new map')
+    noted = {}
 
-        def warn(cause, text):
-            if cause in REPORTED:
-                n, first = noted.get(cause, (0, text))
-                noted[cause] = (n + 1, first)
-
-        def tick(session):
-            bar.update(1)
-            if session.received % 25 == 0:
-                bar.set_postfix(segments=len(session.mapper.segments))
-        try:
-            session = replay_records(source.records(), config, options,
-                                     tick if bar is not None else None, start_map, initial_pose,
-                                     warn)
-        finally:
-            if bar is not None:
-                bar.close()
-    value = session.map_value()
-    points = session.points()
-    value.stats.update(map_metrics(points, value.segments))
-    value.stats.update(free_space_stats(value.segments, points, session.origins()))
+    def warn(cause, text):
+        if cause in REPORTED:
+            n, first = noted.get(cause, (0, text))
+            noted[cause] = (n + 1, first)
+    matched = [] if loop_closure else None
+    session, source = _feed(path, config, options, scan_topic, odom_topic, progress,
+                            start_map, initial_pose, warn, matched)
+    value, points = _judged(session)
+    if loop_closure:
+        t1 = time.perf_counter()
+        stamps, fix, info = close_loops(matched, session.mapper.sigma or 0.01)
+        del matched[:]
+        if stamps is not None:
+            frame = session.map_frame       # the corrected odometry is in the map frame
+            first, noted_first = (session, source, value, points), dict(noted)
+            noted.clear()
+            session, source = _feed(
+                path, config, dataclasses.replace(options, scan_matching=False,
+                                                  fixed_frame=None),
+                scan_topic, odom_topic, progress, None, None, warn, None,
+                lambda records: corrected_odometry(records, stamps, fix))
+            value, points = _judged(session)
+            value = dataclasses.replace(value, frame_id=frame)
+            before = first[2].stats.get('contradicted_share')
+            after = value.stats.get('contradicted_share')
+            info.update(contradicted_before=before, contradicted_after=after)
+            if before is None or after is None or after > before:
+                # the closed map has more walls its own beams pass through (doubled walls
+                # where the second map, placed without matching, disagrees with itself)
+                info.update(applied=False, reason='more contradicted')
+                session, source, value, points = first
+                noted.clear()
+                noted.update(noted_first)
+        info['seconds'] = round(time.perf_counter() - t1, 3)
     st = value.stats
+    if loop_closure:
+        st['loop_closure'] = info
     ms = st.get('update_ms')
     st.update(scans_announced=int(source.scan_count),
               input=os.path.basename(os.path.normpath(path)),
@@ -222,3 +245,115 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')
     return ReplayResult(session, value, points, time.perf_counter() - t0, warnings)
+
+
+def _judged(session: MappingSession) -> tuple:
+    """Return a session's (map value with its point and free-space stats, points)."""
+    value = session.map_value()
+    points = session.points()
+    value.stats.update(map_metrics(points, value.segments))
+    value.stats.update(free_space_stats(value.segments, points, session.origins()))
+    return value, points
+
+
+def _feed(path: str, config, options: SessionOptions, scan_topic, odom_topic, progress: bool,
+          start_map, initial_pose, warn, matched, rewrite=None) -> tuple:
+    """Open ``path`` and map its records (``rewrite``(records) first); (session, source)."""
+    odometry = options.pose_source == 'odom'
+    with open_recording(path, scan_topic, odom_topic, odometry=odometry,
+                        pose_source=options.pose_source) as source:
+        bar = None
+        if progress:
+            import sys
+            from tqdm import tqdm
+            bar = tqdm(total=source.scan_count, desc='replay' if rewrite is None else 'remap',
+                       unit='scan', leave=False, disable=None, file=sys.stderr)
+
+        def tick(session):
+            bar.update(1)
+            if session.received % 25 == 0:
+                bar.set_postfix(segments=len(session.mapper.segments))
+        records = source.records() if rewrite is None else rewrite(source.records())
+        try:
+            session = replay_records(records, config, options,
+                                     tick if bar is not None else None, start_map,
+                                     initial_pose, warn, matched)
+        finally:
+            if bar is not None:
+                bar.close()
+    return session, source
+
+
+LOOP_KEYFRAME = (0.5, 0.3)
+"""Loop closure: a matched scan is a keyframe of the pose graph when it lies this far (m, rad)
+from the last keyframe (``close_loops``)."""
+
+
+def close_loops(scans: list, sigma: float) -> tuple:
+    """
+    Find the loops of a matched trajectory and the corrections they imply (``core.loops``).
+
+    ``scans``: a session's ``matched_scans`` (stamp, laser pose, laser points, correction
+    map -> odom), in order; ``sigma``: its map's noise scale (m). Keyframes are taken
+    ``LOOP_KEYFRAME`` apart. Returns (stamps (M,), corrections (M, 3): the new map -> odom
+    correction at each matched scan's stamp, yaw unwrapped; info dict: keyframes, loops found,
+    active (beyond ``loops.BAND`` from the trajectory), kept after the pose graph, applied).
+    No loop beyond the band, or none kept: stamps and corrections are None (nothing to close).
+    """
+    info = {'keyframes': 0, 'loops': 0, 'active': 0, 'kept': 0, 'applied': False}
+    if not scans:
+        return None, None, info
+    keep, last = [], None
+    for k, (_, pose, _, _) in enumerate(scans):
+        if last is not None:
+            step = relative(last, pose)
+            if (np.hypot(step[0], step[1]) < LOOP_KEYFRAME[0]
+                    and abs(step[2]) < LOOP_KEYFRAME[1]):
+                continue
+        keep.append(k)
+        last = pose
+    stamps = np.array([s[0] for s in scans])
+    poses = np.array([scans[k][1] for k in keep])
+    loops, active = settle(poses, find_loops(poses, [scans[k][2] for k in keep], sigma))
+    info.update(keyframes=len(keep), loops=len(loops), active=int(active.sum()))
+    if not active.any():
+        return None, None, info
+    moving = {(e.a, e.b) for e, a in zip(loops, active) if a}
+    try:
+        after, kept = optimize(poses, chain(poses) + loops)
+    except (np.linalg.LinAlgError, ValueError):     # a singular graph: nothing is closed
+        info['reason'] = 'pose graph not solved'
+        return None, None, info
+    if not np.isfinite(after).all():
+        info['reason'] = 'pose graph not solved'
+        return None, None, info
+    info['kept'] = len(kept)
+    if not any((e.a, e.b) in moving for e in kept):
+        return None, None, info
+    fix = corrections(poses, after, stamps[keep], stamps)
+    new = se2_compose(fix, np.array([s[3] for s in scans]))
+    new[:, 2] = np.unwrap(new[:, 2])
+    info['applied'] = True
+    return stamps, new, info
+
+
+def corrected_odometry(records, stamps: np.ndarray, correction: np.ndarray):
+    """
+    Yield ``records`` with every Odometry record moved by the correction at its stamp.
+
+    ``correction``: (M, 3) map -> odom at ``stamps`` (M,), interpolated between them (held
+    beyond): the odometry then gives the base pose in the map frame.
+    """
+    for record in records:
+        if isinstance(record, Odometry) and len(stamps):
+            c = [np.interp(record.stamp, stamps, correction[:, k]) for k in range(3)]
+            t = np.asarray(record.translation, dtype=np.float64)
+            xy = se2_compose(c, (t[0], t[1], 0.0))[:2]
+            h = 0.5 * c[2]
+            x, y, z, w = np.asarray(record.rotation, dtype=np.float64)
+            sz, cz = np.sin(h), np.cos(h)
+            record = Odometry(record.stamp, record.frame_id, record.child_frame_id,
+                              np.array([xy[0], xy[1], t[2]]),
+                              np.array([cz * x - sz * y, cz * y + sz * x, cz * z + sz * w,
+                                        cz * w - sz * z]))
+        yield record

@@ -862,6 +862,10 @@ class MappingSession:
         row (``CONFIRM_JUMP``)."""
         self._trajectory = (deque() if self.options.keep_points
                             else deque(maxlen=TRAJECTORY_ROWS))
+        self.matched_scans = None
+        """Scan matching, offline: None, or a list the session appends (stamp, laser pose,
+        laser-frame points, correction map -> odom) to for every matched scan (loop closure,
+        ``replay``). Grows with the scans: set it only for a recording of known length."""
         self._motion = deque(maxlen=2)
         """(stamp, (x, y, yaw)) of the last two posed scans: the matched motion."""
         self._intervals = deque(maxlen=10)
@@ -1232,6 +1236,9 @@ class MappingSession:
                             self._skip('not mapped', 'lost', f'the scan at {scan.stamp:.3f} s: '
                                        f'not found {where}')
                             return notes
+                        if self.matched_scans is not None and m is not None and m.ok:
+                            self.matched_scans.append((scan.stamp, xyz, local,
+                                                       self._correction.copy()))
                         if self._proposals and (m is None or not m.ok):
                             # lost: the scans say the prediction is wrong, and where the robot
                             # is instead is not confirmed. Mapped nowhere, no motion.
