@@ -703,7 +703,17 @@ class PoseSource:
 
     def _default_fixed(self, frame: str) -> str:
         chain = self._chain(frame)
-        return 'map' if 'map' in chain else chain[-1]
+        if 'map' in chain:
+            return 'map'
+        if self._static.issuperset(chain[:-1]):
+            # Only the mount is known yet (a recording whose /tf starts after its first
+            # scans): its root is the robot, not a map frame; mapped there, every scan would
+            # sit at the origin. The moving transforms may still come: the scan waits.
+            raise TransformLookupError(
+                'no_tf', f'frame {frame!r} reaches {chain[-1]!r} only through static '
+                'transforms: no moving transform places it in a map frame yet (a sensor '
+                f'that does not move: give the fixed frame, e.g. {chain[-1]!r})')
+        return chain[-1]
 
 
 class Localization(NamedTuple):
