@@ -747,6 +747,10 @@ class Localization(NamedTuple):
 
 _PRIOR = match_scan(np.zeros((0, 2)), np.zeros(3), np.zeros((0, 2, 2)), 1.0).covariance
 """The prior covariance match_scan reports with a refused match (used before any map)."""
+MAX_MAP_SIGMA, R_OVER_SIGMA = 10.0, 100.0
+"""A saved map's noise scale (m) is taken up to smemsf.sigma's largest value, its r up to
+r_over_sigma's largest times that; beyond, it is not a noise scale (1e300 overflowed the
+match covariance)."""
 JUMP_WINDOW = 50
 """Matched scans whose residuals make the running median of the jump warning."""
 JUMP_RESIDUAL = 2.5
@@ -926,14 +930,15 @@ class MappingSession:
         stats = value.stats or {}
         sigma, r = stats.get('sigma'), stats.get('r')
         if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
-                and math.isfinite(sigma) and sigma > 0):
+                and math.isfinite(sigma) and 0 < sigma <= MAX_MAP_SIGMA):
             sigma = None
         if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
-                                 and math.isfinite(r) and r > 0):
+                                 and math.isfinite(r) and 0 < r <= MAX_MAP_SIGMA * R_OVER_SIGMA):
             r = None
         if len(value.segments) and sigma is None and self.mapper.config.smemsf.sigma is None:
-            raise ValueError('the map has no noise scale (stats.sigma): scans cannot be '
-                             'matched against it; set smemsf.sigma')
+            raise ValueError(f'the map has no noise scale (stats.sigma, in (0, {MAX_MAP_SIGMA:g}] '
+                             f'm; got {stats.get("sigma")!r}): scans cannot be matched against '
+                             'it; set smemsf.sigma')
         with self._map_lock:
             self.mapper.load(value.segments, value.support, sigma, r)
         with self._cv:

@@ -11,6 +11,7 @@ import gzip
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -357,6 +358,10 @@ BAD_MAPS = {
     'closed length': (_map(closed=[True, False]), '2 flags for 1 polylines'),
     'schema version 2': (_map(schema_version=2), 'schema_version 2 is not supported'),
     'stats not an object': (_map(stats=[1, 2]), '"stats" must be an object'),
+    'integer beyond 64 bits': (_map(segments=[[10 ** 30, 0, 1, 0]]), 'is out of range'),
+    'grid run beyond 64 bits': (_map(grid={'resolution': 0.05, 'origin': [0, 0], 'width': 2,
+                                           'height': 2, 'cells': [0, 10 ** 30]}),
+                                'is out of range'),
 }
 
 
@@ -687,3 +692,51 @@ def test_write_map_and_read_map_round_trip_without_nan(tmp_path):
     old['stats']['stamp'] = 12.5
     assert old == data == map_value_to_dict(value, {'sigma': None, 'kappa': 3.0})
     assert 'support' not in map_to_dict(segs, polys)
+
+
+# -- 10. a hostile saved map given to replay --map and to the node (map_input_path) ---------
+def _saved(segments=((0, 0, 6, 0), (6, 0, 6, 4)), **stats) -> str:
+    data = json.loads(_map(segments=[list(s) for s in segments], support=[50.0] * len(segments),
+                           polylines=[[list(s[:2]), list(s[2:])] for s in segments],
+                           closed=[False] * len(segments)))
+    data['stats'] = dict({'sigma': 0.01, 'r': 0.03}, **stats)
+    return json.dumps(data)
+
+
+SAVED_MAPS = {
+    'integer beyond 64 bits': (_map(segments=[[10 ** 30, 0, 1, 0]]), 'is out of range'),
+    'grid run beyond 64 bits': (_map(grid={'resolution': 0.05, 'origin': [0, 0], 'width': 2,
+                                           'height': 2, 'cells': [0, 10 ** 30]}),
+                                'is out of range'),
+    'sigma 1e300': (_saved(sigma=1e300), 'no noise scale (stats.sigma, in (0, 10] m; got 1e+300)'),
+    'sigma 11 m': (_saved(sigma=11.0), 'no noise scale'),
+    'segment of 2e7 m': (_saved(segments=((-1e7, 0, 1e7, 0),)),
+                         'the map holds 2e+07 m of segments, more than 1e+05 m'),
+}
+LIMIT_AS = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (3 * 2 ** 30, 3 * 2 ** 30))
+from polyline_mapper.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize('case', list(SAVED_MAPS))
+def test_a_hostile_saved_map_is_one_line_for_replay_and_the_node(ws, case):
+    from polyline_mapper.ros.startup import read_start_map, StartupError
+    from polyline_mapper.session import MappingSession, SessionOptions
+    text, needle = SAVED_MAPS[case]
+    saved = os.path.join(ws['dir'], 'saved.json')
+    with open(saved, 'w') as fh:
+        fh.write(text)
+    before = snapshot(ws['dir'])
+    # replay --map, in a process whose memory is capped (a 2e7 m segment asked for 23 GB)
+    proc = subprocess.run([sys.executable, '-c', LIMIT_AS, 'replay', ws['bag'], '--map', saved,
+                           '-o', ws['out'], '-q'], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert_one_line(proc.stderr.strip().splitlines(), needle)
+    assert snapshot(ws['dir']) == before
+    # the node: read_start_map, then the session's load_map (a ValueError: one line, exit 1)
+    with pytest.raises((StartupError, ValueError), match=re.escape(needle)):
+        start = read_start_map(saved)
+        MappingSession(None, SessionOptions(fixed_frame='map')).load_map(start.value)
