@@ -245,3 +245,15 @@ def test_tf_that_starts_after_the_first_scans_is_waited_for_not_mapped_at_the_mo
     assert_one_line_error(rc, err, 'only through static transforms', "e.g. 'base_link'")
     assert main(['replay', still, '-o', str(out), '-q', '--fixed-frame', 'base_link']) == 0
     assert json.loads(out.read_text())['frame_id'] == 'base_link'
+
+
+def test_a_metadata_yaml_nested_too_deeply_is_one_line(tmp_path, drive, capsys):
+    # rosbags' YAML parser recursed until RecursionError: a traceback of 3000 lines
+    bag = write_bag(tmp_path / 'deep', drive_messages(drive))
+    with open(os.path.join(bag, 'metadata.yaml'), 'w') as fh:
+        fh.write('rosbag2_bagfile_information: ' + '[' * 100_000 + ']' * 100_000 + '\n')
+    out = tmp_path / 'm.json'
+    for argv in (['replay', bag, '-o', str(out)], ['fit', bag, '-o', str(out)]):
+        rc, err = run_cli(capsys, argv + ['-q'])
+        assert_one_line_error(rc, err, 'deep: cannot open the bag (RecursionError')
+    assert not out.exists()
