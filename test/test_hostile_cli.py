@@ -740,3 +740,24 @@ def test_a_hostile_saved_map_is_one_line_for_replay_and_the_node(ws, case):
     with pytest.raises((StartupError, ValueError), match=re.escape(needle)):
         start = read_start_map(saved)
         MappingSession(None, SessionOptions(fixed_frame='map')).load_map(start.value)
+
+
+# -- 11. CARMEN readings beyond float32 ------------------------------------------------------
+def test_carmen_readings_beyond_float32_are_no_returns_without_a_python_warning(ws, capsys):
+    # A LaserScan holds float32: 1e300 became inf with 'RuntimeWarning: overflow encountered
+    # in cast' and its source line printed by replay, convert and play.
+    lines = carmen_text(scans=12).splitlines(keepends=True)
+    tok = lines[0].split()
+    tok[2:2 + int(tok[1])] = ['1e300'] * int(tok[1])
+    log = os.path.join(ws['dir'], 'far.log')
+    with open(log, 'w') as fh:
+        fh.write(' '.join(tok) + '\n' + ''.join(lines[1:]))
+    code, err, _ = run(['replay', log, '-o', ws['out'], '-q'], capsys)   # fails on a warning
+    assert code == 0 and len(err) == 1, err
+    assert 'skipped 1 scan(s)/message(s): bad scan: no_valid_ranges' in err[0], err
+    with open(ws['out']) as fh:
+        stats = json.load(fh)['stats']
+    assert stats['scans_used'] == 11 and stats['skipped'] == {'bad scan: no_valid_ranges': 1}
+    bag = os.path.join(ws['dir'], 'far_bag')
+    code, err, _ = run(['convert', log, '-o', bag, '-q'], capsys)
+    assert code == 0 and err == [], err
