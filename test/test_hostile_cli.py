@@ -761,3 +761,17 @@ def test_carmen_readings_beyond_float32_are_no_returns_without_a_python_warning(
     bag = os.path.join(ws['dir'], 'far_bag')
     code, err, _ = run(['convert', log, '-o', bag, '-q'], capsys)
     assert code == 0 and err == [], err
+
+
+# -- 12. plot of a map narrower than 1 m -----------------------------------------------------
+def test_plot_of_a_map_narrower_than_a_metre_has_no_python_warning(ws, capsys):
+    # The 1 m box was laid from the map's lower-left corner but the axes only over the map:
+    # the scale bar's label fell outside them ('UserWarning: Tight layout not applied').
+    tiny = os.path.join(ws['dir'], 'tiny.json')
+    segments = [[1, 1, 1, 1]]                       # a map of one point
+    with open(tiny, 'w') as fh:
+        fh.write(_map(segments=segments, polylines=[[s[:2], s[2:]] for s in segments]))
+    code, err, out = run(['plot', tiny, '-o', ws['png']], capsys)     # fails on a warning
+    assert code == 0 and err == [] and 'wrote' in out, err
+    with open(ws['png'], 'rb') as fh:
+        assert fh.read(8) == b'\x89PNG\r\n\x1a\n'
