@@ -751,6 +751,9 @@ MAX_MAP_SIGMA, R_OVER_SIGMA = 10.0, 100.0
 """A saved map's noise scale (m) is taken up to smemsf.sigma's largest value, its r up to
 r_over_sigma's largest times that; beyond, it is not a noise scale (1e300 overflowed the
 match covariance)."""
+MAX_SCAN_FRAMES = 64
+"""Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
+cannot grow it)."""
 JUMP_WINDOW = 50
 """Matched scans whose residuals make the running median of the jump warning."""
 JUMP_RESIDUAL = 2.5
@@ -849,6 +852,8 @@ class MappingSession:
         self.examples = {}
         self.stamp = None
         """Stamp (s) of the newest scan in the map."""
+        self._scan_stamps = {}
+        """Frame id -> stamp (s) of its newest scan taken (at most MAX_SCAN_FRAMES frames)."""
         self.update_seconds = deque(maxlen=100000)
         """Per update: the map update plus its scans' conversion (and matching), seconds."""
         self.convert_seconds = deque(maxlen=100000)
@@ -1069,6 +1074,19 @@ class MappingSession:
                                record.range_min, record.range_max)
             except ScanError as exc:
                 return self._skip('bad scan', exc.cause, str(exc))
+            last = self._scan_stamps.get(record.frame_id)
+            if last is not None and record.stamp == last:
+                # Another scan of this laser at its newest stamp (a stuck clock, a duplicated
+                # message): its pose would be the other scan's. Skipped, as pose data of that
+                # kind; a scan stamped earlier still comes in its turn (late, out of order).
+                return self._skip('bad scan', 'stamp_order', (
+                    f'scan of frame {record.frame_id!r} stamped {record.stamp:.3f}, the same '
+                    'stamp as its newest scan (a stuck clock?)'))
+            if record.frame_id not in self._scan_stamps \
+                    and len(self._scan_stamps) >= MAX_SCAN_FRAMES:
+                self._scan_stamps.pop(next(iter(self._scan_stamps)))
+            self._scan_stamps[record.frame_id] = max(record.stamp, -math.inf if last is None
+                                                     else last)
             now = self._now()
             self._last_add = now
             self._waiting.append((record, record.stamp if self.clock is None else now))
@@ -1839,6 +1857,7 @@ class MappingSession:
             self.localization = None
             self._residuals.clear()
             self._waiting.clear()
+            self._scan_stamps.clear()
             self._ready.clear()
             self._points.clear()
             self._trajectory.clear()
