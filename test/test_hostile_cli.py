@@ -462,6 +462,10 @@ OPTION_CASES = [
      '--clock-hz must be a positive number'),
     ('demo --noise nan', ['demo', '--offline', '-o', '{out}', '--noise', 'nan'],
      '--noise must be a number in [0, 10]'),
+    ('sim step 1e-9 m', ['fit', 'sim:office,step=1e-9', '-o', '{out}'],   # asked for 15 GB
+     'step must be a number of metres in [0.01, 10]'),
+    ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
+     'turn must be a number of radians >= 0.01'),
 ]
 
 
