@@ -420,6 +420,9 @@ BAD_POINT_FILES = {
                        'beyond +-1e+08 m'),
     'header-only csv': ('head.csv', 'x,y\n', 'no points'),
     'csv of 1e9 m': ('far.csv', '0,0\n1,0\n2,0\n1e9,0\n', 'row 3: (1e+09, 0)'),
+    'npy header cut in a string': (   # tokenize.TokenError escaped as a 55-line traceback
+        'cut.npy', b"\x93NUMPY\x01\x00\x2a\x00{'descr': '<f8', 'shape': (2, 2), '''}" + b' ' * 3
+        + b'\n' + bytes(32), "not a valid .npy file (('EOF in multi-line string'"),
 }
 
 
@@ -430,6 +433,9 @@ def test_a_hostile_point_file_is_one_line_without_warnings(ws, capsys, case, com
     path = os.path.join(ws['dir'], name)
     if text is None:
         npy_declaring(path, 10 ** 11)
+    elif isinstance(text, bytes):
+        with open(path, 'wb') as fh:
+            fh.write(text)
     else:
         with open(path, 'w') as fh:
             fh.write(text)
