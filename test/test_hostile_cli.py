@@ -720,6 +720,7 @@ SAVED_MAPS = {
                                 'is out of range'),
     'sigma 1e300': (_saved(sigma=1e300), 'no noise scale (stats.sigma, in (0, 10] m; got 1e+300)'),
     'sigma 11 m': (_saved(sigma=11.0), 'no noise scale'),
+    'empty frame_id': (_map(frame_id=''), '"frame_id" must name a frame, got an empty string'),
     'segment of 2e7 m': (_saved(segments=((-1e7, 0, 1e7, 0),)),
                          'the map holds 2e+07 m of segments, more than 1e+05 m'),
 }

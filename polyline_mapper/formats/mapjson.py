@@ -303,6 +303,8 @@ def map_value_from_dict(data) -> MapValue:
             raise ValueError(f'missing key "{key}"')
     if not isinstance(data['frame_id'], str):
         raise ValueError('"frame_id" must be a string')
+    if not data['frame_id'].strip():        # the map's frame: published, broadcast on /tf
+        raise ValueError('"frame_id" must name a frame, got an empty string')
     segs = _coords(data['segments'], 4, '"segments"')
     polys = data['polylines']
     if not isinstance(polys, list):
