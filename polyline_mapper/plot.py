@@ -146,6 +146,8 @@ def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
 
 def _frame(ax, lo, hi, span, title) -> None:
     """Set equal axes over the box (3 % margin), metre labels, a scale bar and the title."""
+    lo = 0.5 * (lo + hi - span)     # a box narrower than ``span`` (1 m) is centred in it
+    hi = lo + span
     pad = 0.03 * span
     ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
     ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])

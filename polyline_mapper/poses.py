@@ -52,6 +52,11 @@ from .formats.records import Transform
 MAX_DEPTH = 1000
 """Most frames on a chain from a frame to its root that a lookup walks (tf2's limit too)."""
 
+MAX_TRANSLATION = 1e8
+"""Largest translation (m) of a transform: beyond any geographic frame (UTM northings reach 1e7
+m); composed with its inverse, 1e300 left nothing of a pose (a CARMEN laser offset of 1e300 m
+mapped every scan at x = 0)."""
+
 CURABLE = ('no_tf', 'unknown_frame', 'not_connected', 'too_new')
 """Lookup failures that newer transforms can cure: the node and replay let such a scan wait."""
 
@@ -187,6 +192,8 @@ def _check_transform(translation, quaternion) -> tuple:
     q = np.asarray(quaternion, dtype=np.float64).ravel()
     if t.shape != (3,) or not np.isfinite(t).all():
         raise ValueError(f'translation must be 3 finite numbers, got {t.tolist()}')
+    if np.abs(t).max() > MAX_TRANSLATION:
+        raise ValueError(f'translation {t.tolist()} lies beyond +-{MAX_TRANSLATION:g} m')
     if q.shape != (4,) or not np.isfinite(q).all():
         raise ValueError(f'quaternion must be 4 finite numbers (x, y, z, w), got {q.tolist()}')
     n2 = float(q @ q)
@@ -321,9 +328,9 @@ class TransformBuffer2D:
         A frame has one parent. A transform naming a new parent for a known child replaces the
         child's history (the tree is re-hung), as does switching an edge between static and
         dynamic. Raises ValueError on empty or equal frame names, a loop in the tree, a
-        non-finite stamp or translation, or a quaternion whose norm is not 1 (+-1 %), and
-        FrameLimitError (a ValueError) when the transform would add a frame beyond
-        ``max_frames``.
+        non-finite stamp or translation, one beyond MAX_TRANSLATION, or a quaternion whose
+        norm is not 1 (+-1 %), and FrameLimitError (a ValueError) when the transform would add
+        a frame beyond ``max_frames``.
         """
         parent, child = _frame(parent), _frame(child)
         if not parent or not child:

@@ -65,6 +65,8 @@ SIM_OPTIONS = {
     'beams': 'beams per scan (default 541 over 270 degrees)',
 }
 """Options of a ``sim:`` drive, ``sim:WORLD,KEY=VALUE,...``; none given: today's drive."""
+SIM_LOWEST = {'step': 0.01, 'turn': 0.01}
+"""Smallest step (m) and turn (rad) per scan: the drive's scans grow as their inverse."""
 SIM_START = 1000.0
 """Stamp of a simulated drive's first scan, seconds (non-zero: ROS reads time 0 as unset)."""
 SIM_MOUNT = (0.2, 0.0, 0.0)
@@ -322,12 +324,14 @@ def sim_options(name: str) -> tuple:
                 ok = True
             else:
                 v = float(value)
-                ok = math.isfinite(v) and v > 0 and (key != 'step' or v <= 10)
+                low = SIM_LOWEST.get(key, 0.0)      # a drive of 1e-9 m steps: 15 GB
+                ok = math.isfinite(v) and v > 0 and v >= low and (key != 'step' or v <= 10)
         except (KeyError, ValueError):
             ok = False
         if not ok:
             want = {'odom_drift': 'an integer seed >= 0', 'beams': 'an integer >= 2',
-                    'moving_sensor': '0 or 1', 'step': 'a number of metres in (0, 10]'}
+                    'moving_sensor': '0 or 1', 'step': 'a number of metres in [0.01, 10]',
+                    'turn': 'a number of radians >= 0.01'}
             raise ValueError(f'{text}: {key} must be {want.get(key, "a number > 0")}, got '
                              f'{value!r}')
         out[key] = v

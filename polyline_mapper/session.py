@@ -703,7 +703,17 @@ class PoseSource:
 
     def _default_fixed(self, frame: str) -> str:
         chain = self._chain(frame)
-        return 'map' if 'map' in chain else chain[-1]
+        if 'map' in chain:
+            return 'map'
+        if self._static.issuperset(chain[:-1]):
+            # Only the mount is known yet (a recording whose /tf starts after its first
+            # scans): its root is the robot, not a map frame; mapped there, every scan would
+            # sit at the origin. The moving transforms may still come: the scan waits.
+            raise TransformLookupError(
+                'no_tf', f'frame {frame!r} reaches {chain[-1]!r} only through static '
+                'transforms: no moving transform places it in a map frame yet (a sensor '
+                f'that does not move: give the fixed frame, e.g. {chain[-1]!r})')
+        return chain[-1]
 
 
 class Localization(NamedTuple):
@@ -737,6 +747,13 @@ class Localization(NamedTuple):
 
 _PRIOR = match_scan(np.zeros((0, 2)), np.zeros(3), np.zeros((0, 2, 2)), 1.0).covariance
 """The prior covariance match_scan reports with a refused match (used before any map)."""
+MAX_MAP_SIGMA, R_OVER_SIGMA = 10.0, 100.0
+"""A saved map's noise scale (m) is taken up to smemsf.sigma's largest value, its r up to
+r_over_sigma's largest times that; beyond, it is not a noise scale (1e300 overflowed the
+match covariance)."""
+MAX_SCAN_FRAMES = 64
+"""Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
+cannot grow it)."""
 JUMP_WINDOW = 50
 """Matched scans whose residuals make the running median of the jump warning."""
 JUMP_RESIDUAL = 2.5
@@ -835,6 +852,8 @@ class MappingSession:
         self.examples = {}
         self.stamp = None
         """Stamp (s) of the newest scan in the map."""
+        self._scan_stamps = {}
+        """Frame id -> stamp (s) of its newest scan taken (at most MAX_SCAN_FRAMES frames)."""
         self.update_seconds = deque(maxlen=100000)
         """Per update: the map update plus its scans' conversion (and matching), seconds."""
         self.convert_seconds = deque(maxlen=100000)
@@ -920,14 +939,15 @@ class MappingSession:
         stats = value.stats or {}
         sigma, r = stats.get('sigma'), stats.get('r')
         if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
-                and math.isfinite(sigma) and sigma > 0):
+                and math.isfinite(sigma) and 0 < sigma <= MAX_MAP_SIGMA):
             sigma = None
         if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
-                                 and math.isfinite(r) and r > 0):
+                                 and math.isfinite(r) and 0 < r <= MAX_MAP_SIGMA * R_OVER_SIGMA):
             r = None
         if len(value.segments) and sigma is None and self.mapper.config.smemsf.sigma is None:
-            raise ValueError('the map has no noise scale (stats.sigma): scans cannot be '
-                             'matched against it; set smemsf.sigma')
+            raise ValueError(f'the map has no noise scale (stats.sigma, in (0, {MAX_MAP_SIGMA:g}] '
+                             f'm; got {stats.get("sigma")!r}): scans cannot be matched against '
+                             'it; set smemsf.sigma')
         with self._map_lock:
             self.mapper.load(value.segments, value.support, sigma, r)
         with self._cv:
@@ -1058,6 +1078,19 @@ class MappingSession:
                                record.range_min, record.range_max)
             except ScanError as exc:
                 return self._skip('bad scan', exc.cause, str(exc))
+            last = self._scan_stamps.get(record.frame_id)
+            if last is not None and record.stamp == last:
+                # Another scan of this laser at its newest stamp (a stuck clock, a duplicated
+                # message): its pose would be the other scan's. Skipped, as pose data of that
+                # kind; a scan stamped earlier still comes in its turn (late, out of order).
+                return self._skip('bad scan', 'stamp_order', (
+                    f'scan of frame {record.frame_id!r} stamped {record.stamp:.3f}, the same '
+                    'stamp as its newest scan (a stuck clock?)'))
+            if record.frame_id not in self._scan_stamps \
+                    and len(self._scan_stamps) >= MAX_SCAN_FRAMES:
+                self._scan_stamps.pop(next(iter(self._scan_stamps)))
+            self._scan_stamps[record.frame_id] = max(record.stamp, -math.inf if last is None
+                                                     else last)
             now = self._now()
             self._last_add = now
             self._waiting.append((record, record.stamp if self.clock is None else now))
@@ -1831,6 +1864,7 @@ class MappingSession:
             self.localization = None
             self._residuals.clear()
             self._waiting.clear()
+            self._scan_stamps.clear()
             self._ready.clear()
             self._points.clear()
             self._trajectory.clear()

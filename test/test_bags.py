@@ -217,3 +217,43 @@ def test_plot_registers_the_points_of_a_bag(tmp_path, drive, capsys):
                    & (drive.ranges < drive.spec.range_max)))
     assert f'over {n} points' in capsys.readouterr().out
     assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_tf_that_starts_after_the_first_scans_is_waited_for_not_mapped_at_the_mount(
+        tmp_path, drive, capsys):
+    # A recording whose /tf starts 0.6 s after its first scan (/tf_static first): the first
+    # scans' only path to a root is the static mount base_link -> laser. The default fixed
+    # frame was taken from it (base_link), and every scan was mapped at the origin.
+    import json
+    start = drive.stamps[0] + 0.6
+    late = [m for m in drive_messages(drive) if not (m[0] == '/tf' and m[1][0].stamp < start)]
+    bag = write_bag(tmp_path / 'late', late)
+    out = tmp_path / 'm.json'
+    rc, err = run_cli(capsys, ['replay', bag, '-o', str(out), '-q'])
+    assert rc == 0 and 'Traceback' not in err
+    data = json.loads(out.read_text())
+    assert data['frame_id'] == 'odom' and data['stats']['fixed_frame'] == 'odom'
+    traj = np.array(data['trajectory'])
+    skipped = int(np.sum(drive.stamps < start - 0.1))       # beyond the 0.1 s tolerance
+    assert data['stats']['skipped'] == {'no pose: too_old': skipped} and skipped >= 1
+    assert len(traj) == len(drive.stamps) - skipped
+    np.testing.assert_allclose(traj[:, 1:3], drive.base[skipped:, :2], atol=1e-3)
+    # A sensor that never moves (only /tf_static): one line saying to name the fixed frame
+    still = write_bag(tmp_path / 'still', [m for m in drive_messages(drive)
+                                           if m[0] in ('/tf_static', '/scan')])
+    rc, err = run_cli(capsys, ['replay', still, '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'only through static transforms', "e.g. 'base_link'")
+    assert main(['replay', still, '-o', str(out), '-q', '--fixed-frame', 'base_link']) == 0
+    assert json.loads(out.read_text())['frame_id'] == 'base_link'
+
+
+def test_a_metadata_yaml_nested_too_deeply_is_one_line(tmp_path, drive, capsys):
+    # rosbags' YAML parser recursed until RecursionError: a traceback of 3000 lines
+    bag = write_bag(tmp_path / 'deep', drive_messages(drive))
+    with open(os.path.join(bag, 'metadata.yaml'), 'w') as fh:
+        fh.write('rosbag2_bagfile_information: ' + '[' * 100_000 + ']' * 100_000 + '\n')
+    out = tmp_path / 'm.json'
+    for argv in (['replay', bag, '-o', str(out)], ['fit', bag, '-o', str(out)]):
+        rc, err = run_cli(capsys, argv + ['-q'])
+        assert_one_line_error(rc, err, 'deep: cannot open the bag (RecursionError')
+    assert not out.exists()

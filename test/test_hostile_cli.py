@@ -11,6 +11,7 @@ import gzip
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -357,6 +358,10 @@ BAD_MAPS = {
     'closed length': (_map(closed=[True, False]), '2 flags for 1 polylines'),
     'schema version 2': (_map(schema_version=2), 'schema_version 2 is not supported'),
     'stats not an object': (_map(stats=[1, 2]), '"stats" must be an object'),
+    'integer beyond 64 bits': (_map(segments=[[10 ** 30, 0, 1, 0]]), 'is out of range'),
+    'grid run beyond 64 bits': (_map(grid={'resolution': 0.05, 'origin': [0, 0], 'width': 2,
+                                           'height': 2, 'cells': [0, 10 ** 30]}),
+                                'is out of range'),
 }
 
 
@@ -415,6 +420,9 @@ BAD_POINT_FILES = {
                        'beyond +-1e+08 m'),
     'header-only csv': ('head.csv', 'x,y\n', 'no points'),
     'csv of 1e9 m': ('far.csv', '0,0\n1,0\n2,0\n1e9,0\n', 'row 3: (1e+09, 0)'),
+    'npy header cut in a string': (   # tokenize.TokenError escaped as a 55-line traceback
+        'cut.npy', b"\x93NUMPY\x01\x00\x2a\x00{'descr': '<f8', 'shape': (2, 2), '''}" + b' ' * 3
+        + b'\n' + bytes(32), "not a valid .npy file (('EOF in multi-line string'"),
 }
 
 
@@ -425,6 +433,9 @@ def test_a_hostile_point_file_is_one_line_without_warnings(ws, capsys, case, com
     path = os.path.join(ws['dir'], name)
     if text is None:
         npy_declaring(path, 10 ** 11)
+    elif isinstance(text, bytes):
+        with open(path, 'wb') as fh:
+            fh.write(text)
     else:
         with open(path, 'w') as fh:
             fh.write(text)
@@ -457,6 +468,10 @@ OPTION_CASES = [
      '--clock-hz must be a positive number'),
     ('demo --noise nan', ['demo', '--offline', '-o', '{out}', '--noise', 'nan'],
      '--noise must be a number in [0, 10]'),
+    ('sim step 1e-9 m', ['fit', 'sim:office,step=1e-9', '-o', '{out}'],   # asked for 15 GB
+     'step must be a number of metres in [0.01, 10]'),
+    ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
+     'turn must be a number of radians >= 0.01'),
 ]
 
 
@@ -687,3 +702,87 @@ def test_write_map_and_read_map_round_trip_without_nan(tmp_path):
     old['stats']['stamp'] = 12.5
     assert old == data == map_value_to_dict(value, {'sigma': None, 'kappa': 3.0})
     assert 'support' not in map_to_dict(segs, polys)
+
+
+# -- 10. a hostile saved map given to replay --map and to the node (map_input_path) ---------
+def _saved(segments=((0, 0, 6, 0), (6, 0, 6, 4)), **stats) -> str:
+    data = json.loads(_map(segments=[list(s) for s in segments], support=[50.0] * len(segments),
+                           polylines=[[list(s[:2]), list(s[2:])] for s in segments],
+                           closed=[False] * len(segments)))
+    data['stats'] = dict({'sigma': 0.01, 'r': 0.03}, **stats)
+    return json.dumps(data)
+
+
+SAVED_MAPS = {
+    'integer beyond 64 bits': (_map(segments=[[10 ** 30, 0, 1, 0]]), 'is out of range'),
+    'grid run beyond 64 bits': (_map(grid={'resolution': 0.05, 'origin': [0, 0], 'width': 2,
+                                           'height': 2, 'cells': [0, 10 ** 30]}),
+                                'is out of range'),
+    'sigma 1e300': (_saved(sigma=1e300), 'no noise scale (stats.sigma, in (0, 10] m; got 1e+300)'),
+    'sigma 11 m': (_saved(sigma=11.0), 'no noise scale'),
+    'empty frame_id': (_map(frame_id=''), '"frame_id" must name a frame, got an empty string'),
+    'segment of 2e7 m': (_saved(segments=((-1e7, 0, 1e7, 0),)),
+                         'the map holds 2e+07 m of segments, more than 1e+05 m'),
+}
+LIMIT_AS = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (3 * 2 ** 30, 3 * 2 ** 30))
+from polyline_mapper.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize('case', list(SAVED_MAPS))
+def test_a_hostile_saved_map_is_one_line_for_replay_and_the_node(ws, case):
+    from polyline_mapper.ros.startup import read_start_map, StartupError
+    from polyline_mapper.session import MappingSession, SessionOptions
+    text, needle = SAVED_MAPS[case]
+    saved = os.path.join(ws['dir'], 'saved.json')
+    with open(saved, 'w') as fh:
+        fh.write(text)
+    before = snapshot(ws['dir'])
+    # replay --map, in a process whose memory is capped (a 2e7 m segment asked for 23 GB)
+    proc = subprocess.run([sys.executable, '-c', LIMIT_AS, 'replay', ws['bag'], '--map', saved,
+                           '-o', ws['out'], '-q'], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert_one_line(proc.stderr.strip().splitlines(), needle)
+    assert snapshot(ws['dir']) == before
+    # the node: read_start_map, then the session's load_map (a ValueError: one line, exit 1)
+    with pytest.raises((StartupError, ValueError), match=re.escape(needle)):
+        start = read_start_map(saved)
+        MappingSession(None, SessionOptions(fixed_frame='map')).load_map(start.value)
+
+
+# -- 11. CARMEN readings beyond float32 ------------------------------------------------------
+def test_carmen_readings_beyond_float32_are_no_returns_without_a_python_warning(ws, capsys):
+    # A LaserScan holds float32: 1e300 became inf with 'RuntimeWarning: overflow encountered
+    # in cast' and its source line printed by replay, convert and play.
+    lines = carmen_text(scans=12).splitlines(keepends=True)
+    tok = lines[0].split()
+    tok[2:2 + int(tok[1])] = ['1e300'] * int(tok[1])
+    log = os.path.join(ws['dir'], 'far.log')
+    with open(log, 'w') as fh:
+        fh.write(' '.join(tok) + '\n' + ''.join(lines[1:]))
+    code, err, _ = run(['replay', log, '-o', ws['out'], '-q'], capsys)   # fails on a warning
+    assert code == 0 and len(err) == 1, err
+    assert 'skipped 1 scan(s)/message(s): bad scan: no_valid_ranges' in err[0], err
+    with open(ws['out']) as fh:
+        stats = json.load(fh)['stats']
+    assert stats['scans_used'] == 11 and stats['skipped'] == {'bad scan: no_valid_ranges': 1}
+    bag = os.path.join(ws['dir'], 'far_bag')
+    code, err, _ = run(['convert', log, '-o', bag, '-q'], capsys)
+    assert code == 0 and err == [], err
+
+
+# -- 12. plot of a map narrower than 1 m -----------------------------------------------------
+def test_plot_of_a_map_narrower_than_a_metre_has_no_python_warning(ws, capsys):
+    # The 1 m box was laid from the map's lower-left corner but the axes only over the map:
+    # the scale bar's label fell outside them ('UserWarning: Tight layout not applied').
+    tiny = os.path.join(ws['dir'], 'tiny.json')
+    segments = [[1, 1, 1, 1]]                       # a map of one point
+    with open(tiny, 'w') as fh:
+        fh.write(_map(segments=segments, polylines=[[s[:2], s[2:]] for s in segments]))
+    code, err, out = run(['plot', tiny, '-o', ws['png']], capsys)     # fails on a warning
+    assert code == 0 and err == [] and 'wrote' in out, err
+    with open(ws['png'], 'rb') as fh:
+        assert fh.read(8) == b'\x89PNG\r\n\x1a\n'

@@ -169,3 +169,25 @@ def test_planar_transform_and_mount_quaternion_place_the_child_like_the_buffer()
     tr = planar_transform(2, 'odom', 'base_link', (1, 2, 0.5))
     np.testing.assert_array_equal(tr.rotation, quaternion_from_yaw(0.5))
     assert not tr.static and tr.parent == 'odom' and tr.child == 'base_link'
+
+
+def test_a_translation_beyond_1e8_m_is_refused_not_composed_into_a_pose(tmp_path, capsys):
+    # A CARMEN laser offset of 1e300 m became base_link -> laser, and map -> odom its inverse:
+    # composed, nothing was left of the poses (every scan mapped at x = 0, a wrong map, no
+    # warning). The transform is refused (bad_transform), the replay ends with one line.
+    from polyline_mapper.cli import main
+    buf = TransformBuffer2D()
+    buf.set_transform('utm', 'map', 0.0, (6.5e5, 9.9e6, 0.0), IDENTITY)   # a southern UTM
+    for far in (1e12, -1e300):
+        with pytest.raises(ValueError, match=r'lies beyond \+-1e\+08 m'):
+            buf.set_transform('map', 'odom', 1.0, (far, 0.0, 0.0), IDENTITY)
+    assert buf.frames() == {'utm', 'map'}
+    from test_hostile_cli import carmen_text
+    log = tmp_path / 'far.log'
+    log.write_text('PARAM robot_frontlaser_offset 1e300\n' + carmen_text(scans=12))
+    out = tmp_path / 'm.json'
+    assert main(['replay', str(log), '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('polyline-mapper: error:'), err
+    assert 'no scan could be mapped' in err[0] and 'lies beyond +-1e+08 m' in err[0], err
+    assert not out.exists()

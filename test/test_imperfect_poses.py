@@ -110,8 +110,8 @@ def test_default_drives_have_no_time_increment_and_options_are_checked():
         'office', {'turn': 0.2, 'step': 0.1, 'rate': 20.0})
     for bad, text in (('sim:office,drift=1', "unknown simulated drive option 'drift=1'"),
                       ('sim:office,moving_sensor=yes', 'moving_sensor must be 0 or 1'),
-                      ('sim:office,step=0', 'step must be a number of metres in (0, 10]'),
-                      ('sim:office,turn=nan', 'turn must be a number > 0'),
+                      ('sim:office,step=0', 'step must be a number of metres in [0.01, 10]'),
+                      ('sim:office,turn=nan', 'turn must be a number of radians >= 0.01'),
                       ('sim:office,odom_drift=-1', 'odom_drift must be an integer seed')):
         with pytest.raises(ValueError) as info:
             make_drive(bad)

@@ -107,6 +107,11 @@ COORD_LIMIT = 1e7
 """Points must lie within this many metres of the fixed frame's origin (cell keys hold 2**30
 cells a side, 1 cm cells included)."""
 
+LOAD_LENGTH_LIMIT = 1e5
+"""A map given to ``load`` holds at most this many metres of segments (100 km; the Freiburg
+campus map has about 6000 segments). Matching samples the segments near a scan every few
+centimetres, so one segment of 2e7 m (coordinates within the limits) asked for 23 GB."""
+
 
 @dataclass
 class IncrementalConfig:
@@ -295,10 +300,15 @@ class IncrementalMapper:
         ``r`` (m), the map's LSS half-size (MAP.json's ``stats.r``), when larger than
         ``r_over_sigma`` x sigma, is taken as the scan spacing the map was made with, until new
         scans' spacings outvote it. Raises ValueError (the map unchanged) on bad segments,
-        support, sigma or r.
+        support, sigma or r, or more than LOAD_LENGTH_LIMIT metres of segments.
         """
         from .geometry import as_segments
         segs = as_segments(segments)
+        total = float(lengths(segs).sum()) if len(segs) else 0.0
+        if not total <= LOAD_LENGTH_LIMIT:
+            raise ValueError(f'the map holds {total:.3g} m of segments, more than '
+                             f'{LOAD_LENGTH_LIMIT:.0e} m: not a map of a building or campus '
+                             '(absurd coordinates?)')
         for name, v in (('sigma', sigma), ('r', r)):
             if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f'{name} must be a finite number > 0 (m), got {v!r}')

@@ -61,7 +61,7 @@ def _read_errors() -> tuple:
         ApswError = sqlite3.Error
     return (AnyReaderError, Reader1Error, Reader2Error, ApswError, sqlite3.Error, OSError,
             EOFError, struct.error, ValueError, IndexError, KeyError, TypeError,
-            UnicodeDecodeError, AssertionError, ArithmeticError, MemoryError)
+            UnicodeDecodeError, AssertionError, ArithmeticError, MemoryError, RecursionError)
 
 
 def _stamp(header) -> float:

@@ -79,10 +79,11 @@ class CarmenLog:
         ``stamps`` (R,) seconds default to ``stamps()``. ``range_max`` is the no-return limit.
         """
         stamps = self.stamps()[0] if stamps is None else stamps
-        return [Scan(float(t), frame_id, f32(r.angle_min), f32(r.angle_increment), 0.0,
-                     f32(self.usable_range(r)), np.asarray(r.ranges, dtype=np.float32),
-                     np.asarray(r.pose, dtype=np.float64) if with_pose else None)
-                for r, t in zip(self.records, stamps)]
+        with np.errstate(over='ignore'):    # readings beyond float32 become inf: no return
+            return [Scan(float(t), frame_id, f32(r.angle_min), f32(r.angle_increment), 0.0,
+                         f32(self.usable_range(r)), np.asarray(r.ranges, dtype=np.float32),
+                         np.asarray(r.pose, dtype=np.float64) if with_pose else None)
+                    for r, t in zip(self.records, stamps)]
 
     def points(self, range_max: float = None, progress=None) -> np.ndarray:
         """

@@ -209,6 +209,13 @@ def _finite_float(text: str) -> float:
     return v
 
 
+def _bounded_int(text: str) -> int:
+    v = int(text)
+    if abs(v) >= 2 ** 63:           # no count, size or coordinate of a map is that large
+        raise ValueError(f'number {text[:20]} is out of range')
+    return v
+
+
 def _coords(obj, width: int, what: str) -> np.ndarray:
     """Check a list of ``width``-number lists; return it as an (N, width) float array."""
     if not isinstance(obj, list):
@@ -242,7 +249,7 @@ def _parse(path: str) -> dict:
         if len(raw) > MAX_MAP_BYTES:
             raise ValueError(f'larger than {MAX_MAP_BYTES // 2 ** 20} MiB')
         return json.loads(raw.decode('utf-8'), parse_constant=_reject_constant,
-                          parse_float=_finite_float)
+                          parse_float=_finite_float, parse_int=_bounded_int)
     except RecursionError:
         raise ValueError(f'{path}: not a map JSON (nested too deeply)') from None
     except (OSError, ValueError) as exc:        # JSONDecodeError, UnicodeDecodeError
@@ -296,6 +303,8 @@ def map_value_from_dict(data) -> MapValue:
             raise ValueError(f'missing key "{key}"')
     if not isinstance(data['frame_id'], str):
         raise ValueError('"frame_id" must be a string')
+    if not data['frame_id'].strip():        # the map's frame: published, broadcast on /tf
+        raise ValueError('"frame_id" must name a frame, got an empty string')
     segs = _coords(data['segments'], 4, '"segments"')
     polys = data['polylines']
     if not isinstance(polys, list):

@@ -2,6 +2,7 @@
 
 import math
 import os
+from tokenize import TokenError
 import warnings
 
 import numpy as np
@@ -43,9 +44,10 @@ def _npy_header(path: str) -> None:
             version = fmt.read_magic(fh)
             read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
             shape, _, dtype = read(fh)
-        except (ValueError, OSError, EOFError, SyntaxError, TypeError) as exc:
+        except (ValueError, OSError, EOFError, SyntaxError, TypeError, TokenError,
+                RecursionError) as exc:
             msg = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
-            raise ValueError(f'not a valid .npy file ({msg})') from None
+            raise ValueError(f'not a valid .npy file ({msg[:200]})') from None
         offset = fh.tell()
     if dtype.kind not in 'fiu' or dtype.fields is not None or dtype.subdtype is not None:
         raise ValueError(f'.npy holds {dtype}, not real numbers')
