@@ -19,6 +19,22 @@ def radish_log(name: str) -> pathlib.Path:
     return path
 
 
+def radish_head(name: str, scans: int, folder: pathlib.Path) -> pathlib.Path:
+    """Write the first ``scans`` FLASER records of a shared Radish log as a log of their own."""
+    import gzip
+    lines, n = [], 0
+    with gzip.open(radish_log(name), 'rt') as fh:
+        for line in fh:
+            n += line.startswith('FLASER')
+            if n > scans:
+                break
+            lines.append(line)
+    path = pathlib.Path(folder) / f'{pathlib.Path(name).name.split(".")[0]}-{scans}.log.gz'
+    with gzip.open(path, 'wt') as fh:
+        fh.writelines(lines)
+    return path
+
+
 def noisy_line(a, b, n, sigma, rng):
     """N points uniformly along segment ab with Gaussian normal noise sigma (m)."""
     a, b = np.asarray(a, float), np.asarray(b, float)

@@ -1,9 +1,7 @@
 """replay --loop-closure: offline loop closure after scan matching (README: Poses from scans)."""
 
-import gzip
-
 from bag_helpers import room_drive, write_carmen
-from conftest import radish_log
+from conftest import radish_head
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.core.metrics import trajectory_error
@@ -21,16 +19,7 @@ def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path):
     # The first 200 scans of the Intel lab, with drifting odometry (seed 0): scan matching
     # comes back to the first corridors 0.1-0.3 m off. Closed, the trajectory is nearer the
     # corrected poses and the map has no wall its own beams pass through.
-    lines, scans = [], 0
-    with gzip.open(radish_log('intel-corrected.log.gz'), 'rt') as f:
-        for line in f:
-            scans += line.startswith('FLASER')
-            if scans > 200:
-                break
-            lines.append(line)
-    log = tmp_path / 'intel200.log.gz'
-    with gzip.open(log, 'wt') as f:
-        f.writelines(lines)
+    log = radish_head('intel-corrected.log.gz', 200, tmp_path)
     carmen_to_bag(str(log), str(tmp_path / 'bag'), drift_seed=0)
     carmen = read_carmen(str(log))
     truth = se2_compose(np.array([r.pose for r in carmen.records]),

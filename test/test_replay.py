@@ -1,10 +1,9 @@
 """Replay: CARMEN <-> bag round trips, laser mounts, poses from tf and odom, skipped scans, CLI."""
 
-import gzip
 import json
 
 from bag_helpers import drive_messages, room_drive, write_bag, write_carmen
-from conftest import radish_log
+from conftest import radish_head
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.core.index import nearest_distance
@@ -52,16 +51,7 @@ def long_walls_found(segments, world, min_length=2.5) -> int:
 
 def test_intel_carmen_and_its_bags_replay_to_the_same_map(tmp_path):
     # the first 300 scans of the Intel log, as a log of their own
-    lines, n = [], 0
-    with gzip.open(radish_log('intel-corrected.log.gz'), 'rt') as fh:
-        for line in fh:
-            n += line.startswith('FLASER')
-            if n > 300:
-                break
-            lines.append(line)
-    log = tmp_path / 'intel300.log.gz'
-    with gzip.open(log, 'wt') as fh:
-        fh.writelines(lines)
+    log = radish_head('intel-corrected.log.gz', 300, tmp_path)
     direct = run_replay(str(log))
     assert direct.used == 300 and not direct.skipped and direct.fixed_frame == 'map'
     # the laser poses of the log reach the mapper: points as registered by the log's own poses
