@@ -63,6 +63,7 @@ from .core.polylines import MapGeometry
 from .core.register import (match_scan, odometry_covariance, RELOCALIZE_SHARE, scan_chords,
                             ScanMatch, search_after_gap, spread, transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
+from .params import CORE_RANGES
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
 from .scan import (beams_to_points, check_scan, scan_to_points, ScanError, usable_beams,
                    valid_ranges)
@@ -747,7 +748,8 @@ class Localization(NamedTuple):
 
 _PRIOR = match_scan(np.zeros((0, 2)), np.zeros(3), np.zeros((0, 2, 2)), 1.0).covariance
 """The prior covariance match_scan reports with a refused match (used before any map)."""
-MAX_MAP_SIGMA, R_OVER_SIGMA = 10.0, 100.0
+MAX_MAP_SIGMA = CORE_RANGES['smemsf.sigma'][1]
+R_OVER_SIGMA = CORE_RANGES['smemsf.r_over_sigma'][1]
 """A saved map's noise scale (m) is taken up to smemsf.sigma's largest value, its r up to
 r_over_sigma's largest times that; beyond, it is not a noise scale (1e300 overflowed the
 match covariance)."""
@@ -1089,8 +1091,8 @@ class MappingSession:
             if record.frame_id not in self._scan_stamps \
                     and len(self._scan_stamps) >= MAX_SCAN_FRAMES:
                 self._scan_stamps.pop(next(iter(self._scan_stamps)))
-            self._scan_stamps[record.frame_id] = max(record.stamp, -math.inf if last is None
-                                                     else last)
+            self._scan_stamps[record.frame_id] = (record.stamp if last is None
+                                                  else max(record.stamp, last))
             now = self._now()
             self._last_add = now
             self._waiting.append((record, record.stamp if self.clock is None else now))

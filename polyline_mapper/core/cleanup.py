@@ -19,7 +19,7 @@ and split a group of scans into one run of points per position.
 import numpy as np
 
 from .freespace import PAIR_BUDGET, run_bounds, span_pairs
-from .geometry import directions, lengths, project
+from .geometry import directions, in_box, lengths, project
 from .index import in_sorted, PointIndex
 
 
@@ -229,10 +229,7 @@ def beam_evidence(segs: np.ndarray, n_sub: np.ndarray, origin: np.ndarray, point
     # (no segment is when none's bounding box, grown by tol, holds the laser)
     reach = tol * (1.0 + 1e-6)
     laser_near = np.zeros(len(segs), dtype=bool)
-    if np.any((np.minimum(w[:, 0], w[:, 0] + e[:, 0]) <= reach)
-              & (np.maximum(w[:, 0], w[:, 0] + e[:, 0]) >= -reach)
-              & (np.minimum(w[:, 1], w[:, 1] + e[:, 1]) <= reach)
-              & (np.maximum(w[:, 1], w[:, 1] + e[:, 1]) >= -reach)):
+    if in_box(segs, origin - reach, origin + reach).any():
         laser_near = project(np.broadcast_to(origin, (len(segs), 2)), segs)[0] <= tol
     for c0, c1, k, beam in span_pairs(w, e, rel, tol, laser_near):
         through, _, s = _crossings(rel, rng, beam, e[c0:c1], w[c0:c1], k, tol, range_tol,

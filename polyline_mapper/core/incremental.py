@@ -85,7 +85,7 @@ from typing import Optional
 import numpy as np
 
 from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
-from .geometry import as_points, lengths, sample_segments
+from .geometry import as_points, in_box, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
@@ -537,9 +537,7 @@ class IncrementalMapper:
         if views:
             corners = np.concatenate([pts, np.array([o for _, _, o in views])])
             lo, hi = corners.min(axis=0), corners.max(axis=0)
-            bmin, bmax = self._box[:, 0], self._box[:, 1]       # geometry.in_box, kept per slot
-            box = (self._alive & (bmax[:, 0] >= lo[0]) & (bmax[:, 1] >= lo[1])
-                   & (bmin[:, 0] <= hi[0]) & (bmin[:, 1] <= hi[1]))
+            box = self._alive & in_box(self._box, lo, hi)     # each slot's box, kept
             box[active] = False
             others = np.flatnonzero(box)
         n_new = len(segs)
