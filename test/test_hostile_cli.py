@@ -723,6 +723,15 @@ SAVED_MAPS = {
     'empty frame_id': (_map(frame_id=''), '"frame_id" must name a frame, got an empty string'),
     'segment of 2e7 m': (_saved(segments=((-1e7, 0, 1e7, 0),)),
                          'the map holds 2e+07 m of segments, more than 1e+05 m'),
+    # 20000 segments in 0.2 m x 0.2 m: scipy's pairing of their support asked for more memory
+    # than the machine has (std::bad_alloc); 100 copies of one 0.8 m wall: 80 m in one square
+    '20000 segments piled up': (_saved(segments=[(0.01 * (i % 20), 0.01 * (i // 20 % 20),
+                                                  0.01 * (i % 20) + 0.01, 0.01 * (i // 20 % 20))
+                                                 for i in range(20000)]),
+                                'the map piles 20000 segments (200 m) into the 1 m square at '
+                                '(0, 0), more than 200 segments or 50 m'),
+    '80 m of segments in one square': (_saved(segments=[(0.1, 0.5, 0.9, 0.5)] * 100),
+                                       'the map piles 100 segments (80 m)'),
 }
 LIMIT_AS = """
 import resource, sys

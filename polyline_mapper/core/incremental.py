@@ -112,6 +112,40 @@ LOAD_LENGTH_LIMIT = 1e5
 campus map has about 6000 segments). Matching samples the segments near a scan every few
 centimetres, so one segment of 2e7 m (coordinates within the limits) asked for 23 GB."""
 
+LOAD_CELL_SEGMENTS, LOAD_CELL_LENGTH = 200, 50.0
+"""A map given to ``load`` has at most this many segments, and this many metres of them, in any
+1 m square (``crowding``). The maps of the shared logs, replayed and batch, have at most 12
+segments and 7 m in one (fr079). Every segment near a scan takes part in its E-step with its
+support, so the work grows with the square of how many pile up in one place: a saved map with
+20000 segments in 0.2 m x 0.2 m asked scipy for more memory than the machine has
+(std::bad_alloc), 3000 for 4.6 GB and 33 s in one update, 200 for 0.1 GB."""
+
+
+def crowding(segments: np.ndarray, cell: float = 1.0, step: float = 0.05) -> tuple:
+    """
+    Return the most crowded ``cell`` square of a map: (segments, metres, lower-left corner).
+
+    Segments and metres: the largest count of segments reaching into one square, and the
+    largest length of segments lying in one, from samples ``step`` apart along each segment
+    (each sample stands for its segment's length over its sample count). (0, 0.0, (0, 0)) for
+    no segments. Vectorised; a straight segment's samples in one square are consecutive.
+    """
+    if len(segments) == 0:
+        return 0, 0.0, (0.0, 0.0)
+    samples, owner = sample_segments(segments, step)
+    keys = np.clip(np.floor(samples / cell), -2.0 ** 30, 2.0 ** 30).astype(np.int64) + 2 ** 30
+    code = keys[:, 0] * 2 ** 31 + keys[:, 1]
+    cells, inverse = np.unique(code, return_inverse=True)
+    enters = np.ones(len(code), dtype=bool)
+    enters[1:] = (code[1:] != code[:-1]) | (owner[1:] != owner[:-1])
+    count = np.bincount(inverse, weights=enters, minlength=len(cells))
+    per = np.bincount(owner, minlength=len(segments))
+    metres = np.bincount(inverse, weights=lengths(segments)[owner] / per[owner],
+                         minlength=len(cells))
+    top = int(np.argmax(count))
+    corner = (cells[top] // 2 ** 31 - 2 ** 30, cells[top] % 2 ** 31 - 2 ** 30)
+    return int(count.max()), float(metres.max()), tuple(float(c * cell) for c in corner)
+
 
 @dataclass
 class IncrementalConfig:
@@ -300,7 +334,8 @@ class IncrementalMapper:
         ``r`` (m), the map's LSS half-size (MAP.json's ``stats.r``), when larger than
         ``r_over_sigma`` x sigma, is taken as the scan spacing the map was made with, until new
         scans' spacings outvote it. Raises ValueError (the map unchanged) on bad segments,
-        support, sigma or r, or more than LOAD_LENGTH_LIMIT metres of segments.
+        support, sigma or r, or more than LOAD_LENGTH_LIMIT metres of segments, or more
+        than LOAD_CELL_SEGMENTS segments or LOAD_CELL_LENGTH metres of them in one 1 m square.
         """
         from .geometry import as_segments
         segs = as_segments(segments)
@@ -309,6 +344,12 @@ class IncrementalMapper:
             raise ValueError(f'the map holds {total:.3g} m of segments, more than '
                              f'{LOAD_LENGTH_LIMIT:.0e} m: not a map of a building or campus '
                              '(absurd coordinates?)')
+        count, metres, where = crowding(segs)
+        if count > LOAD_CELL_SEGMENTS or metres > LOAD_CELL_LENGTH:
+            raise ValueError(f'the map piles {count} segments ({metres:.3g} m) into the 1 m '
+                             f'square at ({where[0]:g}, {where[1]:g}), more than '
+                             f'{LOAD_CELL_SEGMENTS} segments or {LOAD_CELL_LENGTH:g} m: not a '
+                             'map of walls')
         for name, v in (('sigma', sigma), ('r', r)):
             if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f'{name} must be a finite number > 0 (m), got {v!r}')
