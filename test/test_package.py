@@ -127,3 +127,23 @@ def test_launch_file_starts_the_installed_executable_with_the_installed_config()
     assert {'Node', 'DeclareLaunchArgument', 'LaunchConfiguration'} <= names
     setup = (REPO / 'setup.py').read_text()
     assert "'polyline_mapper_node = polyline_mapper.ros.node:main'" in setup
+
+
+def test_the_free_space_preset_overrides_only_the_evidence_and_loads_everywhere():
+    # config/free_space.yaml is given after polyline_mapper.yaml (node), or alone (--config):
+    # node parameters of the declared types, the mapper's evidence on, every other value default.
+    from polyline_mapper.config import load_fit_options, load_mapper_config
+    path = REPO / 'config' / 'free_space.yaml'
+    params = flatten(yaml.safe_load(path.read_text())['polyline_mapper_node']['ros__parameters'])
+    want = defaults()
+    assert set(params) <= set(want), set(params) - set(want)
+    for key, value in params.items():
+        assert type(value) is type(want[key]) and value != want[key], (key, value)
+    settings_from(dict(want, **params))
+    evidence = {'free_space_window': 10, 'free_space_ghosts': 20000,
+                'free_space_hit_margin': 0.03}
+    assert load_mapper_config(str(path)) == IncrementalConfig(**evidence)
+    fit_config, extra = load_fit_options(str(path))
+    assert fit_config == SMEMSFConfig() and extra == {'free_space_window': 10,
+                                                      'free_space_hit_margin': 0.03}
+    assert 'free_space.yaml' in (REPO / 'README.md').read_text()
