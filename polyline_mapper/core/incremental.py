@@ -115,7 +115,7 @@ centimetres, so one segment of 2e7 m (coordinates within the limits) asked for 2
 LOAD_CELL_SEGMENTS, LOAD_CELL_LENGTH = 200, 50.0
 """A map given to ``load`` has at most this many segments, and this many metres of them, in any
 1 m square (``crowding``). The maps of the shared logs, replayed and batch, have at most 12
-segments and 7 m in one (fr079). Every segment near a scan takes part in its E-step with its
+segments and 6.4 m in one (fr079). Every segment near a scan takes part in its E-step with its
 support, so the work grows with the square of how many pile up in one place: a saved map with
 20000 segments in 0.2 m x 0.2 m asked scipy for more memory than the machine has
 (std::bad_alloc), 3000 for 4.6 GB and 33 s in one update, 200 for 0.1 GB."""
@@ -125,10 +125,11 @@ def crowding(segments: np.ndarray, cell: float = 1.0, step: float = 0.05) -> tup
     """
     Return the most crowded ``cell`` square of a map: (segments, metres, lower-left corner).
 
-    Segments and metres: the largest count of segments reaching into one square, and the
-    largest length of segments lying in one, from samples ``step`` apart along each segment
-    (each sample stands for its segment's length over its sample count). (0, 0.0, (0, 0)) for
-    no segments. Vectorised; a straight segment's samples in one square are consecutive.
+    The square whose count of segments reaching into it, or length of segments lying in it,
+    comes nearest to (or furthest beyond) ``LOAD_CELL_SEGMENTS`` or ``LOAD_CELL_LENGTH``; its
+    count and length. Lengths from samples ``step`` apart along each segment (each sample
+    stands for its segment's length over its sample count). (0, 0.0, (0, 0)) for no
+    segments. Vectorised; a straight segment's samples in one square are consecutive.
     """
     if len(segments) == 0:
         return 0, 0.0, (0.0, 0.0)
@@ -142,9 +143,9 @@ def crowding(segments: np.ndarray, cell: float = 1.0, step: float = 0.05) -> tup
     per = np.bincount(owner, minlength=len(segments))
     metres = np.bincount(inverse, weights=lengths(segments)[owner] / per[owner],
                          minlength=len(cells))
-    top = int(np.argmax(count))
+    top = int(np.argmax(np.maximum(count / LOAD_CELL_SEGMENTS, metres / LOAD_CELL_LENGTH)))
     corner = (cells[top] // 2 ** 31 - 2 ** 30, cells[top] % 2 ** 31 - 2 ** 30)
-    return int(count.max()), float(metres.max()), tuple(float(c * cell) for c in corner)
+    return int(count[top]), float(metres[top]), tuple(float(c * cell) for c in corner)
 
 
 @dataclass
