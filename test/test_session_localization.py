@@ -206,12 +206,16 @@ def test_a_heading_jump_beyond_the_turn_limit_maps_nothing_until_it_is_found(off
 
 
 def test_a_residual_far_above_its_running_median_warns(office_drive):
-    # From scan 40 each reading is 4 cm too short or too long at random (a worse laser, or
+    # From scan 40 each reading is 3 cm too short or too long at random (a worse laser, or
     # clutter on the walls): the first such scan's residual jumps against the running median.
+    # The residual is an RMS inside the final match gate (4 sigma), so larger offsets leave the
+    # gate rather than raise it: scan 40's residual is 2.8x the median of scans 1-39 at 3 cm,
+    # 2.5x at 4 cm (on the 2.5x threshold: warned on one AMD EPYC VM, not on another) and
+    # 2.2x at 5 cm (2026-11-25).
     import dataclasses
     rng = np.random.default_rng(3)
     ranges = office_drive.ranges.copy()
-    ranges[40:] += 0.04 * rng.choice([-1.0, 1.0], ranges[40:].shape)
+    ranges[40:] += 0.03 * rng.choice([-1.0, 1.0], ranges[40:].shape)
     drive = dataclasses.replace(office_drive, ranges=ranges)
     warned = []
     session, locs = _run(drive, _base(drive)[:80], warn=lambda cause, text: warned.append(text))
