@@ -487,9 +487,9 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
         last = (jac, w, sg)
         top = None
         if free is not None:            # the problem restricted to the free directions
-            top = _eigvalsh(info)[-1]
+            top = np.linalg.eigvalsh(info)[-1]
             info, grad = free.T @ info @ free, free.T @ grad
-        vals, vecs = _eigh(info)
+        vals, vecs = np.linalg.eigh(info)
         good = vals > p.degenerate * max(vals[-1] if top is None else top, 1e-12)
         if free is None:
             step = _step3(vals, vecs, grad, good)
@@ -507,36 +507,6 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
         if small or at_stage >= 3:          # converged at this gate (or slow): narrow it
             stage, at_stage = stage + 1, 0
     return _Steps(pose, info, vals, vecs, good, res, int(len(pt)), last)
-
-
-_LINALG = getattr(np.linalg, '_umath_linalg', None)
-_EIGH_LO = getattr(_LINALG, 'eigh_lo', None)
-_EIGVALSH_LO = getattr(_LINALG, 'eigvalsh_lo', None)
-
-
-def _eigh(m: np.ndarray) -> tuple:
-    """
-    Return ``np.linalg.eigh(m)`` of a real symmetric (k, k) matrix: (values, vectors).
-
-    The same LAPACK routine through NumPy's gufunc, without the Python wrapping (type checks,
-    error state, result tuple: two thirds of the time of a 3 x 3 decomposition, done every
-    Gauss-Newton step); eigenvalues not all finite (LAPACK's failure) go through
-    ``np.linalg.eigh`` itself, which raises as before.
-    """
-    if _EIGH_LO is not None:
-        vals, vecs = _EIGH_LO(m, signature='d->dd')
-        if np.isfinite(vals).all():
-            return vals, vecs
-    return tuple(np.linalg.eigh(m))
-
-
-def _eigvalsh(m: np.ndarray) -> np.ndarray:
-    """Return ``np.linalg.eigvalsh(m)`` of a real symmetric matrix (as ``_eigh``)."""
-    if _EIGVALSH_LO is not None:
-        vals = _EIGVALSH_LO(m, signature='d->d')
-        if np.isfinite(vals).all():
-            return vals
-    return np.linalg.eigvalsh(m)
 
 
 def _median(x: np.ndarray) -> float:
@@ -650,7 +620,7 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
     # Covariance in the scaled coordinates (yaw x scale): sigma^2 / eigenvalue along the
     # constrained directions, the prior's variance along the others; then metres and radians.
     vecs = st.vecs
-    vals = _eigvalsh(st.info)
+    vals = np.linalg.eigvalsh(st.info)
     prior_scaled = prior * np.array([1.0, 1.0, scale])[:, None] * np.array([1.0, 1.0, scale])
     var = np.where(good, sigma ** 2 / np.maximum(vals, 1e-12),
                    _along(vecs, prior_scaled))
