@@ -135,7 +135,7 @@ def notable_lines(maps) -> list:
 
     ``maps``: (label, contradicted_pct, contradicted_segments) triples.
     """
-    return [f'- {label}: {pct:.1f} % of map length contradicted ({n} segments).'
+    return [f"- {label}: {pct:.1f} % of map length contradicted ({n} segment{'s' * (n != 1)})."
             for label, pct, n in maps if pct is not None and pct > NOTABLE_PCT]
 
 
