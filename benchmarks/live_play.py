@@ -4,6 +4,7 @@ Live play against offline replay: each shared Radish log, as a bag, played into 
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/live_play.py [--datasets DIR] [--only NAME ...] [--scan-hz HZ]
+        [--domain-id ID]
 
 Per log: ``polyline-mapper convert`` to a rosbag2, then the real ``polyline_mapper_node``
 (``use_sim_time:=true``, defaults otherwise) in its own process, ``polyline-mapper play BAG
@@ -109,8 +110,11 @@ def main() -> int:
     ap.add_argument('--only', nargs='+', choices=LOGS)
     ap.add_argument('--scan-hz', type=float, default=25.0,
                     help="scans per second the node gets (sets each log's play rate)")
+    ap.add_argument('--domain-id', type=int, choices=range(0, 102), metavar='0..101',
+                    help='ROS_DOMAIN_ID of the run (default: a random one, 1..101)')
     args = ap.parse_args()
-    domain = random.SystemRandom().randrange(1, 102)
+    domain = (args.domain_id if args.domain_id is not None
+              else random.SystemRandom().randrange(1, 102))
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                RCUTILS_COLORIZED_OUTPUT='0')
     meta = stamp('.venv/bin/python benchmarks/live_play.py ' + ' '.join(sys.argv[1:]))
