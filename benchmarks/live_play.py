@@ -32,8 +32,8 @@ import sys
 import tempfile
 import time
 
-from common import (contradicted, CONTRADICTED_NOTE, datasets_argument, HERE, notable_lines, stamp,
-                    write_readme)
+from common import (contradicted, CONTRADICTED_NOTE, datasets_argument, HERE, load_note,
+                    notable_lines, stamp, write_readme)
 from polyline_mapper.core import map_metrics
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
@@ -118,6 +118,7 @@ def main() -> int:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                RCUTILS_COLORIZED_OUTPUT='0')
     meta = stamp('.venv/bin/python benchmarks/live_play.py ' + ' '.join(sys.argv[1:]))
+    load0 = os.getloadavg()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.only or LOGS:
@@ -128,12 +129,13 @@ def main() -> int:
             row = play_one(name, path, args.scan_hz, env, tmp)
             rows.append(row)
             print(json.dumps(row), flush=True)
+    meta['load'] = load_note(load0)
     (HERE / 'results').mkdir(exist_ok=True)
     (HERE / 'results' / 'live_play.json').write_text(json.dumps({**meta, 'rows': rows},
                                                                 indent=1))
     lines = [f"Measured {meta['date']} on {meta['machine']}; commit {meta['commit']}; "
-             f"`{meta['command']}`. {CONTRADICTED_NOTE}; both maps against the offline "
-             "replay's beams (every scan's, from the log's corrected laser pose).\n\n",
+             f"`{meta['command']}`; {meta['load']}. {CONTRADICTED_NOTE}; both maps against "
+             "the offline replay's beams (every scan's, from the log's corrected laser pose).\n\n",
              '| log | scans | play rate | node: received / used / dropped | update p50 / p99 '
              '(ms) | segments live / offline | mean live / offline (cm) | ratio (<= 1.25) | '
              'coverage live / offline | contradicted live / offline (segments) |\n',
