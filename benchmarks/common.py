@@ -8,9 +8,15 @@ import platform
 import subprocess
 
 import numpy as np
+from polyline_mapper.core.freespace import judge
 
 HERE = pathlib.Path(__file__).resolve().parent
 REPO = HERE.parent
+CONTRADICTED_NOTE = ('"contradicted": share of map length (and number of segments) that >= 5 '
+                     'laser beams pass through, more than end on it (`core/freespace.py`)')
+"""How the contradicted columns are measured, for a block's header line."""
+NOTABLE_PCT = 2.0
+"""Contradicted share (%) of map length above which a map is listed under its table."""
 
 
 def machine() -> str:
@@ -108,3 +114,41 @@ def table_header(meta: dict, columns: list) -> list:
     return [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
             f"`{meta['command']}`.", '', '| ' + ' | '.join(columns) + ' |',
             '|' + '---|' * len(columns)]
+
+
+def contradicted(segments, points, origins) -> dict:
+    """
+    Judge a map against the beams it was built from: ``freespace.judge``'s verdict as columns.
+
+    ``segments`` (K, 2, 2), ``points`` (N, 2) beam ends, ``origins`` (N, 2) or (2,) laser
+    positions, metres. Returns ``contradicted_pct`` (share of map length, %) and
+    ``contradicted_segments``.
+    """
+    verdict = judge(segments, points, origins)
+    return {'contradicted_pct': 100 * verdict.share,
+            'contradicted_segments': int(verdict.contradicted.sum())}
+
+
+def notable_lines(maps) -> list:
+    """
+    Return a line per map contradicted by more than ``NOTABLE_PCT`` % of its length.
+
+    ``maps``: (label, contradicted_pct, contradicted_segments) triples.
+    """
+    return [f"- {label}: {pct:.1f} % of map length contradicted ({n} segment{'s' * (n != 1)})."
+            for label, pct, n in maps if pct is not None and pct > NOTABLE_PCT]
+
+
+def load_note(start) -> str:
+    """
+    Say how loaded the machine was: 5-minute load averages at start (``os.getloadavg()``) and now.
+
+    A 5-minute load above 1.5 (this job counts for one) means other jobs shared the cores: the
+    note says so.
+    """
+    end = os.getloadavg()
+    cores = os.cpu_count() or 1
+    note = f'load average (5 min) {start[1]:.1f} at start, {end[1]:.1f} at end, {cores} cores'
+    if max(start[1], end[1]) > 1.5:
+        note += ': other jobs shared the machine, times are slower than it runs alone'
+    return note

@@ -10,8 +10,11 @@ Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 little about which method finds walls best. This script drives every simulated world of
 ``compare.py`` N times (laser noise and dropouts seeded 1..N, the same path), runs every method
 of ``compare.METHODS`` at its main setting on each drive, and reports mean and range of wall
-precision, recall and F1 per world and noise level. Writes the table into benchmarks/README.md
-(between the ``drives`` markers) and the numbers into benchmarks/results/drives.json.
+precision, recall and F1 per world and noise level, and the share of each map's length that
+its drive's beams contradict (``freespace.judge`` through ``compare.score``: >= 5 beams pass
+through, more than end on it; every scan's beams, from the simulated laser pose). Writes the
+tables into benchmarks/README.md (between the ``drives`` markers) and the numbers into
+benchmarks/results/drives.json.
 """
 
 import argparse
@@ -19,7 +22,7 @@ import json
 import sys
 import time
 
-from common import HERE, stamp, write_readme
+from common import CONTRADICTED_NOTE, HERE, NOTABLE_PCT, stamp, write_readme
 import compare
 import numpy as np
 
@@ -46,7 +49,9 @@ def run(worlds: list, noises: list, drives: int, cap: float, missing: set) -> li
             rows.append({'world': w, 'noise': nz, 'drive': d, 'method': m,
                          'segments': row['segments'], 'mean_cm': row['mean_cm'],
                          'precision': row['precision'], 'recall': row['recall'],
-                         'f1': row['f1'], 'seconds': row['seconds']})
+                         'f1': row['f1'], 'seconds': row['seconds'],
+                         'contradicted_pct': row['contradicted_pct'],
+                         'contradicted_segments': row['contradicted_segments']})
     return rows
 
 
@@ -74,6 +79,34 @@ def summary(rows: list) -> tuple:
     return head + body, verdicts, held, len(cases)
 
 
+def contradicted_summary(rows: list) -> tuple:
+    """
+    Markdown table of the contradicted share per world, noise and method, and notes.
+
+    Cells: mean share of map length over the drives [highest] (mean contradicted segments).
+    A note for every world, noise and method with a map above ``NOTABLE_PCT`` %.
+    """
+    methods = list(dict.fromkeys(r['method'] for r in rows))
+    cases = list(dict.fromkeys((r['world'], r['noise']) for r in rows))
+    head = ('| world | noise | ' + ' | '.join(methods) + ' |\n|---|---:|'
+            + '---:|' * len(methods) + '\n')
+    body, notes = '', []
+    for w, nz in cases:
+        cells = []
+        for m in methods:
+            sel = [r for r in rows if r['world'] == w and r['noise'] == nz and r['method'] == m]
+            pct = np.array([r['contradicted_pct'] for r in sel])
+            segs = np.array([r['contradicted_segments'] for r in sel])
+            cells.append(f'{pct.mean():.1f}% [{pct.max():.1f}] ({segs.mean():.1f})')
+            high = [r['drive'] for r in sel if r['contradicted_pct'] > NOTABLE_PCT]
+            if high:
+                notes.append(f'- {w} {100 * nz:g} cm, {m}: above {NOTABLE_PCT:g} % on drive'
+                             f"{'s' if len(high) > 1 else ''} {', '.join(map(str, high))} "
+                             f'(highest {pct.max():.1f} %, {segs.max()} segments).')
+        body += f'| {w} | {100 * nz:g} cm | ' + ' | '.join(cells) + ' |\n'
+    return head + body, notes
+
+
 def main(argv=None) -> int:
     """Run the drives; return the exit code."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
@@ -98,6 +131,7 @@ def main(argv=None) -> int:
     rows = run(list(compare.sim_worlds()), noises, args.drives, args.cap, missing)
     meta['seconds'] = time.perf_counter() - t0
     table, verdicts, held, n = summary(rows)
+    free_table, free_notes = contradicted_summary(rows)
     out = HERE / 'results'
     out.mkdir(exist_ok=True)
     (out / 'drives.json').write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1))
@@ -107,7 +141,13 @@ def main(argv=None) -> int:
              + f'{args.drives} drives per world and noise level, every method at its main '
              'setting). Wall F1: mean over the drives [lowest-highest].\n\n' + table
              + f'\nHighest mean wall F1 (ours-batch against every other method; ties count): '
-             f'holds on {held} of {n}.\n\n' + '\n'.join(verdicts) + '\n')
+             f'holds on {held} of {n}.\n\n' + '\n'.join(verdicts) + '\n\n'
+             f'Contradicted share of map length: {CONTRADICTED_NOTE}; beams of every scan of '
+             'the drive, from the simulated laser pose to its points. Cells: mean over the '
+             'drives [highest] (mean contradicted segments).\n\n' + free_table
+             + ('\n' + f'Maps contradicted on more than {NOTABLE_PCT:g} % of their length:\n\n'
+                + '\n'.join(free_notes) + '\n' if free_notes else
+                f'\nNo map contradicted on more than {NOTABLE_PCT:g} % of its length.\n'))
     print(block)
     if not args.no_readme:
         write_readme('drives', block)

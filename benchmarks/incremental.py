@@ -13,29 +13,35 @@ update time against map size, and update-time histograms.
   final map is compared with the batch fit of all the same points (mean distance, segment count,
   coverage, share of segments with a near-parallel overlapping twin closer than 0.1 m). The
   Intel log is also mapped from every 5th scan only (few, far-apart views, a known limit of the
-  incremental mapper), against batch on those scans' points.
+  incremental mapper), against batch on those scans' points. Both maps are also judged against
+  the beams of every scan mapped (``freespace.judge``: share of map length that >= 5 beams pass
+  through, more than end on it); a beam runs from the scan's pose (the log's corrected pose, the
+  simulated laser pose) to its point.
 - Speed: the wall-clock time of each ``update_scan`` call (conversion to points included), on
   simulated 360- and 720-beam scans (full circle, 12 m, 1 cm noise) through the office floor,
   and on the real logs.
 - Map size: the map is pre-loaded with N segments of synthetic corridor loops far from the
   drive (100 ... 5000), then the same office drive is mapped; median update time against N.
+  ``--quality-only`` runs the quality table alone (no map-size curve, no memory run).
 - Memory: resident set size after the first 500 scans of the fr079 log and after all of them.
 """
 
 import argparse
+import dataclasses
 import json
 import os
 import pathlib
 import sys
 import time
 
-from common import datasets_argument, HERE, stamp, write_readme
+from common import (contradicted, CONTRADICTED_NOTE, datasets_argument, HERE, load_note,
+                    notable_lines, stamp, write_readme)
 import numpy as np
 from polyline_mapper.core import fit, map_metrics, SMEMSFConfig
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.metrics import twin_fraction
 from polyline_mapper.formats.carmen import read_carmen
-from polyline_mapper.scan import scan_to_points
+from polyline_mapper.recordings import drive_beams
 from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
 
 
@@ -61,27 +67,31 @@ def run_mapper(scans, mapper=None, on_scan=None):
 
 
 def sim_scans(beams: int, rng: int = 1):
-    """Simulate an office drive with a full-circle laser of ``beams`` beams."""
+    """Simulate an office drive with a full-circle laser of ``beams`` beams: scans, beams."""
     spec = LaserSpec(beams=beams, fov=2 * np.pi, range_max=12.0, noise=0.01, dropout=0.01)
     drive = simulate_drive(office_floor(), spec, step=0.25, rng=rng)
     angles = spec.angles()
     scans = [(r, angles, p, spec.range_min, spec.range_max)
              for r, p in zip(drive.ranges, drive.poses)]
-    return scans, drive.points()
+    return (scans, *drive_beams(drive))
 
 
-def log_scans(path: pathlib.Path):
-    """Read the scans of a CARMEN log (no-return code applied) and all its points."""
-    log = read_carmen(str(path))
-    top = log.no_return * 0.99
-    scans = [(rec.ranges, rec.angles, rec.pose, 0.0, min(rec.range_max, top))
-             for rec in log.records]
-    return scans, log.points()
-
-
-def quality_row(name, scans, points, repeat: int = 1) -> dict:
+def log_scans(path: pathlib.Path, every: int = 1):
     """
-    Incremental vs batch on the same points.
+    Read every ``every``-th scan of a CARMEN log (no-return code applied): scans, beams.
+
+    Returns the scans, their points (N, 2) and each point's laser position (N, 2), metres.
+    """
+    log = read_carmen(str(path))
+    log = dataclasses.replace(log, records=log.records[::every])
+    scans = [(rec.ranges, rec.angles, rec.pose, 0.0, log.usable_range(rec))
+             for rec in log.records]
+    return (scans, *log.beams())
+
+
+def quality_row(name, scans, points, origins, repeat: int = 1) -> dict:
+    """
+    Incremental vs batch on the same points, and both maps against the same beams.
 
     The scans are mapped ``repeat`` times (the map is the same every time); the update times
     reported are those of the run with the median median, and the range of the runs' medians
@@ -95,6 +105,8 @@ def quality_row(name, scans, points, repeat: int = 1) -> dict:
     batch = fit(points)
     batch_s = time.perf_counter() - t0
     mi, mb = map_metrics(points, inc_segs), map_metrics(points, batch.segments)
+    ci = contradicted(inc_segs, points, origins)
+    cb = contradicted(batch.segments, points, origins)
     row = {'dataset': name, 'scans': len(scans), 'beams': int(len(scans[0][0])),
            'points': mi['points'],
            'inc_segments': mi['segments'], 'batch_segments': mb['segments'],
@@ -103,13 +115,19 @@ def quality_row(name, scans, points, repeat: int = 1) -> dict:
            'batch_coverage': 100 * mb['coverage_0_10m'],
            'inc_twins_pct': 100 * twin_fraction(inc_segs),
            'batch_twins_pct': 100 * twin_fraction(batch.segments),
+           'inc_contradicted_pct': ci['contradicted_pct'],
+           'inc_contradicted_segments': ci['contradicted_segments'],
+           'batch_contradicted_pct': cb['contradicted_pct'],
+           'batch_contradicted_segments': cb['contradicted_segments'],
            'median_ms': float(np.median(times)), 'p99_ms': float(np.percentile(times, 99)),
            'max_ms': float(times.max()), 'batch_s': batch_s, 'times': times.tolist(),
            'run_medians_ms': medians}
     print(f"{name}: inc {row['inc_segments']} segs {row['inc_mean_cm']:.2f} cm "
-          f"{row['inc_coverage']:.1f}% twins {row['inc_twins_pct']:.1f}% | batch "
+          f"{row['inc_coverage']:.1f}% twins {row['inc_twins_pct']:.1f}% contradicted "
+          f"{row['inc_contradicted_pct']:.1f}% | batch "
           f"{row['batch_segments']} segs {row['batch_mean_cm']:.2f} cm "
-          f"{row['batch_coverage']:.1f}% | update median {row['median_ms']:.1f} ms "
+          f"{row['batch_coverage']:.1f}% contradicted {row['batch_contradicted_pct']:.1f}% | "
+          f"update median {row['median_ms']:.1f} ms "
           f"p99 {row['p99_ms']:.1f} ms (run medians {', '.join(f'{m:.1f}' for m in medians)})",
           flush=True)
     return row
@@ -191,7 +209,7 @@ def histograms(rows, out_dir) -> None:
 
 def memory(path: pathlib.Path) -> dict:
     """RSS after the first 500 scans of a log and after all of them, with the map's size."""
-    scans, _ = log_scans(path)
+    scans = log_scans(path)[0]
     marks = {}
 
     def on_scan(i, mapper):
@@ -212,6 +230,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     datasets_argument(ap)
     ap.add_argument('--quick', action='store_true', help='fewer map sizes, no memory run')
+    ap.add_argument('--quality-only', action='store_true',
+                    help='the quality table only: no map-size curve, no memory run')
     ap.add_argument('--no-readme', action='store_true', help='do not rewrite README.md')
     ap.add_argument('--repeat', type=int, default=3,
                     help='map each drive and log this many times for the update times')
@@ -219,43 +239,47 @@ def main(argv=None) -> int:
     out_dir = HERE / 'results'
     out_dir.mkdir(exist_ok=True)
     radish = pathlib.Path(args.datasets) / 'radish'
+    load0 = os.getloadavg()
+    command = ('python benchmarks/incremental.py '
+               + ' '.join(argv if argv is not None else sys.argv[1:]))
+    meta = stamp(command)                         # the code measured: the tree at the start
     rows = []
     for beams in (360, 720):
-        scans, pts = sim_scans(beams)
-        rows.append(quality_row(f'sim-office-{beams}', scans, pts, args.repeat))
+        rows.append(quality_row(f'sim-office-{beams}', *sim_scans(beams), args.repeat))
     for name in ('intel-corrected', 'freiburg-079-corrected'):
         path = radish / f'{name}.log.gz'
         if path.is_file():
-            scans, pts = log_scans(path)
-            rows.append(quality_row(name, scans, pts, args.repeat))
+            rows.append(quality_row(name, *log_scans(path), args.repeat))
             if name == 'intel-corrected':
                 # Few, far-apart scans (a known limit): every 5th scan, batch on the same points.
-                sparse = scans[::5]
-                sparse_pts = np.concatenate([scan_to_points(*s) for s in sparse])
-                rows.append(quality_row(f'{name} (every 5th scan)', sparse, sparse_pts,
+                rows.append(quality_row(f'{name} (every 5th scan)', *log_scans(path, 5),
                                         args.repeat))
         else:
             print(f'skip {name}: {path} not found', file=sys.stderr)
-    scans, _ = sim_scans(720)
-    sizes = [100, 1000, 5000] if args.quick else [100, 300, 1000, 2000, 5000]
-    curve = size_curve(scans, sizes, out_dir, args.repeat)
+    curve = []
+    if not args.quality_only:
+        sizes = [100, 1000, 5000] if args.quick else [100, 300, 1000, 2000, 5000]
+        curve = size_curve(sim_scans(720)[0], sizes, out_dir, args.repeat)
     histograms(rows, out_dir)
     fr079 = radish / 'freiburg-079-corrected.log.gz'
-    mem = memory(fr079) if fr079.is_file() and not args.quick else None
-    command = ('python benchmarks/incremental.py '
-               + ' '.join(argv if argv is not None else sys.argv[1:]))
-    meta = stamp(command)
+    mem = (memory(fr079) if fr079.is_file() and not (args.quick or args.quality_only)
+           else None)
+    meta['load'] = load_note(load0)
     (out_dir / 'incremental.json').write_text(json.dumps(
         {'meta': meta, 'quality': rows, 'size_curve': curve, 'memory': mem}, indent=1))
     block = (f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}, with "
              f"`{meta['command']}` (default IncrementalConfig: 3-scan buffer, one SMEMSF "
              f'iteration per scan). Every drive and log is mapped {args.repeat} times; the '
              'update times are those of the run with the median median, and the last column '
-             'gives the median of every run (the speed of this virtual machine drifts).\n\n'
+             'gives the median of every run (the speed of this virtual machine drifts; '
+             f"{meta['load']}). "
+             f"{CONTRADICTED_NOTE}; beams of every scan mapped, from the scan's pose (corrected "
+             'log pose, simulated laser pose) to its points; both maps against the same '
+             'beams.\n\n'
              '| dataset | scans x beams | segments inc / batch | mean cm inc / batch | '
-             'coverage inc / batch | twins inc / batch | update median / p99 / max (ms) | '
-             'run medians (ms) |\n'
-             '|---|---:|---:|---:|---:|---:|---:|---:|\n')
+             'coverage inc / batch | twins inc / batch | contradicted inc / batch (segments) | '
+             'update median / p99 / max (ms) | run medians (ms) |\n'
+             '|---|---:|---:|---:|---:|---:|---:|---:|---:|\n')
     for r in rows:
         block += (f"| {r['dataset']} | {r['scans']} x {r['beams']} | {r['inc_segments']} / "
                   f"{r['batch_segments']} ({r['inc_segments'] / r['batch_segments']:.2f}x) | "
@@ -263,15 +287,28 @@ def main(argv=None) -> int:
                   f"({r['inc_mean_cm'] / r['batch_mean_cm']:.2f}x) | "
                   f"{r['inc_coverage']:.1f}% / {r['batch_coverage']:.1f}% | "
                   f"{r['inc_twins_pct']:.1f}% / {r['batch_twins_pct']:.1f}% | "
+                  f"{r['inc_contradicted_pct']:.1f}% ({r['inc_contradicted_segments']}) / "
+                  f"{r['batch_contradicted_pct']:.1f}% ({r['batch_contradicted_segments']}) | "
                   f"{r['median_ms']:.1f} / {r['p99_ms']:.1f} / {r['max_ms']:.1f} | "
                   + ', '.join(f'{m:.1f}' for m in r['run_medians_ms']) + ' |\n')
-    block += ('\nUpdate time against map size (720-beam office drive, map pre-loaded with '
-              f'synthetic corridor loops, sizes run round-robin {args.repeat} times; plot '
-              '`results/incremental-map-size.png`, histograms '
-              '`results/incremental-update-times.png`):\n\n| segments in map | median ms | '
-              'p99 ms |\n|---:|---:|---:|\n')
-    block += ''.join(f"| {c['map_segments']} | {c['median_ms']:.2f} | {c['p99_ms']:.2f} |\n"
-                     for c in curve)
+    notes = notable_lines(
+        [(f"{r['dataset']} {kind}", r[f'{key}_contradicted_pct'],
+          r[f'{key}_contradicted_segments'])
+         for r in rows for kind, key in (('incremental', 'inc'), ('batch', 'batch'))])
+    if notes:
+        block += ('\nMaps contradicted on more than 2 % of their length:\n\n'
+                  + '\n'.join(notes) + '\n')
+    if args.quality_only:
+        block += ('\nQuality only (`--quality-only`): no map-size curve, no memory run in this '
+                  'measurement.\n')
+    else:
+        block += ('\nUpdate time against map size (720-beam office drive, map pre-loaded with '
+                  f'synthetic corridor loops, sizes run round-robin {args.repeat} times; plot '
+                  '`results/incremental-map-size.png`, histograms '
+                  '`results/incremental-update-times.png`):\n\n| segments in map | median ms | '
+                  'p99 ms |\n|---:|---:|---:|\n')
+        block += ''.join(f"| {c['map_segments']} | {c['median_ms']:.2f} | {c['p99_ms']:.2f} |\n"
+                         for c in curve)
     if mem:
         block += (f"\nMemory over the fr079 log ({mem['scans']} scans): RSS "
                   f"{mem['rss_500_mb']:.1f} MiB after 500 scans, {mem['rss_end_mb']:.1f} MiB "

@@ -13,7 +13,10 @@ slipped, a bump, a kidnapped robot). Mapped with ``pose_source odom`` and ``scan
 through the session (``replay_records``). Scores: the base poses of the scans used against the
 true ones after the slip (largest and last position error), the match outcomes, the scans not
 mapped (the session lost after a refused correction), the jumps the node would warn of, and
-the map's walls (F1 and precision of ``baselines.walls.wall_scores``).
+the map's walls (F1 and precision of ``baselines.walls.wall_scores``), and the share of the
+map's length that its own beams contradict (``freespace.judge``: >= 5 beams pass through, more
+than end on it; every mapped scan's beams, from the laser pose the session used, mount
+included: ``session.points()`` and ``session.origins()``).
 
 Writes the table into benchmarks/README.md (between the ``slips`` markers) and the raw numbers
 to benchmarks/results/slips.json.
@@ -24,7 +27,7 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import HERE, stamp, write_readme
+from common import contradicted, CONTRADICTED_NOTE, HERE, notable_lines, stamp, write_readme
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
@@ -59,11 +62,14 @@ def one(drive, at: int, slip) -> dict:
     err = np.hypot(*(rows[after, 1:3] - base[scan[after], :2]).T)
     segs = session.map_value().segments
     walls = wall_scores(segs, drive.world.walls, drive.world.distance, points=drive.points())
+    free = contradicted(segs, session.points(), session.origins())
     return {'slip': list(slip), 'not_mapped': len(stamps) - len(rows),
             'max_error_m': round(float(err.max()), 3),
             'final_error_m': round(float(err[-1]), 3), 'matches': dict(session.matches),
             'jumps': dict(session.jumps), 'f1': round(walls['f1'], 3),
-            'precision': round(walls['precision'], 3), 'segments': int(len(segs))}
+            'precision': round(walls['precision'], 3), 'segments': int(len(segs)),
+            'contradicted_pct': round(free['contradicted_pct'], 3),
+            'contradicted_segments': free['contradicted_segments']}
 
 
 def main() -> int:
@@ -82,10 +88,13 @@ def main() -> int:
     (HERE / 'results' / 'slips.json').write_text(
         json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
     lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
-             f"`{meta['command']}` (the office drive, one slip at scan {args.at}).", '',
+             f"`{meta['command']}` (the office drive, one slip at scan {args.at}). "
+             f'{CONTRADICTED_NOTE}; beams of every mapped scan, from the laser pose the session '
+             'used (odometry and matching, mount included) to its points.', '',
              '| drive seed (scans) | slip dx, dy (m), dyaw (rad) | largest / last pose error '
-             '(m) | match outcomes | scans not mapped | jump warnings | walls F1 / precision |',
-             '|---|---|---|---|---|---|---|']
+             '(m) | match outcomes | scans not mapped | jump warnings | walls F1 / precision | '
+             'contradicted (segments) |',
+             '|---|---|---|---|---|---|---|---|']
     for r in rows:
         lines.append(f"| {r['seed']} ({r['scans']}) "
                      f"| {r['slip'][0]:.1f}, {r['slip'][1]:.1f}, {r['slip'][2]:.2f} "
@@ -93,7 +102,13 @@ def main() -> int:
                      f"| {', '.join(f'{k} {v}' for k, v in sorted(r['matches'].items()))} "
                      f"| {r['not_mapped']} "
                      f"| {', '.join(f'{k} {v}' for k, v in sorted(r['jumps'].items())) or '-'} "
-                     f"| {r['f1']:.2f} / {r['precision']:.2f} |")
+                     f"| {r['f1']:.2f} / {r['precision']:.2f} "
+                     f"| {r['contradicted_pct']:.1f}% ({r['contradicted_segments']}) |")
+    notes = notable_lines([(f"seed {r['seed']}, slip {r['slip'][0]:.1f}, {r['slip'][1]:.1f}, "
+                            f"{r['slip'][2]:.2f}", r['contradicted_pct'],
+                            r['contradicted_segments']) for r in rows])
+    if notes:
+        lines += ['', 'Maps contradicted on more than 2 % of their length:', ''] + notes
     write_readme('slips', '\n'.join(lines) + '\n')
     return 0
 
