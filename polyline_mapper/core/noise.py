@@ -99,8 +99,9 @@ def percentile(x: np.ndarray, q: float) -> float:
 
 
 def median(values) -> float:
-    """Return ``np.median`` of a few finite values (e.g. a deque), by partial sort."""
-    x = np.fromiter(values, dtype=np.float64)
+    """Return ``np.median`` of finite values (an array, or e.g. a deque), by partial sort."""
+    x = (np.asarray(values, dtype=np.float64) if isinstance(values, np.ndarray)
+         else np.fromiter(values, dtype=np.float64))
     mid = x.size // 2
     if x.size % 2:
         return float(np.partition(x, mid)[mid])

@@ -47,6 +47,7 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from .geometry import as_points, sample_segments, se2_compose, se2_inverse, wrap_angle
+from .noise import median
 
 
 TURN_MARGIN = 1.1
@@ -337,7 +338,7 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     est = None if established is None else np.asarray(established, dtype=bool).reshape(-1)[keep]
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1) / length[:, None]
     near = _SegmentSamples(segs, spacing=float(spacing))
-    scale = max(_median(np.hypot(pts[:, 0], pts[:, 1])), 1.0)   # metres per radian
+    scale = max(median(np.hypot(pts[:, 0], pts[:, 1])), 1.0)   # metres per radian
     need = min(min_inliers, max(3, int(np.ceil(min_share * len(pts)))))
     lines = np.concatenate([normal, segs[:, 0]], axis=1)
     problem = _Problem(pts, lines, near, float(sigma), gate, gate_min, kernel, need,
@@ -507,15 +508,6 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
         if small or at_stage >= 3:          # converged at this gate (or slow): narrow it
             stage, at_stage = stage + 1, 0
     return _Steps(pose, info, vals, vecs, good, res, int(len(pt)), last)
-
-
-def _median(x: np.ndarray) -> float:
-    """Return ``np.median`` of a finite 1-D array (the same order statistics and mean)."""
-    mid = len(x) // 2
-    if len(x) % 2:
-        return float(np.partition(x, mid)[mid])
-    part = np.partition(x, (mid - 1, mid))
-    return float((part[mid - 1] + part[mid]) / 2.0)
 
 
 def _step3(vals: np.ndarray, vecs: np.ndarray, grad: np.ndarray, good: np.ndarray) -> np.ndarray:

@@ -36,7 +36,7 @@ from .emsf import emsf_step, extend_for
 from .geometry import as_points, as_segments, lengths
 from .index import piece_pairs, PointIndex
 from .merge import merge_segments
-from .noise import estimate_noise
+from .noise import estimate_noise, median
 from .polylines import map_geometry
 from .seed import seed_segments
 from .split import (accumulate_evidence, cut_squares, EVIDENCE_WINDOW, free_squares,
@@ -237,14 +237,6 @@ def check_fit_input(points, weights=None) -> tuple:
     return pts, weights
 
 
-def _median(values: np.ndarray) -> float:
-    """Return ``float(np.median(values))`` of a non-empty array without NaN (same arithmetic)."""
-    h = values.size // 2
-    lo = h if values.size % 2 else h - 1
-    part = np.partition(values, (lo, h))
-    return float(np.add.reduce(part[lo:h + 1]) / (h + 1 - lo))
-
-
 def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
                      config: SMEMSFConfig, incremental: bool = False) -> tuple:
     """
@@ -299,7 +291,7 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     sup = est.support >= 0
     sup[index.n_real:] = False                 # virtual points sit on their segments exactly
     resid = nearest.compress(sup)
-    scale = 1.4826 * _median(resid) if resid.size else sigma
+    scale = 1.4826 * median(resid) if resid.size else sigma
     w = index.weights[:index.n_real]
     mean = float(np.sum(w * nearest[:index.n_real]) / max(np.sum(w), 1e-300))
     info = {'r': r, 'residual_scale': scale, 'seeds': int(len(seeds)), 'merges': int(merges),
