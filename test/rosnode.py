@@ -73,11 +73,19 @@ class NodeProcess:
 class Peer:
     """An in-process node (own context) that plays drives, listens to the map, calls services."""
 
-    def __init__(self, name: str = 'test_peer'):
+    def __init__(self, name: str = 'test_peer', reliable_scans: bool = False):
+        """
+        Start the peer node in its own context.
+
+        ``reliable_scans``: publish scans as ``polyline-mapper play`` does (reliable, depth 10)
+        instead of sensor-data QoS, for a node whose /scan subscription is made reliable by the
+        QoS overrides: then no scan is lost in transport.
+        """
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from nav_msgs.msg import Odometry
         from polyline_mapper.ros.qos import MAP_QOS
+        from polyline_mapper.ros.player import STREAM_QOS
         from polyline_mapper.ros.qos import TF_QOS, TF_STATIC_QOS
         from polyline_mapper_msgs.msg import PolylineMap
         from rclpy.qos import qos_profile_sensor_data
@@ -90,7 +98,8 @@ class Peer:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         n = self.node
-        self.scan_pub = n.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
+        self.scan_pub = n.create_publisher(
+            LaserScan, 'scan', STREAM_QOS if reliable_scans else qos_profile_sensor_data)
         self.tf_pub = n.create_publisher(TFMessage, '/tf', TF_QOS)
         self.static_pub = n.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
         self.odom_pub = n.create_publisher(Odometry, 'odom', 10)
