@@ -8,10 +8,18 @@ import subprocess
 import sys
 import time
 
+from conftest import ALONE
 import numpy as np
 
 NODE_EXE = pathlib.Path(sys.executable).parent / 'polyline_mapper_node'
 NODE = '/polyline_mapper_node'
+
+
+def _check_alone(what: str) -> None:
+    """Refuse DDS in a test that may run beside others (see conftest: mark it dds)."""
+    if os.environ.get(ALONE) != '1':
+        raise RuntimeError(f'{what} talks over DDS: mark the test @pytest.mark.dds so that it '
+                           'runs alone')
 
 
 def ros_arg(value) -> str:
@@ -28,6 +36,7 @@ class NodeProcess:
 
     def __init__(self, folder: pathlib.Path, params: dict = None, name: str = 'node',
                  params_file: pathlib.Path = None):
+        _check_alone('NodeProcess')
         self.err_path = folder / f'{name}.stderr'
         cmd = [str(NODE_EXE), '--ros-args']
         if params_file is not None:
@@ -81,6 +90,7 @@ class Peer:
         instead of sensor-data QoS, for a node whose /scan subscription is made reliable by the
         QoS overrides: then no scan is lost in transport.
         """
+        _check_alone('Peer')
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from nav_msgs.msg import Odometry

@@ -590,6 +590,7 @@ def test_over_long_lines_are_skipped_and_the_rest_is_read(tmp_path):
 
 
 # -- 8. record-map stopped by SIGTERM writes the map it has ----------------------------------
+@pytest.mark.dds
 def test_record_map_writes_the_map_on_sigterm(tmp_path):
     import rclpy
     from geometry_msgs.msg import Point

@@ -373,6 +373,7 @@ def test_replay_pose_source_scan_from_the_command_line(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.dds
 def test_the_node_maps_scans_alone(tmp_path):
     # Over DDS: pose_source scan subscribes to the scans only (no /tf, no odometry) and
     # publishes a map whose walls, seen from the first scan's laser pose, are the world's.

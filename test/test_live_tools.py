@@ -17,6 +17,7 @@ from polyline_mapper.session import SessionOptions
 import pytest
 from rosnode import NodeProcess, Peer
 
+pytestmark = pytest.mark.dds
 CLI = [sys.executable, '-m', 'polyline_mapper.cli']
 
 

@@ -19,6 +19,7 @@ def test_message_fields():
     assert {'header', 'segments', 'polylines'} <= set(m.get_fields_and_field_types())
 
 
+@pytest.mark.dds
 def test_polyline_map_round_trip_over_dds():
     rclpy = pytest.importorskip('rclpy')
     from geometry_msgs.msg import Point

@@ -8,7 +8,7 @@ from rosnode import map_segments, NodeProcess, Peer, stamp_of
 from std_srvs.srv import Trigger
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.dds]
 RATE = 40.0
 TIMEOUT = 60.0
 RES = 0.1

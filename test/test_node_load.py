@@ -9,7 +9,7 @@ import pytest
 from rosnode import NodeProcess, Peer
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.dds]
 BEAMS = 100_000
 RATE = 33.0                  # Hz
 SECONDS = 6.0

@@ -16,7 +16,7 @@ from std_srvs.srv import Trigger
 from test_localization import drifted_messages
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.dds]
 RATE = 20.0
 TIMEOUT = 60.0
 

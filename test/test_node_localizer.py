@@ -11,7 +11,7 @@ import pytest
 from rosnode import map_segments, NodeProcess, Peer, stamp_of
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.dds]
 RATE = 20.0                  # Hz, scans published
 TIMEOUT = 60.0
 SEED = 0

@@ -141,7 +141,9 @@ case "$cmd" in
     export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( (RANDOM % 101) + 1 ))}"
     export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
     export MPLBACKEND=Agg
-    "$venv/bin/python" -m pytest -q -p no:cacheprovider test "$@"
+    # Two workers side by side; a test marked dds (DDS traffic, timing) runs alone (conftest).
+    "$venv/bin/python" -m pytest -q -p no:cacheprovider -n "${POLYLINE_MAPPER_TEST_WORKERS:-2}" \
+      test "$@"
     ;;
   *)
     die "unknown command '$cmd' (expected: demo, test, setup)"
