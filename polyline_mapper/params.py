@@ -160,6 +160,7 @@ CORE_RANGES = {
     'incremental.free_space_window': (0, 100000),
     'incremental.free_space_ghosts': (0, 10 ** 7),
     'incremental.free_space_hit_margin': (0.0, 1.0),
+    'incremental.free_space_memory': (0.0, 10.0),
     'incremental.max_mapping_range': (0.0, _BIG),
     'incremental.max_scan_points': (16, 10 ** 7),
     'smemsf.sigma': (0.0, 10.0),

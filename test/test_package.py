@@ -141,7 +141,7 @@ def test_the_free_space_preset_overrides_only_the_evidence_and_loads_everywhere(
         assert type(value) is type(want[key]) and value != want[key], (key, value)
     settings_from(dict(want, **params))
     evidence = {'free_space_window': 10, 'free_space_ghosts': 20000,
-                'free_space_hit_margin': 0.03}
+                'free_space_hit_margin': 0.03, 'free_space_memory': 0.1}
     assert load_mapper_config(str(path)) == IncrementalConfig(**evidence)
     fit_config, extra = load_fit_options(str(path))
     assert fit_config == SMEMSFConfig() and extra == {'free_space_window': 10,

@@ -87,6 +87,7 @@ import numpy as np
 from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
 from .geometry import as_points, in_box, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
+from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
 from .smemsf import smemsf_iteration, SMEMSFConfig
@@ -197,6 +198,12 @@ class IncrementalConfig:
     (``cleanup.beam_evidence``): the same margin as a pass's at 0.03. Crossing hits are so
     few that cut squares held real structure (fr079, window 10 and 20000 ghosts: 2.78 % /
     4.53 cm / 90.7 % without, 2.52 % / 3.98 cm / 92.9 % with 0.03)."""
+    free_space_memory: float = 0.0
+    """With ``free_space_window`` > 0: the cell size (m) of the free-space memory (0: none, the
+    default). Every scan's beams are also counted per cell of a grid over the area seen
+    (``memory.BeamMemory``: the same decaying, capped hits and passes as a square), and a square
+    the map gains with no evidence to carry over starts from its cell's counts instead of none: a
+    segment drawn where the laser had seen through is cut by the next beams."""
     max_mapping_range: float = 100.0
     """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
     range_max says: far returns set neither r, sigma nor the work of an update. The shared logs
@@ -217,7 +224,7 @@ class IncrementalConfig:
                 raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
         for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 0.01),
                          ('clear_max_length', 0.0), ('max_mapping_range', 1e-9),
-                         ('free_space_hit_margin', 0.0)):
+                         ('free_space_hit_margin', 0.0), ('free_space_memory', 0.0)):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
@@ -297,6 +304,10 @@ class IncrementalMapper:
         self._pool_used = 0
         # Cut squares remembered (free_space_ghosts): centre, direction, [hits, passes].
         self._ghosts = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)))
+        # What the beams saw of every place (free_space_memory), kept across resets of the map?
+        self._memory = (BeamMemory(self.config.free_space_memory, self.config.free_space_window)
+                        if self.config.free_space_memory > 0 and self.config.free_space_window > 0
+                        else None)
 
     # -- the map -------------------------------------------------------------------------------
     @property
@@ -386,7 +397,8 @@ class IncrementalMapper:
         return (self._seg.nbytes + self._sup.nbytes + self._alive.nbytes + self._box.nbytes
                 + sum(p.nbytes for p in self._buffer) + sum(c.nbytes for c in self._cells)
                 + self._ev_at.nbytes + self._ev_n.nbytes + self._pool.nbytes
-                + sum(g.nbytes for g in self._ghosts))
+                + sum(g.nbytes for g in self._ghosts)
+                + (self._memory.nbytes if self._memory is not None else 0))
 
     # -- updates -------------------------------------------------------------------------------
     def update_scan(self, ranges, angles, pose, range_min: float = 0.0,
@@ -597,6 +609,7 @@ class IncrementalMapper:
             lo, hi = segs.min(axis=(0, 1)) - 2 * r, segs.max(axis=(0, 1)) + 2 * r
             near_g = np.flatnonzero((gc[:, 0] >= lo[0]) & (gc[:, 1] >= lo[1])
                                     & (gc[:, 0] <= hi[0]) & (gc[:, 1] <= hi[1]))
+        fresh = np.ones(k_new, dtype=bool)       # squares with nothing to carry over
         if old.size or near_g.size:
             n_old = num[old]
             centre, direction = square_centres(self._seg[old], n_old)
@@ -604,6 +617,7 @@ class IncrementalMapper:
             counts[:k_new], src = carry_evidence(
                 np.concatenate([centre, gc[near_g]]), np.concatenate([direction, gu[near_g]]),
                 carried, segs, n_sub[:n_new], r, return_source=True)
+            fresh = src < 0
             used = src[src >= len(centre)] - len(centre)
             if used.size:                   # a ghost taken up is a square again (or a new ghost)
                 keep_g = np.ones(len(gc), dtype=bool)
@@ -623,10 +637,20 @@ class IncrementalMapper:
             centre, direction = square_centres(seg_j, n_old)
             counts[k_new:][np.repeat(redo, n_sub[n_new:])] = carry_evidence(
                 centre, direction, pool[_runs(at[j], n_old)], seg_j, n_sub[n_new:][redo], r)
+        if self._memory is not None and fresh.any():
+            # A new square starts from what the beams saw of its place before it stood there.
+            centre, direction = square_centres(segs, n_sub[:n_new])
+            prior = self._memory.lookup(centre[fresh], direction[fresh])
+            clear = prior[:, 1] >= CLEAR * prior[:, 0]
+            sel = np.flatnonzero(fresh)[clear]
+            counts[sel] = prior[clear]
         for a, b, o in views:
             hits, passes = beam_evidence(group, n_sub, o, pts[a:b], tol,
                                          hit_range_tol=self.config.free_space_hit_margin or None)
             counts = accumulate_evidence(counts, hits, passes, self.config.free_space_window)
+        if self._memory is not None:
+            for a, b, o in views:
+                self._memory.add(o, pts[a:b], tol)
         free = free_squares(counts)
         if self.config.free_space_ghosts > 0 and free.any():
             # A single square left between cuts or at the end of one, itself passed through,

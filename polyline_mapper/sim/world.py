@@ -37,15 +37,21 @@ class Arc:
 
 @dataclass
 class Removed:
-    """Walls (W, 2, 2) that stand until time ``until`` (s) and are gone from then on."""
+    """
+    Walls (W, 2, 2) that stand until time ``until`` (s) and are gone from then on.
+
+    With ``since`` they are put down at that time (s) and stand from then on (until
+    ``until``): a box set down where the laser had seen free space.
+    """
 
     walls: np.ndarray
     until: float
     name: str = 'removed'
+    since: float = -np.inf
 
     def walls_at(self, t: float) -> np.ndarray:
-        """Return the walls standing at time ``t``: all of them before ``until``, else none."""
-        return self.walls if t < self.until else self.walls[:0]
+        """Return the walls standing at time ``t``: all of them from ``since`` until ``until``."""
+        return self.walls if self.since <= t < self.until else self.walls[:0]
 
 
 @dataclass

@@ -1,0 +1,181 @@
+"""
+Free-space memory: what the beams saw of every place, before a segment stood there.
+
+The free-space evidence of the incremental mapper (``incremental.free_space_window``) lives on
+the squares of the segments, so it only counts beams while a segment stands in their way. A
+segment drawn later where the laser had seen through (the last scans of a visit see a table's
+legs from a new angle, a person stands by a wall, the merge joins two pieces of clutter) starts
+with no evidence, and once the robot has moved on nothing sees through it again. On the fr079
+log nearly every segment the map -> beams metric contradicts at the end had most of its passing
+beams *before* it was made (``benchmarks/README.md``).
+
+``BeamMemory`` keeps, per cell of a grid over the area the beams have covered, the same decaying
+and capped [hits, passes] counts as a square (``split.accumulate_evidence``): a beam *ends* in
+the cell of its return and *passes* the cells it crosses before that, up to the same noise
+margin as a square's pass (``tol`` + ``range_tol`` x range short of its return). A square that
+the map gains with nothing to carry over (``split.carry_evidence`` found no old square) starts
+from the counts of the cell its centre lies in, so a wall drawn through space seen free is cut
+by the next beams, and a new object in that space (a box put down) needs as many hits as the
+cell holds passes (a few scans) before it stays.
+
+Memory: two float32 per cell over the bounding box of the beams added, grown in chunks of
+``CHUNK`` cells, never beyond ``max_cells`` cells (samples beyond are left out and counted in
+``clipped``): 8 bytes a cell, 0.7 MB for fr079 at 0.1 m.
+"""
+
+import numpy as np
+
+from .split import EVIDENCE_CAP
+
+BINS = 8
+"""Passes are kept per beam direction (modulo a half turn), in this many bins."""
+EXCLUDE = np.deg2rad(45.0)
+"""A square takes the passes of the bins whose centre direction is at least this far from its own:
+a beam along a wall, grazing it, is no evidence against it, and a cell's passes are counted up to
+the pass margin short of the return, which a beam at a shallow angle to a wall crosses within a
+cell's width of it (MIT corridor: 30 deg cut more of its walls, mean 1.151x the default map's
+against 1.141x; benchmarks/README.md, "The beams' memory")."""
+CLEAR = 3.0
+"""A new square starts from its cell's counts only when the passes are at least this many times
+the hits (a place clearly seen through); elsewhere it starts at nothing, as without memory."""
+CHUNK = 16
+"""Cells are stored in square chunks of this many cells a side, only where beams went."""
+DEFAULT_MAX_CELLS = 2 ** 24
+"""Most cells stored (16.8 M: 600 MiB at 9 float32 a cell; the MIT corridor log, 4.5 km of
+corridors seen, holds 1.3 M at 0.1 m). Beams beyond are left out, counted in ``clipped``."""
+
+
+class BeamMemory:
+    """Decaying, capped counts of the beams that end in and pass through each grid cell."""
+
+    def __init__(self, cell: float, window: float, cap: float = EVIDENCE_CAP,
+                 max_cells: int = DEFAULT_MAX_CELLS):
+        """Cells of ``cell`` metres; counts decay over ``window`` looks, capped at ``cap``."""
+        if not (np.isfinite(cell) and cell > 0):
+            raise ValueError(f'cell must be a finite number > 0, got {cell!r}')
+        self.cell = float(cell)
+        self.window = float(window)
+        self.cap = float(cap)
+        self.max_cells = int(max_cells)
+        self._keys = np.zeros(0, dtype=np.int64)      # chunk keys, sorted
+        self._slot = np.zeros(0, dtype=np.intp)       # the pool row of each sorted key
+        self._pool = np.zeros((0, 1 + BINS), dtype=np.float16)   # CHUNK**2 rows a chunk
+        self._used = 0                                # chunks in the pool
+        self.clipped = 0
+        """Beam samples left out because the memory held ``max_cells`` cells."""
+
+    @property
+    def nbytes(self) -> int:
+        """Return the bytes the counts take (the pool, with room to grow)."""
+        return int(self._pool.nbytes + self._keys.nbytes + self._slot.nbytes)
+
+    @property
+    def cells(self) -> int:
+        """Return how many cells are stored."""
+        return self._used * CHUNK * CHUNK
+
+    def reset(self) -> None:
+        """Forget everything."""
+        self.__init__(self.cell, self.window, self.cap, self.max_cells)
+
+    def _rows(self, cells: np.ndarray, grow: bool) -> np.ndarray:
+        """
+        Return the pool row of every (col, row) cell, -1 where none is stored.
+
+        With ``grow`` the chunks missing are added first (as far as ``max_cells`` allows).
+        """
+        chunk = cells // CHUNK
+        key = (chunk[:, 0] << 32) + (chunk[:, 1] & 0xFFFFFFFF)
+        if grow:
+            # Samples along a beam share chunks: one key per run of equal keys is enough.
+            firsts = key[np.flatnonzero(np.diff(key, prepend=key[:1] - 1))]
+            new = np.setdiff1d(firsts, self._keys)
+            room = self.max_cells // (CHUNK * CHUNK) - self._used
+            new = new[:max(room, 0)]
+            if new.size:
+                need = (self._used + new.size) * CHUNK * CHUNK
+                if need > len(self._pool):
+                    pool = np.zeros((max(need, 2 * len(self._pool)), 1 + BINS), np.float16)
+                    pool[:len(self._pool)] = self._pool
+                    self._pool = pool
+                keys = np.concatenate([self._keys, new])
+                slot = np.concatenate([self._slot, self._used + np.arange(new.size)])
+                order = np.argsort(keys, kind='stable')
+                self._keys, self._slot = keys[order], slot[order]
+                self._used += new.size
+        out = np.full(len(key), -1, dtype=np.intp)
+        if not self._keys.size:
+            return out
+        at = np.minimum(np.searchsorted(self._keys, key), self._keys.size - 1)
+        ok = self._keys[at] == key
+        inner = (cells[:, 1] % CHUNK) * CHUNK + cells[:, 0] % CHUNK
+        out[ok] = self._slot[at[ok]] * (CHUNK * CHUNK) + inner[ok]
+        return out
+
+    def lookup(self, xy: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """
+        Return [hits, passes] for squares centred at ``xy`` (M, 2) along ``dirs`` (M, 2).
+
+        Hits: the most of the 3 x 3 cells around the centre's (a wall's returns fall beside
+        it too); passes: the centre cell's passes of beams at least ``EXCLUDE`` off the
+        square's direction. 0 where nothing is stored.
+        """
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        out = np.zeros((len(xy), 2))
+        if not self._used or not len(xy):
+            return out
+        c = np.floor(xy / self.cell).astype(np.int64)
+        row = self._rows(c, False)
+        ok = np.flatnonzero(row >= 0)
+        counts = self._pool[row[ok]]
+        ang = np.mod(np.arctan2(dirs[ok, 1], dirs[ok, 0]), np.pi)
+        centres = (np.arange(BINS) + 0.5) * (np.pi / BINS)
+        off = np.abs(ang[:, None] - centres[None, :])
+        off = np.minimum(off, np.pi - off)
+        out[ok, 1] = np.sum(counts[:, 1:] * (off >= EXCLUDE), axis=1)
+        around = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
+        rows = self._rows((c[:, None, :] + around[None]).reshape(-1, 2), False)
+        hits = np.where(rows >= 0, self._pool[np.maximum(rows, 0), 0], 0.0)
+        out[:, 0] = hits.reshape(len(xy), len(around)).max(axis=1)
+        return out
+
+    def add(self, origin: np.ndarray, points: np.ndarray, tol: float,
+            range_tol: float = 0.03) -> None:
+        """
+        Add one scan's beams from ``origin`` (2,) to ``points`` (N, 2), metres.
+
+        A beam passes every cell it crosses (sampled every cell length) up to ``tol`` +
+        ``range_tol`` x range short of its return, and ends in the cell of its return. Cells a
+        beam ended in or passed first forget 1 / ``window`` of their counts, then add the
+        scan's (each capped at ``cap``); cells the scan did not see keep theirs.
+        """
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        origin = np.asarray(origin, dtype=np.float64).reshape(2)
+        if not len(points):
+            return
+        rel = points - origin
+        rng = np.hypot(rel[:, 0], rel[:, 1])
+        stop = rng - (tol + range_tol * rng)
+        step = self.cell
+        n = np.maximum(np.floor(stop / step), 0).astype(np.int64)
+        total = int(n.sum())
+        beam = np.repeat(np.arange(len(points)), n)
+        k = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
+        t = (k + 0.5) * step / np.maximum(rng[beam], 1e-12)
+        samples = origin + t[:, None] * rel[beam]
+        cells = np.floor(np.concatenate([points, samples]) / step).astype(np.int64)
+        rows = self._rows(cells, True)
+        self.clipped += int(np.count_nonzero(rows < 0))
+        ends, passes = rows[:len(points)], rows[len(points):]
+        bins = np.minimum((np.mod(np.arctan2(rel[:, 1], rel[:, 0]), np.pi)
+                           / (np.pi / BINS)).astype(np.int64), BINS - 1)[beam]
+        bins, passes, ends = bins[passes >= 0], passes[passes >= 0], ends[ends >= 0]
+        seen = np.unique(np.concatenate([ends, passes]))
+        if not seen.size:
+            return
+        add = np.zeros((seen.size, 1 + BINS))
+        add[:, 0] = np.bincount(np.searchsorted(seen, ends), minlength=seen.size)
+        add[:, 1:] = np.bincount(np.searchsorted(seen, passes) * BINS + bins,
+                                 minlength=seen.size * BINS).reshape(-1, BINS)
+        counts = self._pool[seen] * (1.0 - 1.0 / self.window) + add
+        self._pool[seen] = np.minimum(counts, self.cap)
