@@ -27,14 +27,14 @@ memory map over its beams, contradicted segments in red; ``plot --free-space``).
 import argparse
 from concurrent.futures import ThreadPoolExecutor
 import json
+import os
 import pathlib
 import subprocess
 import sys
 import tempfile
 
-from common import datasets_argument, HERE, load_note, radish_logs, REPO, stamp, write_readme
-from common import table_header, write_results
-import os
+from common import (datasets_argument, HERE, load_note, radish_logs, REPO, stamp, table_header,
+                    write_readme, write_results)
 
 LOGS = ['intel-corrected', 'csail-corrected', 'infinite-corridor-corrected',
         'freiburg-079-corrected', 'freiburg-campus-corrected']
@@ -89,9 +89,9 @@ def main(argv=None) -> int:
                         '--free-space', '-o', str(png)], check=True)
     meta['load'] = load_note(start)
     write_results('free_space_memory', meta, rows)
-    lines = table_header(meta, ['log', 'setting', 'contradicted % (segments)', 'mean cm (x default)',
-                                'coverage % (points vs default)', 'segments',
-                                'update median ms', 'issue 18 bars'])
+    lines = table_header(meta, ['log', 'setting', 'contradicted % (segments)',
+                                'mean cm (x default)', 'coverage % (points vs default)',
+                                'segments', 'update median ms', 'issue 18 bars'])
     for r in rows:
         lines.append(f"| {r['dataset']} | {r['setting']} | {r['contradicted_pct']:.2f} "
                      f"({r['contradicted_segments']}) | {r['mean_cm']:.2f} "

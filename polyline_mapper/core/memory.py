@@ -10,17 +10,19 @@ log nearly every segment the map -> beams metric contradicts at the end had most
 beams *before* it was made (``benchmarks/README.md``).
 
 ``BeamMemory`` keeps, per cell of a grid over the area the beams have covered, the same decaying
-and capped [hits, passes] counts as a square (``split.accumulate_evidence``): a beam *ends* in
-the cell of its return and *passes* the cells it crosses before that, up to the same noise
-margin as a square's pass (``tol`` + ``range_tol`` x range short of its return). A square that
-the map gains with nothing to carry over (``split.carry_evidence`` found no old square) starts
-from the counts of the cell its centre lies in, so a wall drawn through space seen free is cut
-by the next beams, and a new object in that space (a box put down) needs as many hits as the
-cell holds passes (a few scans) before it stays.
+and capped counts as a square (``split.accumulate_evidence``): a beam *ends* in the cell of its
+return and *passes* the cells it crosses before that, up to the same noise margin as a square's
+pass (``tol`` + ``range_tol`` x range short of its return); passes are kept per beam direction
+(``BINS`` bins over a half turn). A square that the map gains with nothing to carry over
+(``split.carry_evidence`` found no old square) starts from the counts of the cell its centre lies
+in when that cell is clearly free (``lookup``, ``CLEAR``), so a wall drawn through space seen free
+is cut by the next beams, and a new object in that space (a box put down) needs as many hits as
+the cell holds passes (a few looks) before it stays.
 
-Memory: two float32 per cell over the bounding box of the beams added, grown in chunks of
-``CHUNK`` cells, never beyond ``max_cells`` cells (samples beyond are left out and counted in
-``clipped``): 8 bytes a cell, 0.7 MB for fr079 at 0.1 m.
+Memory: 9 float16 (18 bytes) per cell, in chunks of ``CHUNK`` x ``CHUNK`` cells allocated only
+where beams went, never more than ``max_cells`` cells (samples beyond are left out and counted in
+``clipped``): at 0.1 m about 1 MB for fr079, 13 MB for the MIT corridor log, 91 MB for the
+Freiburg campus (long outdoor beams).
 """
 
 import numpy as np
@@ -41,8 +43,8 @@ the hits (a place clearly seen through); elsewhere it starts at nothing, as with
 CHUNK = 16
 """Cells are stored in square chunks of this many cells a side, only where beams went."""
 DEFAULT_MAX_CELLS = 2 ** 24
-"""Most cells stored (16.8 M: 600 MiB at 9 float32 a cell; the MIT corridor log, 4.5 km of
-corridors seen, holds 1.3 M at 0.1 m). Beams beyond are left out, counted in ``clipped``."""
+"""Most cells stored (16.8 M: 300 MiB at 18 bytes a cell, a 410 m square at 0.1 m). Beams beyond
+are left out, counted in ``clipped``."""
 
 
 class BeamMemory:
