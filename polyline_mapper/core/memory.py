@@ -42,6 +42,8 @@ CLEAR = 2.0
 the hits (a place clearly seen through, as a ghost's square); elsewhere it starts at nothing, as
 without memory. (3 x left a 10 cm piece of the corridor walker's track in the dynamic office,
 seed 3.)"""
+SAMPLES = 1 << 18
+"""Most beam samples traced at once (``add``): a few MB of work arrays."""
 CHUNK = 16
 """Cells are stored in square chunks of this many cells a side, only where beams went."""
 DEFAULT_MAX_CELLS = 2 ** 24
@@ -159,27 +161,35 @@ class BeamMemory:
             return
         rel = points - origin
         rng = np.hypot(rel[:, 0], rel[:, 1])
-        stop = rng - (tol + range_tol * rng)
         step = self.cell
-        n = np.maximum(np.floor(stop / step), 0).astype(np.int64)
-        total = int(n.sum())
-        beam = np.repeat(np.arange(len(points)), n)
-        k = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
-        t = (k + 0.5) * step / np.maximum(rng[beam], 1e-12)
-        samples = origin + t[:, None] * rel[beam]
-        cells = np.floor(np.concatenate([points, samples]) / step).astype(np.int64)
-        rows = self._rows(cells, True)
-        self.clipped += int(np.count_nonzero(rows < 0))
-        ends, passes = rows[:len(points)], rows[len(points):]
+        n = np.maximum(np.floor((rng - (tol + range_tol * rng)) / step), 0).astype(np.int64)
         bins = np.minimum((np.mod(np.arctan2(rel[:, 1], rel[:, 0]), np.pi)
-                           / (np.pi / BINS)).astype(np.int64), BINS - 1)[beam]
-        bins, passes, ends = bins[passes >= 0], passes[passes >= 0], ends[ends >= 0]
-        seen = np.unique(np.concatenate([ends, passes]))
+                           / (np.pi / BINS)).astype(np.int64), BINS - 1)
+        ends = self._rows(np.floor(points / step).astype(np.int64), True)
+        self.clipped += int(np.count_nonzero(ends < 0))
+        ends = ends[ends >= 0]
+        parts = [(ends, np.zeros(len(ends), dtype=np.int64), np.ones(len(ends)))]  # row, chan, n
+        # Beams in blocks of at most SAMPLES samples, each reduced to its cells' counts, so the
+        # work arrays stay bounded however long the beams.
+        cut = np.searchsorted(np.cumsum(n), np.arange(1, int(n.sum()) // SAMPLES + 1) * SAMPLES)
+        for a, b in zip(np.r_[0, cut], np.r_[cut, len(n)]):
+            total = int(n[a:b].sum())
+            if not total:
+                continue
+            beam = a + np.repeat(np.arange(b - a), n[a:b])
+            k = np.arange(total) - np.repeat(np.cumsum(n[a:b]) - n[a:b], n[a:b])
+            t = (k + 0.5) * step / np.maximum(rng[beam], 1e-12)
+            rows = self._rows(np.floor((origin + t[:, None] * rel[beam]) / step).astype(
+                np.int64), True)
+            self.clipped += int(np.count_nonzero(rows < 0))
+            ok = rows >= 0
+            key, count = np.unique(rows[ok] * BINS + bins[beam[ok]], return_counts=True)
+            parts.append((key // BINS, 1 + key % BINS, count.astype(np.float64)))
+        rows, chan, weight = (np.concatenate(p) for p in zip(*parts))
+        seen, at = np.unique(rows, return_inverse=True)
         if not seen.size:
             return
-        add = np.zeros((seen.size, 1 + BINS))
-        add[:, 0] = np.bincount(np.searchsorted(seen, ends), minlength=seen.size)
-        add[:, 1:] = np.bincount(np.searchsorted(seen, passes) * BINS + bins,
-                                 minlength=seen.size * BINS).reshape(-1, BINS)
+        add = np.bincount(at * (1 + BINS) + chan, weights=weight,
+                          minlength=seen.size * (1 + BINS)).reshape(-1, 1 + BINS)
         counts = self._pool[seen] * (1.0 - 1.0 / self.window) + add
         self._pool[seen] = np.minimum(counts, self.cap)
