@@ -304,7 +304,7 @@ class IncrementalMapper:
         self._pool_used = 0
         # Cut squares remembered (free_space_ghosts): centre, direction, [hits, passes].
         self._ghosts = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)))
-        # What the beams saw of every place (free_space_memory), kept across resets of the map?
+        # What the beams saw of every place (free_space_memory); ``reset`` forgets it with the map.
         self._memory = (BeamMemory(self.config.free_space_memory, self.config.free_space_window)
                         if self.config.free_space_memory > 0 and self.config.free_space_window > 0
                         else None)
