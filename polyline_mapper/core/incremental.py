@@ -648,8 +648,7 @@ class IncrementalMapper:
             hits, passes = beam_evidence(group, n_sub, o, pts[a:b], tol,
                                          hit_range_tol=self.config.free_space_hit_margin or None)
             counts = accumulate_evidence(counts, hits, passes, self.config.free_space_window)
-        if self._memory is not None:
-            for a, b, o in views:
+            if self._memory is not None:        # read above, before any of these beams
                 self._memory.add(o, pts[a:b], tol)
         free = free_squares(counts)
         if self.config.free_space_ghosts > 0 and free.any():

@@ -46,6 +46,8 @@ SAMPLES = 1 << 18
 """Most beam samples traced at once (``add``): a few MB of work arrays."""
 CHUNK = 16
 """Cells are stored in square chunks of this many cells a side, only where beams went."""
+AROUND = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)], dtype=np.int64)
+"""The 3 x 3 cell offsets a square's hits are read from; the centre (0, 0) is the middle row."""
 DEFAULT_MAX_CELLS = 2 ** 24
 """Most cells stored (16.8 M: 300 MiB at 18 bytes a cell, a 410 m square at 0.1 m). Beams beyond
 are left out, counted in ``clipped``."""
@@ -79,10 +81,6 @@ class BeamMemory:
     def cells(self) -> int:
         """Return how many cells are stored."""
         return self._used * CHUNK * CHUNK
-
-    def reset(self) -> None:
-        """Forget everything."""
-        self.__init__(self.cell, self.window, self.cap, self.max_cells)
 
     def _rows(self, cells: np.ndarray, grow: bool) -> np.ndarray:
         """
@@ -131,7 +129,11 @@ class BeamMemory:
         if not self._used or not len(xy):
             return out
         c = np.floor(xy / self.cell).astype(np.int64)
-        row = self._rows(c, False)
+        rows = self._rows((c[:, None, :] + AROUND[None]).reshape(-1, 2), False).reshape(
+            len(xy), len(AROUND))
+        hits = np.where(rows >= 0, self._pool[np.maximum(rows, 0), 0], 0.0)
+        out[:, 0] = hits.max(axis=1)
+        row = rows[:, len(AROUND) // 2]                   # the centre's own cell
         ok = np.flatnonzero(row >= 0)
         counts = self._pool[row[ok]]
         ang = np.mod(np.arctan2(dirs[ok, 1], dirs[ok, 0]), np.pi)
@@ -139,10 +141,6 @@ class BeamMemory:
         off = np.abs(ang[:, None] - centres[None, :])
         off = np.minimum(off, np.pi - off)
         out[ok, 1] = np.sum(counts[:, 1:] * (off >= EXCLUDE), axis=1)
-        around = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
-        rows = self._rows((c[:, None, :] + around[None]).reshape(-1, 2), False)
-        hits = np.where(rows >= 0, self._pool[np.maximum(rows, 0), 0], 0.0)
-        out[:, 0] = hits.reshape(len(xy), len(around)).max(axis=1)
         return out
 
     def add(self, origin: np.ndarray, points: np.ndarray, tol: float,
