@@ -4,6 +4,7 @@ import dataclasses
 
 from conftest import radish_log
 import numpy as np
+from polyline_mapper.core import memory
 from polyline_mapper.core.freespace import judge
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.index import nearest_distance
@@ -58,6 +59,35 @@ def test_memory_follows_where_the_beams_went_and_stays_within_its_bound():
         BeamMemory(0.0, window=10)
     with pytest.raises(ValueError, match='free_space_memory'):
         IncrementalConfig(free_space_memory=-0.1)
+
+
+def test_counting_in_a_box_and_sorting_the_samples_give_the_same_counts(monkeypatch):
+    # Scans whose beams fit a small box are counted in it (memory.DENSE); larger ones sort their
+    # samples. Both must store the same counts, cell for cell: 60 looks of a simulated drive.
+    drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), rng=2)
+    spec = LaserSpec(noise=0.01)
+    views = []
+    for ranges, pose in list(zip(drive.ranges, drive.poses))[:60]:
+        ok = np.isfinite(ranges) & (ranges < spec.range_max)
+        a = spec.angles()[ok] + pose[2]
+        views.append((pose[:2], pose[:2] + ranges[ok, None] * np.c_[np.cos(a), np.sin(a)]))
+    boxed, sorted_ = BeamMemory(0.1, window=10), BeamMemory(0.1, window=10)
+    for origin, pts in views:
+        boxed.add(origin, pts, tol=0.05)
+    monkeypatch.setattr(memory, 'DENSE', 0)
+    for origin, pts in views:
+        sorted_.add(origin, pts, tol=0.05)
+    assert boxed.cells == sorted_.cells > 0
+
+    def table(mem):
+        rows = np.concatenate([np.arange(s * CHUNK * CHUNK, (s + 1) * CHUNK * CHUNK)
+                               for s in mem._slot])
+        return mem._keys, mem._pool[rows]
+
+    keys_b, counts_b = table(boxed)
+    keys_s, counts_s = table(sorted_)
+    assert np.array_equal(keys_b, keys_s)
+    assert np.array_equal(counts_b, counts_s) and counts_b[:, 1:].max() > 1.0
 
 
 @pytest.mark.parametrize('seed', [1, 3])

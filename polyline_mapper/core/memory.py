@@ -48,6 +48,9 @@ CHUNK = 16
 """Cells are stored in square chunks of this many cells a side, only where beams went."""
 AROUND = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)], dtype=np.int64)
 """The 3 x 3 cell offsets a square's hits are read from; the centre (0, 0) is the middle row."""
+DENSE = 1 << 21
+"""A scan whose beams fit in a box of at most this many cells x channels is counted in that box
+(``bincount``) and stored once per cell; larger ones (long outdoor beams) sort their samples."""
 DEFAULT_MAX_CELLS = 2 ** 24
 """Most cells stored (16.8 M: 300 MiB at 18 bytes a cell, a 410 m square at 0.1 m). Beams beyond
 are left out, counted in ``clipped``."""
@@ -63,6 +66,11 @@ class BeamMemory:
             raise ValueError(f'cell must be a finite number > 0, got {cell!r}')
         self.cell = float(cell)
         self.window = float(window)
+        # Every float16 count decayed as ``count * (1 - 1 / window)`` (float16 arithmetic),
+        # looked up by its bit pattern: the same values, without float16 multiplications.
+        with np.errstate(invalid='ignore'):          # the NaN patterns stay NaN
+            self._decayed = (np.arange(1 << 16, dtype=np.uint16).view(np.float16)
+                             * (1.0 - 1.0 / self.window)).astype(np.float64)
         self.cap = float(cap)
         self.max_cells = int(max_cells)
         self._keys = np.zeros(0, dtype=np.int64)      # chunk keys, sorted
@@ -163,7 +171,14 @@ class BeamMemory:
         n = np.maximum(np.floor((rng - (tol + range_tol * rng)) / step), 0).astype(np.int64)
         bins = np.minimum((np.mod(np.arctan2(rel[:, 1], rel[:, 0]), np.pi)
                            / (np.pi / BINS)).astype(np.int64), BINS - 1)
-        ends = self._rows(np.floor(points / step).astype(np.int64), True)
+        end_cells = np.floor(points / step).astype(np.int64)
+        lo = np.minimum(end_cells.min(axis=0), np.floor(origin / step).astype(np.int64)) - 1
+        hi = np.maximum(end_cells.max(axis=0), np.floor(origin / step).astype(np.int64)) + 1
+        size = hi - lo + 1
+        if int(size[0]) * int(size[1]) * (1 + BINS) <= DENSE:
+            self._add_dense(origin, rel, rng, n, bins, end_cells, lo, size)
+            return
+        ends = self._rows(end_cells, True)
         self.clipped += int(np.count_nonzero(ends < 0))
         ends = ends[ends >= 0]
         parts = [(ends, np.zeros(len(ends), dtype=np.int64), np.ones(len(ends)))]  # row, chan, n
@@ -189,5 +204,42 @@ class BeamMemory:
             return
         add = np.bincount(at * (1 + BINS) + chan, weights=weight,
                           minlength=seen.size * (1 + BINS)).reshape(-1, 1 + BINS)
-        counts = self._pool[seen] * (1.0 - 1.0 / self.window) + add
-        self._pool[seen] = np.minimum(counts, self.cap)
+        self._store(seen, add)
+
+    def _samples(self, origin, rel, rng, n):
+        """Yield the cells ((S, 2) int) and beam indices of the pass samples, in blocks."""
+        step = self.cell
+        cut = np.searchsorted(np.cumsum(n), np.arange(1, int(n.sum()) // SAMPLES + 1) * SAMPLES)
+        for a, b in zip(np.r_[0, cut], np.r_[cut, len(n)]):
+            total = int(n[a:b].sum())
+            if not total:
+                continue
+            beam = a + np.repeat(np.arange(b - a), n[a:b])
+            k = np.arange(total) - np.repeat(np.cumsum(n[a:b]) - n[a:b], n[a:b])
+            t = (k + 0.5) * step / np.maximum(rng[beam], 1e-12)
+            yield np.floor((origin + t[:, None] * rel[beam]) / step).astype(np.int64), beam
+
+    def _add_dense(self, origin, rel, rng, n, bins, end_cells, lo, size):
+        """``add`` for a scan whose cells fit a small box: counted there, then stored once."""
+        chans = 1 + BINS
+        box = np.zeros(int(size[0]) * int(size[1]) * chans, dtype=np.int64)
+        local = (end_cells[:, 0] - lo[0]) * size[1] + (end_cells[:, 1] - lo[1])
+        box += np.bincount(local * chans, minlength=box.size)
+        for cells, beam in self._samples(origin, rel, rng, n):
+            local = (cells[:, 0] - lo[0]) * size[1] + (cells[:, 1] - lo[1])
+            box += np.bincount(local * chans + 1 + bins[beam], minlength=box.size)
+        box = box.reshape(-1, chans)
+        hit = np.flatnonzero(box.any(axis=1))
+        if not hit.size:
+            return
+        cells = np.stack([hit // size[1] + lo[0], hit % size[1] + lo[1]], axis=1)
+        rows = self._rows(cells, True)
+        ok = rows >= 0
+        self.clipped += int(box[hit[~ok]].sum())
+        seen, add = rows[ok], box[hit[ok]].astype(np.float64)
+        self._store(seen, add)
+
+    def _store(self, rows: np.ndarray, add: np.ndarray) -> None:
+        """Decay the counts of pool ``rows`` (distinct) by one look, add ``add``, cap, store."""
+        counts = self._decayed.take(self._pool[rows].view(np.uint16)) + add
+        self._pool[rows] = np.minimum(counts, self.cap)
