@@ -184,16 +184,8 @@ class BeamMemory:
         parts = [(ends, np.zeros(len(ends), dtype=np.int64), np.ones(len(ends)))]  # row, chan, n
         # Beams in blocks of at most SAMPLES samples, each reduced to its cells' counts, so the
         # work arrays stay bounded however long the beams.
-        cut = np.searchsorted(np.cumsum(n), np.arange(1, int(n.sum()) // SAMPLES + 1) * SAMPLES)
-        for a, b in zip(np.r_[0, cut], np.r_[cut, len(n)]):
-            total = int(n[a:b].sum())
-            if not total:
-                continue
-            beam = a + np.repeat(np.arange(b - a), n[a:b])
-            k = np.arange(total) - np.repeat(np.cumsum(n[a:b]) - n[a:b], n[a:b])
-            t = (k + 0.5) * step / np.maximum(rng[beam], 1e-12)
-            rows = self._rows(np.floor((origin + t[:, None] * rel[beam]) / step).astype(
-                np.int64), True)
+        for cells, beam in self._samples(origin, rel, rng, n):
+            rows = self._rows(cells, True)
             self.clipped += int(np.count_nonzero(rows < 0))
             ok = rows >= 0
             key, count = np.unique(rows[ok] * BINS + bins[beam[ok]], return_counts=True)
@@ -207,7 +199,12 @@ class BeamMemory:
         self._store(seen, add)
 
     def _samples(self, origin, rel, rng, n):
-        """Yield the cells ((S, 2) int) and beam indices of the pass samples, in blocks."""
+        """
+        Yield the cells ((S, 2) int) and beam indices of the pass samples, in blocks.
+
+        Beam i is sampled ``n[i]`` times, every cell length from its origin (at half-cells);
+        a block holds about ``SAMPLES`` samples (whole beams).
+        """
         step = self.cell
         cut = np.searchsorted(np.cumsum(n), np.arange(1, int(n.sum()) // SAMPLES + 1) * SAMPLES)
         for a, b in zip(np.r_[0, cut], np.r_[cut, len(n)]):
