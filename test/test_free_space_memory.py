@@ -10,9 +10,10 @@ from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMappe
 from polyline_mapper.core.index import nearest_distance
 from polyline_mapper.core.memory import BeamMemory, CHUNK
 from polyline_mapper.core.metrics import map_metrics
-from polyline_mapper.sim import LaserSpec, office_dynamic, office_floor, Removed, simulate_drive
+from polyline_mapper.sim import LaserSpec, office_dynamic, office_floor, simulate_drive
 import pytest
-from test_dynamic_scenes import assert_walls_stay_and_what_moved_is_gone, on_object, run
+from test_dynamic_scenes import (assert_walls_stay_and_what_moved_is_gone, box_set_down,
+                                 on_object, run)
 
 EVIDENCE = IncrementalConfig(free_space_window=10, free_space_ghosts=20000,
                              free_space_hit_margin=0.03)
@@ -104,17 +105,12 @@ def test_a_box_set_down_where_the_laser_saw_through_is_mapped(seed):
     # A 0.6 m x 0.4 m box is set down in the corridor at 15 s, where the robot drove past and
     # saw free space at 7-8 s; it passes the box again at 26-29 s. The memory of the free space
     # must not keep the box out of the map: its face towards the corridor is mapped.
-    world = office_floor()
-    box = Removed(np.array([[[7.5, 6.55], [8.1, 6.55]], [[8.1, 6.55], [8.1, 6.95]],
-                            [[8.1, 6.95], [7.5, 6.95]], [[7.5, 6.95], [7.5, 6.55]]]),
-                  until=np.inf, since=15.0, name='box set down')
-    world.dynamic = [box]
-    drive = simulate_drive(world, LaserSpec(noise=0.01), rng=seed)
+    drive, box, face = box_set_down(seed)
+    world = drive.world
     assert drive.world.cast((7.8, 6.0), np.array([[0.0, 1.0]]), t=14.9)[0][0] == pytest.approx(1.0)
     assert drive.world.cast((7.8, 6.0), np.array([[0.0, 1.0]]), t=15.0)[0][0] == pytest.approx(
         0.55)
     segs = run(drive, MEMORY).polylines().segments
-    face = np.stack([np.linspace(7.55, 8.05, 26), np.full(26, 6.55)], axis=1)
     dist, _ = nearest_distance(face, segs)
     assert (dist <= 0.05).all(), dist.max()
     assert on_object(segs, world, box).any()
