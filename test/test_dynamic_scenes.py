@@ -39,11 +39,10 @@ def dynamic(request):
 
 def box_set_down(seed):
     """
-    Return a drive through the office where a box is set down in the corridor at 15 s, and it.
+    Drive through the office while a box is set down in the corridor at 15 s: (drive, box, face).
 
     The box (0.6 m x 0.4 m) stands where the robot drove past and saw free space at 7-8 s; the
-    robot passes it again at 26-29 s. Also return the 26 samples of its face towards the
-    corridor.
+    robot passes it again at 26-29 s. ``face``: 26 samples of its side towards the corridor.
     """
     world = office_floor()
     box = Removed(np.array([[[7.5, 6.55], [8.1, 6.55]], [[8.1, 6.55], [8.1, 6.95]],
@@ -220,7 +219,7 @@ def test_batch_fit_with_beams_keeps_a_box_set_down(seed):
     # The box stands from 15 s on where the beams saw free space at 7-8 s: the batch fit shows
     # the scene as the recording leaves it, so the free space seen before the box came does not
     # cut its face (counting every beam of the recording alike left up to 12 cm of it out).
-    drive, box, face = box_set_down(seed)
+    drive, _, face = box_set_down(seed)
     assert drive.world.cast((7.8, 6.0), np.array([[0.0, 1.0]]), t=14.9)[0][0] == pytest.approx(1.0)
     points = drive.points()
     res = fit(points, origins=drive.origins(), free_space_window=10, free_space_hit_margin=0.03)
