@@ -62,8 +62,7 @@ def run_child(tree: str, path: str, scans: int, cpu) -> dict:
     cmd = [sys.executable, '-c', CHILD, tree, path, str(scans)]
     if cpu is not None:
         cmd = ['taskset', '-c', str(cpu)] + cmd
-    out = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ,
-                         PYTHONPATH=tree))
+    out = subprocess.run(cmd, capture_output=True, text=True)
     if out.returncode != 0:
         raise SystemExit(f'speed_ab.py: the run of {tree} failed: '
                          f'{out.stderr.strip().splitlines()[-1:]}')
