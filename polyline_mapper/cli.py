@@ -58,6 +58,12 @@ def load_fit_options(path: str = None, overrides: list = ()) -> tuple:
     return load(path, overrides)
 
 
+def fit_window_asked(path: str = None, overrides: list = ()) -> bool:
+    """Whether ``--config`` or ``--set`` gives ``free_space_window`` (not only the default)."""
+    from .config import FIT_EXTRA, read_values
+    return 'free_space_window' in read_values(path, overrides, ('smemsf',), FIT_EXTRA)
+
+
 def load_incremental_config(path: str = None, overrides: list = ()):
     """Return the mapper configuration of ``--config`` and ``--set`` (see ``config``)."""
     from .config import load_mapper_config
@@ -212,7 +218,7 @@ def cmd_fit(args) -> int:
     points, origins, desc = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
         raise CliError(f'{args.input}: {len(points)} usable point(s); need at least 2')
-    if window > 0 and origins is None:
+    if window > 0 and origins is None and fit_window_asked(args.config, args.set):
         print(f'polyline-mapper: warning: {args.input}: free_space_window={window} cannot be '
               'applied: a point file has no beams (laser positions); fitting the bare points',
               file=sys.stderr)
@@ -686,9 +692,8 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser('fit', help='fit a map to an (N, 2) point file, a CARMEN log or a bag')
     f.add_argument('input', help='.npy/.csv/.txt points (metres), CARMEN .log/.log.gz, a '
                    f'bag (registered as replay does, then fitted at once), or {drives}; '
-                   '--set free_space_window=10 fits a log, bag or drive with its beams (what '
-                   'they see through is cut out; off by default: mean distance grows on real '
-                   'logs)')
+                   'a log, bag or drive is fitted with its beams (what they see through is cut '
+                   'out; --set free_space_window=0 fits the bare points)')
     common(f)
     f.add_argument('--frame-id', default='map', help='frame of the points (default: map)')
     f.add_argument('--range-max', type=POSITIVE, default=None,
@@ -716,7 +721,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser('replay', help='map a bag or CARMEN log scan by scan (incremental)')
     r.add_argument('input', help='rosbag2 folder, .db3, .mcap, ROS 1 .bag, CARMEN .log(.gz), '
                    f'or {drives} (sim:office_dynamic: people walking, a door opening, a box '
-                   'carried away; --set free_space_window=10 clears them)')
+                   'carried away; the free-space evidence clears them, --set '
+                   'free_space_window=0 leaves them)')
     common(r)
     _pose_args(r)
     r.add_argument('--every', type=number(1, kind=int), default=1, metavar='N',

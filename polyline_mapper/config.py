@@ -161,12 +161,15 @@ def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
 
     As ``load_fit_config``, plus the mapper's ``free_space_window`` and
     ``free_space_hit_margin`` (``incremental.`` in a ROS 2 parameter file), as a dict of
-    ``smemsf.fit`` keywords: window 0 (the default) fits bare points, N > 0 the beams with
-    their evidence decaying over N looks, as ``replay --set free_space_window=N``.
+    ``smemsf.fit`` keywords, the mapper's defaults unless given (window 10, margin 0.03): N > 0
+    fits a recording's beams with their evidence decaying over N looks, as ``replay --set
+    free_space_window=N``; window 0 fits the bare points.
     """
     values = read_values(path, overrides, ('smemsf',), FIT_EXTRA)
-    extra = {'free_space_window': values.pop('free_space_window', 0),
-             'free_space_hit_margin': values.pop('free_space_hit_margin', 0.0)}
+    mapper = IncrementalConfig()
+    extra = {'free_space_window': values.pop('free_space_window', mapper.free_space_window),
+             'free_space_hit_margin': values.pop('free_space_hit_margin',
+                                                 mapper.free_space_hit_margin)}
     try:
         return SMEMSFConfig.from_dict(values), extra
     except (TypeError, ValueError) as exc:

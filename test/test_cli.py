@@ -72,23 +72,25 @@ def test_fit_carmen_log_registers_scans(tmp_path):
     with gzip.open(path, 'wt') as fh:
         fh.writelines(['# a comment\n', 'PARAM robot_front_laser_max 81.91 host 0\n'] + lines)
     out = tmp_path / 'room.json'
+    # the free-space evidence is on by default: the log's beams go into the fit, the walls stay
     assert main(['fit', str(path), '-o', str(out), '-q']) == 0
     data = json.loads(out.read_text())
-    assert len(data['segments']) == 4 and data['stats']['mean_distance'] < 0.012
-    assert '1 malformed' in data['stats']['input_type']
-    # with the free-space evidence on, the log's beams go into the fit: the walls stay
-    out = tmp_path / 'beams.json'
-    assert main(['fit', str(path), '-o', str(out), '-q', '--set', 'free_space_window=10']) == 0
-    data = json.loads(out.read_text())
     stats = data['stats']
+    assert len(data['segments']) == 4 and stats['mean_distance'] < 0.012
+    assert '1 malformed' in stats['input_type']
     assert stats['free_space_window'] == 10 and stats['free_space_beams'] == stats['points']
-    assert len(data['segments']) == 4 and stats['contradicted_share'] == 0.0
-    assert stats['free_space_hit_margin'] == 0.0
-    # the mapper's hit margin too (the key replay takes)
-    assert main(['fit', str(path), '-o', str(out), '-q', '--set', 'free_space_window=10',
-                 '--set', 'free_space_hit_margin=0.03']) == 0
+    assert stats['contradicted_share'] == 0.0 and stats['free_space_hit_margin'] == 0.03
+    # the mapper's keys (the ones replay takes) set it: no hit margin, or the bare points
+    out = tmp_path / 'beams.json'
+    assert main(['fit', str(path), '-o', str(out), '-q', '--set',
+                 'free_space_hit_margin=0']) == 0
     stats = json.loads(out.read_text())['stats']
-    assert stats['free_space_hit_margin'] == 0.03 and stats['segments'] == 4
+    assert stats['free_space_hit_margin'] == 0.0 and stats['free_space_window'] == 10
+    assert stats['segments'] == 4
+    assert main(['fit', str(path), '-o', str(out), '-q', '--set', 'free_space_window=0']) == 0
+    stats = json.loads(out.read_text())['stats']
+    assert stats['free_space_window'] == stats['free_space_beams'] == 0
+    assert stats['segments'] == 4 and stats['beams'] == stats['points']
 
 
 def test_offline_demo_fits_the_office(tmp_path, capsys):

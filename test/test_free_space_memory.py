@@ -16,8 +16,14 @@ from test_dynamic_scenes import (assert_walls_stay_and_what_moved_is_gone, box_s
                                  on_object, run)
 
 EVIDENCE = IncrementalConfig(free_space_window=10, free_space_ghosts=20000,
-                             free_space_hit_margin=0.03)
+                             free_space_hit_margin=0.03, free_space_memory=0.0)
 MEMORY = dataclasses.replace(EVIDENCE, free_space_memory=0.1)
+NO_EVIDENCE = IncrementalConfig(free_space_window=0)
+"""The mapper before the evidence was on by default (short segments cleared only)."""
+
+
+def test_the_memory_setting_is_the_default():
+    assert MEMORY == IncrementalConfig()
 
 
 def test_a_beam_passes_the_cells_before_its_margin_and_ends_in_its_last():
@@ -125,7 +131,7 @@ def test_the_memory_lowers_the_contradicted_share_on_intel():
     points, origins = log.beams()
     top = log.no_return * 0.99
     maps = {}
-    for name, config in (('default', IncrementalConfig()), ('evidence', EVIDENCE),
+    for name, config in (('default', NO_EVIDENCE), ('evidence', EVIDENCE),
                          ('memory', MEMORY)):
         mapper = IncrementalMapper(config)
         for rec in log.records:

@@ -129,21 +129,35 @@ def test_launch_file_starts_the_installed_executable_with_the_installed_config()
     assert "'polyline_mapper_node = polyline_mapper.ros.node:main'" in setup
 
 
-def test_the_free_space_preset_overrides_only_the_evidence_and_loads_everywhere():
-    # config/free_space.yaml is given after polyline_mapper.yaml (node), or alone (--config):
-    # node parameters of the declared types, the mapper's evidence on, every other value default.
+def test_the_no_free_space_preset_turns_only_the_evidence_off_and_loads_everywhere():
+    # config/no_free_space.yaml is given after polyline_mapper.yaml (node), or alone (--config):
+    # node parameters of the declared types, the mapper's evidence off, every other value default.
     from polyline_mapper.config import load_fit_options, load_mapper_config
-    path = REPO / 'config' / 'free_space.yaml'
+    path = REPO / 'config' / 'no_free_space.yaml'
     params = flatten(yaml.safe_load(path.read_text())['polyline_mapper_node']['ros__parameters'])
     want = defaults()
     assert set(params) <= set(want), set(params) - set(want)
     for key, value in params.items():
         assert type(value) is type(want[key]) and value != want[key], (key, value)
     settings_from(dict(want, **params))
-    evidence = {'free_space_window': 10, 'free_space_ghosts': 20000,
-                'free_space_hit_margin': 0.03, 'free_space_memory': 0.1}
-    assert load_mapper_config(str(path)) == IncrementalConfig(**evidence)
+    off = {'free_space_window': 0, 'free_space_ghosts': 0,
+           'free_space_hit_margin': 0.0, 'free_space_memory': 0.0}
+    assert load_mapper_config(str(path)) == IncrementalConfig(**off)
     fit_config, extra = load_fit_options(str(path))
-    assert fit_config == SMEMSFConfig() and extra == {'free_space_window': 10,
-                                                      'free_space_hit_margin': 0.03}
-    assert 'free_space.yaml' in (REPO / 'README.md').read_text()
+    assert fit_config == SMEMSFConfig() and extra == {'free_space_window': 0,
+                                                      'free_space_hit_margin': 0.0}
+    # Without a file the mapper and the batch fit both use the beams' evidence.
+    assert load_fit_options() == (SMEMSFConfig(), {'free_space_window': 10,
+                                                   'free_space_hit_margin': 0.03})
+    assert 'no_free_space.yaml' in (REPO / 'README.md').read_text()
+
+
+def test_the_old_free_space_preset_still_loads_and_equals_the_defaults():
+    # Kept for command lines and launch files that name it: it must not drift from the defaults.
+    from polyline_mapper.config import load_mapper_config
+    path = REPO / 'config' / 'free_space.yaml'
+    params = flatten(yaml.safe_load(path.read_text())['polyline_mapper_node']['ros__parameters'])
+    want = defaults()
+    assert params and all(want[key] == value and type(want[key]) is type(value)
+                          for key, value in params.items()), params
+    assert load_mapper_config(str(path)) == IncrementalConfig()

@@ -61,16 +61,17 @@ Every allocation of an update is bounded by the points kept (each scan thinned t
 ``max_scan_points``), the map near them and fixed block sizes (``index.DILATE_BUDGET``,
 ``cleanup.PAIR_BUDGET``), not by how far the points lie.
 
-Free-space evidence (``free_space_window`` > 0, off by default): the beams of every scan are
-counted per LSS square (2r) of the segments near them, hits (the beam ends on the square) and
-passes (it goes through beyond the noise margin of ``cleanup.beam_evidence``), as decaying,
-capped counts that live beside the segments (one run of rows per segment in one pool array,
-``_store``, so that a group of segments' counts is gathered and written back at once) and follow
-them through refits, splits and merges (``split.carry_evidence``). Squares whose passes outweigh
-their hits are cut out (``split.free_squares``, ``split.cut_squares``), whatever the segment's
-length: a doorway splits a wall, a door that opened, a box carried away, a person's track go.
-When on it replaces ``clear_max_length``. The state is bounded by the map: one pair of counts per
-square of a live segment.
+Free-space evidence (``free_space_window`` > 0, on by default; 0 turns it off): the beams of
+every scan are counted per LSS square (2r) of the segments near them, hits (the beam ends on
+the square) and passes (it goes through beyond the noise margin of ``cleanup.beam_evidence``),
+as decaying, capped counts that live beside the segments (one run of rows per segment in one
+pool array, ``_store``, so that a group of segments' counts is gathered and written back at
+once) and follow them through refits, splits and merges (``split.carry_evidence``). Squares
+whose passes outweigh their hits are cut out (``split.free_squares``, ``split.cut_squares``),
+whatever the segment's length: a doorway splits a wall, a door that opened, a box carried away,
+a person's track go. When on it replaces ``clear_max_length``. The state is bounded by the
+map: one pair of counts per square of a live segment (and, with ``free_space_memory``, the
+cells the beams went through, ``memory.BeamMemory``).
 
 A short chord across a corner, once in the map, is kept alive by its own virtual points; it is
 dropped when the new points near it all lie on the two longer walls whose corner it cuts
@@ -173,15 +174,16 @@ class IncrementalConfig:
     (free-space clearing: people, moved chairs, opened door leaves); 0 turns clearing off. Needs
     the laser position of each scan (update_scan, replay and the node give it). Not used when
     ``free_space_window`` > 0 (the evidence per square replaces it)."""
-    free_space_window: int = 0
-    """Free-space evidence per LSS square (0 turns it off): every scan's beams are counted per
+    free_space_window: int = 10
+    """Free-space evidence per LSS square (10, the default; 0 turns it off and
+    ``clear_max_length`` clears instead): every scan's beams are counted per
     2r square of the map's segments near them, as hits (the beam ends on the square) and passes
     (it goes through, beyond the noise margin), decaying over about this many looks at the
     square and capped; squares whose passes outweigh their hits are removed, whatever the
     segment's length (doorways, opened doors, moved boxes, people's tracks). When on, it
     replaces ``clear_max_length``. Needs the laser position of each scan."""
-    free_space_ghosts: int = 0
-    """With ``free_space_window`` > 0: the most cut squares remembered (0: none, the default).
+    free_space_ghosts: int = 20000
+    """With ``free_space_window`` > 0: the most cut squares remembered (default 20000; 0: none).
     A square cut out as free with at least twice as many passes as hits leaves a *ghost* (its
     centre, direction and counts; a marginal cut leaves none: remembering every cut held real
     structure out of the map, CSAIL 3.93 against 3.32 cm). A refit segment's new square takes
@@ -191,16 +193,16 @@ class IncrementalConfig:
     single square left between two cuts or beside one goes too once a beam passed through it
     (as a piece of its own its crossing window would shrink to its middle half, so a 5 cm
     sliver of a box or a person's track stayed)."""
-    free_space_hit_margin: float = 0.0
-    """With ``free_space_window`` > 0: 0 (the default) counts as a square's hits the beams that
-    cross it at >= 20 deg and return within kappa sigma of its line; > 0 counts every return
+    free_space_hit_margin: float = 0.03
+    """With ``free_space_window`` > 0: 0 counts as a square's hits the beams that cross it at
+    >= 20 deg and return within kappa sigma of its line; > 0 (default 0.03) counts every return
     within kappa sigma + this x its range of the line, abreast of the square, at any angle
     (``cleanup.beam_evidence``): the same margin as a pass's at 0.03. Crossing hits are so
     few that cut squares held real structure (fr079, window 10 and 20000 ghosts: 2.78 % /
     4.53 cm / 90.7 % without, 2.52 % / 3.98 cm / 92.9 % with 0.03)."""
-    free_space_memory: float = 0.0
-    """With ``free_space_window`` > 0: the cell size (m) of the free-space memory (0: none, the
-    default). Every scan's beams are also counted per cell of a grid over the area seen
+    free_space_memory: float = 0.1
+    """With ``free_space_window`` > 0: the cell size (m) of the free-space memory (default 0.1;
+    0: none). Every scan's beams are also counted per cell of a grid over the area seen
     (``memory.BeamMemory``: the same decaying, capped hits and passes as a square), and a square
     the map gains with no evidence to carry over starts from its cell's counts instead of none: a
     segment drawn where the laser had seen through is cut by the next beams."""
