@@ -7,12 +7,14 @@ Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
 ``drives.py`` found ours-incremental contradicted on the cluttered room at 5 cm noise (drive 3:
 4.1 %, segments from table leg to table leg across the 0.42 m gap between them). For each drive
-(``compare.sim_dataset``, seeds 1..N) this maps the scans with the incremental mapper at its
-defaults and with the free-space evidence of ``config/free_space.yaml`` (window 10, 20000
-ghosts, hit margin 0.03), and reports per drive the contradicted share of the published map
-against the drive's own beams (``freespace.judge``), its contradicted segments, and the map's
-mean distance and coverage against the points. With ``--trace K`` it also prints, for drive K
-at the defaults, every scan after which the map's segments near the contradicted ones change:
+(``compare.sim_dataset``, seeds 1..N) this maps the scans with the incremental mapper with the
+free-space evidence off (``config/no_free_space.yaml``, the defaults before 2026-11-27: the
+rows keep the name ``defaults``) and with the evidence of window 10, 20000 ghosts and hit
+margin 0.03 without the beams' memory (``free_space.yaml`` before the memory), and reports per
+drive the contradicted share of the published map against the drive's own beams
+(``freespace.judge``), its contradicted segments, and the map's mean distance and coverage
+against the points. With ``--trace K`` it also prints, for drive K with the evidence off, every
+scan after which the map's segments near the contradicted ones change:
 when a bridge forms, when the new scan's beams clear it, and when it forms again.
 """
 
@@ -27,8 +29,11 @@ from polyline_mapper.core import map_metrics
 from polyline_mapper.core.freespace import judge
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 
-PRESET = {'free_space_window': 10, 'free_space_ghosts': 20000, 'free_space_hit_margin': 0.03}
-"""config/free_space.yaml's evidence, as IncrementalConfig fields."""
+PRESET = {'free_space_window': 10, 'free_space_ghosts': 20000, 'free_space_hit_margin': 0.03,
+          'free_space_memory': 0.0}
+"""config/free_space.yaml's evidence before the memory, as IncrementalConfig fields."""
+OFF = {'free_space_window': 0}
+"""The evidence off (config/no_free_space.yaml), the defaults before 2026-11-27."""
 
 
 def run_drive(ds: dict, options: dict, watch: np.ndarray = None) -> tuple:
@@ -69,7 +74,7 @@ def main(argv=None) -> int:
     print('| --- | --- | --- | --- | --- | --- |')
     for d in range(1, args.drives + 1):
         ds = compare.sim_dataset('clutter', args.noise, seed=d)
-        for name, options in (('defaults', {}), ('free_space.yaml', PRESET)):
+        for name, options in (('defaults', OFF), ('free_space.yaml', PRESET)):
             row, _ = run_drive(ds, options)
             if name == 'defaults' and d == args.trace and row['contradicted']:
                 watch = np.array(row['contradicted']).mean(axis=1)

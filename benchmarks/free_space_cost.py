@@ -41,11 +41,16 @@ LOG = 'freiburg-079-corrected'
 
 
 def mapper_for(setting: tuple) -> IncrementalMapper:
-    """Return a default mapper with (``free_space_window``, ``_ghosts``, ``_hit_margin``)."""
+    """
+    Return a default mapper with (``free_space_window``, ``_ghosts``, ``_hit_margin``).
+
+    Without the beams' memory (``free_space_memory`` 0, the default since 2026-11-27 is 0.1):
+    this measures the evidence per square, as before; ``free_space_memory.py`` times the memory.
+    """
     window, ghosts, margin = setting
     return IncrementalMapper(dataclasses.replace(
         IncrementalConfig(), free_space_window=window, free_space_ghosts=ghosts,
-        free_space_hit_margin=margin))
+        free_space_hit_margin=margin, free_space_memory=0.0))
 
 
 def memory_child(path: str, setting: tuple) -> None:

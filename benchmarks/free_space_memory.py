@@ -9,11 +9,11 @@ Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 Every log is replayed with ``polyline-mapper replay`` (the command a user runs, so the session
 code of the node) three times:
 
-- ``default``: no option (the free-space evidence off);
-- ``evidence``: ``--config config/free_space.yaml --set free_space_memory=0`` (window 10, 20000
-  ghosts, hit margin 0.03: the preset before the memory);
-- ``memory``: ``--config config/free_space.yaml`` (the preset: the same plus a memory of 0.1 m
-  cells).
+- ``default``: ``--config config/no_free_space.yaml`` (the free-space evidence off: the default
+  map before 2026-11-27, the one issue 18's bars are measured against; the row keeps its name);
+- ``evidence``: ``--set free_space_memory=0`` (window 10, 20000 ghosts, hit margin 0.03: the
+  preset before the memory);
+- ``memory``: no option (the default since 2026-11-27: the same plus a memory of 0.1 m cells).
 
 Reported per map (from its stats): the contradicted share of map length (``core/freespace.py``,
 every scan's beams), mean distance and coverage within 0.10 m of all the log's points, segments,
@@ -38,10 +38,10 @@ from common import (datasets_argument, HERE, load_note, radish_logs, REPO, stamp
 
 LOGS = ['intel-corrected', 'csail-corrected', 'infinite-corridor-corrected',
         'freiburg-079-corrected', 'freiburg-campus-corrected']
-PRESET = str(REPO / 'config' / 'free_space.yaml')
-SETTINGS = {'default': [],
-            'evidence': ['--config', PRESET, '--set', 'free_space_memory=0'],
-            'memory': ['--config', PRESET]}
+OFF = str(REPO / 'config' / 'no_free_space.yaml')
+SETTINGS = {'default': ['--config', OFF],
+            'evidence': ['--set', 'free_space_memory=0'],
+            'memory': []}
 CLI = str(pathlib.Path(sys.executable).parent / 'polyline-mapper')
 
 

@@ -9,10 +9,11 @@ Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 For each log (Intel, CSAIL, infinite corridor, fr079) and each mode (``replay``: the
 incremental map ``polyline-mapper replay`` makes, every scan, poses from the log;
 ``batch``: ``fit`` of all the log's points), the map is made with ``free_space_window`` 0
-(the default: no evidence; batch without beams) and ``--window`` (the evidence per LSS
-square). Each map is judged both ways: mean distance and coverage (0.10 m) of all the log's
-points (``map_metrics``), contradicted share of length (``freespace.judge``, every scan's
-beams).
+(no evidence, the default before 2026-11-27; batch without beams) and ``--window`` (the
+evidence per LSS square; ghosts, hit margin and memory 0, as before they became the default,
+unless ``--set`` gives them). Each map is judged both ways: mean distance and coverage
+(0.10 m) of all the log's points (``map_metrics``), contradicted share of length
+(``freespace.judge``, every scan's beams).
 
 Then the points that the window map leaves uncovered (farther than 0.10 m from it) but the
 default map covers are classified (``transient_counts``, ``is_transient``): a point is
@@ -211,7 +212,8 @@ def make_map(path: pathlib.Path, mode: str, window: int, extra: dict = None) -> 
     if mode == 'replay':
         from polyline_mapper.core.incremental import IncrementalConfig
         from polyline_mapper.replay import run_replay
-        more = extra if window > 0 and extra else {}
+        more = {'free_space_ghosts': 0, 'free_space_hit_margin': 0.0, 'free_space_memory': 0.0}
+        more.update(extra if window > 0 and extra else {})
         res = run_replay(str(path), IncrementalConfig(free_space_window=window, **more))
         st = res.map_value.stats
         return (res.map_value.segments, res.points, res.session.origins(),
