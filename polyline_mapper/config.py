@@ -16,7 +16,7 @@ as a string) are numbers; a field that defaults to "automatic" (None) takes ``no
 import math
 from typing import Iterable
 
-from .core.incremental import IncrementalConfig
+from .core.incremental import AUTO_WINDOW, IncrementalConfig
 from .core.smemsf import SMEMSFConfig
 from .params import all_params, check_value
 
@@ -161,13 +161,15 @@ def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
 
     As ``load_fit_config``, plus the mapper's ``free_space_window`` and
     ``free_space_hit_margin`` (``incremental.`` in a ROS 2 parameter file), as a dict of
-    ``smemsf.fit`` keywords, the mapper's defaults unless given (window 10, margin 0.03): N > 0
+    ``smemsf.fit`` keywords, the mapper's defaults unless given (window -1: ``AUTO_WINDOW``, 10;
+    margin 0.03): N > 0
     fits a recording's beams with their evidence decaying over N looks, as ``replay --set
     free_space_window=N``; window 0 fits the bare points.
     """
     values = read_values(path, overrides, ('smemsf',), FIT_EXTRA)
     mapper = IncrementalConfig()
-    extra = {'free_space_window': values.pop('free_space_window', mapper.free_space_window),
+    window = values.pop('free_space_window', mapper.free_space_window)
+    extra = {'free_space_window': AUTO_WINDOW if window == -1 else window,
              'free_space_hit_margin': values.pop('free_space_hit_margin',
                                                  mapper.free_space_hit_margin)}
     try:

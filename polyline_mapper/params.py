@@ -157,7 +157,7 @@ CORE_RANGES = {
     'incremental.noise_updates': (1, 10000),
     'incremental.sigma_window': (1, 100000),
     'incremental.clear_max_length': (0.0, 100.0),
-    'incremental.free_space_window': (0, 100000),
+    'incremental.free_space_window': (-1, 100000),
     'incremental.free_space_ghosts': (0, 10 ** 7),
     'incremental.free_space_hit_margin': (0.0, 1.0),
     'incremental.free_space_memory': (0.0, 10.0),

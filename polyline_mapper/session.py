@@ -840,6 +840,7 @@ class MappingSession:
                  warn: Optional[Callable[[str, str], object]] = None,
                  info: Optional[Callable[[str], object]] = None):
         self.options = options or SessionOptions()
+        config = (config or IncrementalConfig()).resolved(self.options.scan_matching)
         self.mapper = IncrementalMapper(config)
         self.grid = (None if self.options.grid_resolution is None
                      else FreeSpaceGrid(self.options.grid_resolution))

@@ -157,9 +157,10 @@ def test_bad_origins_and_windows_are_rejected_by_name():
     for bad in (np.zeros((3, 2)), np.full((200, 2), np.nan), np.zeros((200, 3))):
         with pytest.raises(ValueError, match='origin'):
             fit(pts, origins=bad)
-    for bad in (-1, 2.5):
+    for bad in (-2, 2.5):
         with pytest.raises(ValueError, match='free_space_window'):
             IncrementalConfig(free_space_window=bad)
+    assert IncrementalConfig(free_space_window=-1).resolved().free_space_window == 10   # auto
     # bare points: the fit says that no beam was used
     res = fit(pts)
     assert res.beams == 0 and res.free_squares == 0

@@ -22,8 +22,8 @@ NO_EVIDENCE = IncrementalConfig(free_space_window=0)
 """The mapper before the evidence was on by default (short segments cleared only)."""
 
 
-def test_the_memory_setting_is_the_default():
-    assert MEMORY == IncrementalConfig()
+def test_the_memory_setting_is_the_default_with_the_poses_given():
+    assert MEMORY == IncrementalConfig().resolved() == IncrementalMapper().config
 
 
 def test_a_beam_passes_the_cells_before_its_margin_and_ends_in_its_last():

@@ -146,18 +146,25 @@ def test_the_no_free_space_preset_turns_only_the_evidence_off_and_loads_everywhe
     fit_config, extra = load_fit_options(str(path))
     assert fit_config == SMEMSFConfig() and extra == {'free_space_window': 0,
                                                       'free_space_hit_margin': 0.0}
-    # Without a file the mapper and the batch fit both use the beams' evidence.
+    # Without a file the batch fit uses the beams' evidence (the window's -1 is 10 there).
     assert load_fit_options() == (SMEMSFConfig(), {'free_space_window': 10,
                                                    'free_space_hit_margin': 0.03})
+    assert load_fit_options(overrides=['free_space_window=-1'])[1]['free_space_window'] == 10
     assert 'no_free_space.yaml' in (REPO / 'README.md').read_text()
 
 
-def test_the_old_free_space_preset_still_loads_and_equals_the_defaults():
-    # Kept for command lines and launch files that name it: it must not drift from the defaults.
+def test_the_free_space_preset_is_the_default_with_scan_matching_too():
+    # The defaults' window is -1 (auto: 10 with the poses given, 0 with scan matching); the
+    # preset sets it to 10 and every other evidence value as the defaults do.
     from polyline_mapper.config import load_mapper_config
     path = REPO / 'config' / 'free_space.yaml'
     params = flatten(yaml.safe_load(path.read_text())['polyline_mapper_node']['ros__parameters'])
     want = defaults()
+    assert want['incremental.free_space_window'] == -1
+    assert params.pop('incremental.free_space_window') == 10
     assert params and all(want[key] == value and type(want[key]) is type(value)
                           for key, value in params.items()), params
-    assert load_mapper_config(str(path)) == IncrementalConfig()
+    preset = load_mapper_config(str(path))
+    assert preset == IncrementalConfig(free_space_window=10)
+    assert preset == IncrementalConfig().resolved() == preset.resolved(scan_matching=True)
+    assert IncrementalConfig().resolved(scan_matching=True).free_space_window == 0
