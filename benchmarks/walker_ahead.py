@@ -16,7 +16,9 @@ the person's track and of the walls decides how far. One row per seed and mapper
 - ``evidence``: the evidence per square alone (window 10; no ghosts, hit margin or memory);
 - ``+ ghosts``, ``+ margin``, ``+ memory``: the evidence with one of the three;
 - ``+ ghosts + margin``: the preset before the memory;
-- ``default``: all of them (window 10, 20000 ghosts, margin 0.03, memory 0.1 m).
+- ``all``: all of them (window 10, 20000 ghosts, margin 0.03, memory 0.1 m:
+  ``config/free_space.yaml``; the defaults of f6242d4 / e4f6a53);
+- ``default``: the defaults, whose window (-1) is 0 with scan matching: the same as ``off``.
 
 Scores: RMS of the base position against the truth over every scan, the largest error, the
 walls' F1 (``baselines.walls.wall_scores``), the scans whose correction was held
@@ -38,7 +40,8 @@ from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
-NONE = {'free_space_ghosts': 0, 'free_space_hit_margin': 0.0, 'free_space_memory': 0.0}
+NONE = {'free_space_window': 10, 'free_space_ghosts': 0, 'free_space_hit_margin': 0.0,
+        'free_space_memory': 0.0}
 SETTINGS = {
     'off': {'free_space_window': 0},
     'evidence': dict(NONE),
@@ -46,6 +49,7 @@ SETTINGS = {
     '+ margin': dict(NONE, free_space_hit_margin=0.03),
     '+ memory': dict(NONE, free_space_memory=0.1),
     '+ ghosts + margin': dict(NONE, free_space_ghosts=20000, free_space_hit_margin=0.03),
+    'all': {'free_space_window': 10},
     'default': {},
 }
 """IncrementalConfig fields of each row (over the defaults)."""
