@@ -162,9 +162,8 @@ def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
     As ``load_fit_config``, plus the mapper's ``free_space_window`` and
     ``free_space_hit_margin`` (``incremental.`` in a ROS 2 parameter file), as a dict of
     ``smemsf.fit`` keywords, the mapper's defaults unless given (window -1: ``AUTO_WINDOW``, 10;
-    margin 0.03): N > 0
-    fits a recording's beams with their evidence decaying over N looks, as ``replay --set
-    free_space_window=N``; window 0 fits the bare points.
+    margin 0.03): N > 0 fits a recording's beams with their evidence decaying over N looks, as
+    ``replay --set free_space_window=N``; window 0 fits the bare points.
     """
     values = read_values(path, overrides, ('smemsf',), FIT_EXTRA)
     mapper = IncrementalConfig()

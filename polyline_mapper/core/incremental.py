@@ -62,17 +62,17 @@ Every allocation of an update is bounded by the points kept (each scan thinned t
 ``cleanup.PAIR_BUDGET``), not by how far the points lie.
 
 Free-space evidence (``free_space_window`` > 0; on by default with the poses given, off with
-scan matching, ``IncrementalConfig.resolved``; 0 turns it off): the beams of
-every scan are counted per LSS square (2r) of the segments near them, hits (the beam ends on
-the square) and passes (it goes through beyond the noise margin of ``cleanup.beam_evidence``),
-as decaying, capped counts that live beside the segments (one run of rows per segment in one
-pool array, ``_store``, so that a group of segments' counts is gathered and written back at
-once) and follow them through refits, splits and merges (``split.carry_evidence``). Squares
-whose passes outweigh their hits are cut out (``split.free_squares``, ``split.cut_squares``),
-whatever the segment's length: a doorway splits a wall, a door that opened, a box carried away,
-a person's track go. When on it replaces ``clear_max_length``. The state is bounded by the
-map: one pair of counts per square of a live segment (and, with ``free_space_memory``, the
-cells the beams went through, ``memory.BeamMemory``).
+scan matching, ``IncrementalConfig.resolved``; 0 turns it off): the beams of every scan are
+counted per LSS square (2r) of the segments near them, hits (the beam ends on the square) and
+passes (it goes through beyond the noise margin of ``cleanup.beam_evidence``), as decaying,
+capped counts that live beside the segments (one run of rows per segment in one pool array,
+``_store``, so that a group of segments' counts is gathered and written back at once) and follow
+them through refits, splits and merges (``split.carry_evidence``). Squares whose passes outweigh
+their hits are cut out (``split.free_squares``, ``split.cut_squares``), whatever the segment's
+length: a doorway splits a wall, a door that opened, a box carried away, a person's track go.
+When on it replaces ``clear_max_length``. The state is bounded by the map: one pair of counts per
+square of a live segment (and, with ``free_space_memory``, the cells the beams went through,
+``memory.BeamMemory``).
 
 A short chord across a corner, once in the map, is kept alive by its own virtual points; it is
 dropped when the new points near it all lie on the two longer walls whose corner it cuts
