@@ -192,6 +192,12 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
             n, first = noted.get(cause, (0, text))
             noted[cause] = (n + 1, first)
     matched = [] if loop_closure else None
+    if loop_closure:
+        # Both maps with the first one's free-space setting: the default window (-1) is 0 with
+        # scan matching, and the second map (odometry on the closed loops, no matching) must
+        # not get the evidence the first lacked, or the contradicted shares compared below
+        # would judge the setting, not the closure.
+        config = (config or IncrementalConfig()).resolved(options.scan_matching)
     session, source = _feed(path, config, options, scan_topic, odom_topic, progress,
                             start_map, initial_pose, warn, matched)
     value, points = _judged(session)

@@ -29,8 +29,11 @@ def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path):
     carmen = read_carmen(str(log))
     truth = se2_compose(np.array([r.pose for r in carmen.records]),
                         se2_inverse(np.asarray(carmen.laser_offset, dtype=float)))
-    runs = {lc: run_replay(str(tmp_path / 'bag'), NO_EVIDENCE, MATCHING, loop_closure=lc)
+    runs = {lc: run_replay(str(tmp_path / 'bag'), None, MATCHING, loop_closure=lc)
             for lc in (False, True)}
+    # the defaults' window (-1) is 0 with scan matching, and the map after the closure, made
+    # without matching, keeps the first map's setting
+    assert all(r.session.mapper.config == NO_EVIDENCE for r in runs.values())
     ate = {lc: trajectory_error(r.map_value.trajectory[:, 1:], truth)['ate']
            for lc, r in runs.items()}
     st = runs[True].map_value.stats
