@@ -13,10 +13,11 @@ used and whose node parameters are ignored. Numbers written as text (``1e-3``, w
 as a string) are numbers; a field that defaults to "automatic" (None) takes ``none``.
 """
 
+from dataclasses import replace
 import math
 from typing import Iterable
 
-from .core.incremental import AUTO_WINDOW, IncrementalConfig
+from .core.incremental import IncrementalConfig
 from .core.smemsf import SMEMSFConfig
 from .params import all_params, check_value
 
@@ -168,7 +169,9 @@ def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
     values = read_values(path, overrides, ('smemsf',), FIT_EXTRA)
     mapper = IncrementalConfig()
     window = values.pop('free_space_window', mapper.free_space_window)
-    extra = {'free_space_window': AUTO_WINDOW if window == -1 else window,
+    # The batch fit has its poses given: the mapper's own rule for the window's -1.
+    extra = {'free_space_window': replace(mapper, free_space_window=window).resolved()
+             .free_space_window,
              'free_space_hit_margin': values.pop('free_space_hit_margin',
                                                  mapper.free_space_hit_margin)}
     try:
