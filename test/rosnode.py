@@ -200,6 +200,18 @@ class Peer:
         finally:
             self.node.destroy_client(client)
 
+    def parameter(self, name: str):
+        """Return the node's parameter ``name`` (None when it has none)."""
+        from rcl_interfaces.msg import ParameterType
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.parameter import parameter_value_to_python
+        resp = self.call(f'{NODE}/get_parameters', GetParameters,
+                         GetParameters.Request(names=[name]))
+        assert resp is not None and len(resp.values) == 1
+        value = resp.values[0]
+        return None if value.type == ParameterType.PARAMETER_NOT_SET else \
+            parameter_value_to_python(value)
+
     def set_parameters(self, **values):
         """Set node parameters over the set_parameters service; return the SetParametersResults."""
         from rcl_interfaces.srv import SetParameters

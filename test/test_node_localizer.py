@@ -46,19 +46,6 @@ def _planar(pose) -> np.ndarray:
     return np.array([p.x, p.y, 2.0 * np.arctan2(q.z, q.w)])
 
 
-def _parameter(peer: Peer, name: str):
-    """Return the node's parameter ``name`` (None when it has none)."""
-    from rcl_interfaces.msg import ParameterType
-    from rcl_interfaces.srv import GetParameters
-    from rclpy.parameter import parameter_value_to_python
-    resp = peer.call('/polyline_mapper_node/get_parameters', GetParameters,
-                     GetParameters.Request(names=[name]))
-    assert resp is not None and len(resp.values) == 1
-    value = resp.values[0]
-    return None if value.type == ParameterType.PARAMETER_NOT_SET else \
-        parameter_value_to_python(value)
-
-
 def _run(drive, folder, mode: str, params: dict) -> tuple:
     msgs, truth, odom = _drifted(drive)
     node = NodeProcess(folder, {'map_output_path': str(folder / 'map.json'),
@@ -80,7 +67,7 @@ def _run(drive, folder, mode: str, params: dict) -> tuple:
             peer.spin_for(1.0)
         return {'node': node, 'peer': peer, 'tfs': tfs, 'poses': poses, 'truth': truth,
                 'odom': odom, 't0': t0, 'pose_publishers': peer.node.count_publishers('/pose'),
-                'scan_matching': _parameter(peer, 'scan_matching')}
+                'scan_matching': peer.parameter('scan_matching')}
     finally:
         peer.close()
         node.stop()

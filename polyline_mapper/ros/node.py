@@ -7,7 +7,9 @@ Topics (relative names, remappable):
   QoS overrides apply: ``qos_overrides./scan.subscription.reliability`` (``reliable`` for
   lossless playback from a reliable publisher such as ``polyline-mapper play``), ``.depth`` and
   ``.history``, with the resolved topic name after remapping;
-- ``/tf``, ``/tf_static`` (pose_source tf) or ``odom`` (nav_msgs/Odometry, pose_source odom) in;
+- ``/tf``, ``/tf_static`` (pose_source tf) or ``odom`` (nav_msgs/Odometry, pose_source odom,
+  sensor-data QoS with the same overrides as ``scan``: a lost odometry message leaves its scans
+  a pose interpolated across the gap) in;
 - ``polyline_map`` (polyline_mapper_msgs/PolylineMap) and ``polyline_map/markers``
   (visualization_msgs/MarkerArray) out, reliable + transient local, depth 1: a subscriber that
   starts late gets the current map at once.
@@ -159,7 +161,10 @@ class PolylineMapperNode(Node):
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      TF_STATIC_QOS)
         elif self.settings.pose_source == 'odom':
-            self.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
+            self.create_subscription(
+                Odometry, 'odom', self._on_odom, qos_profile_sensor_data,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.odometry_received = 0
         overrides = QoSOverridingOptions.with_default_policies()   # reliability, depth, history
         self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data,
                                  qos_overriding_options=overrides)
@@ -248,6 +253,7 @@ class PolylineMapperNode(Node):
         self.session.add(pose_estimate_from_msg(msg))
 
     def _on_odom(self, msg) -> None:
+        self.odometry_received += 1
         self.session.add(odometry_from_msg(msg))
 
     def _on_reset(self, request, response):
@@ -406,6 +412,8 @@ class PolylineMapperNode(Node):
         warned = ', '.join(f'{k} {v}' for k, v in sorted(self.warnings.counts.items())) or 'none'
         line = (f"summary: {st['scans']} scans received, {st['scans_used']} used in "
                 f"{st['updates']} updates, {st['dropped']} dropped; warnings: {warned}")
+        if self.settings.pose_source == 'odom':
+            line += f'; {self.odometry_received} odometry messages received'
         for key in ('update_ms', 'latency_ms'):
             if key in st:
                 v = st[key]
