@@ -219,14 +219,16 @@ class BeamMemory:
     def _add_dense(self, origin, rel, rng, n, bins, end_cells, lo, size):
         """``add`` for a scan whose cells fit a small box: counted there, then stored once."""
         chans = 1 + BINS
-        box = np.zeros(int(size[0]) * int(size[1]) * chans, dtype=np.int64)
-        local = (end_cells[:, 0] - lo[0]) * size[1] + (end_cells[:, 1] - lo[1])
-        box += np.bincount(local * chans, minlength=box.size)
+        # One count over the box of every end (channel 0) and pass (channel 1 + bin) sample;
+        # the cells touched from the samples' cells, not from a pass over the whole box.
+        local = [(end_cells[:, 0] - lo[0]) * size[1] + (end_cells[:, 1] - lo[1])]
+        keys = [local[0] * chans]
         for cells, beam in self._samples(origin, rel, rng, n):
-            local = (cells[:, 0] - lo[0]) * size[1] + (cells[:, 1] - lo[1])
-            box += np.bincount(local * chans + 1 + bins[beam], minlength=box.size)
-        box = box.reshape(-1, chans)
-        hit = np.flatnonzero(box.any(axis=1))
+            local.append((cells[:, 0] - lo[0]) * size[1] + (cells[:, 1] - lo[1]))
+            keys.append(local[-1] * chans + 1 + bins[beam])
+        n_cells = int(size[0]) * int(size[1])
+        box = np.bincount(np.concatenate(keys), minlength=n_cells * chans).reshape(-1, chans)
+        hit = np.flatnonzero(np.bincount(np.concatenate(local), minlength=n_cells))
         if not hit.size:
             return
         cells = np.stack([hit // size[1] + lo[0], hit % size[1] + lo[1]], axis=1)
