@@ -62,7 +62,6 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import LaserScan
@@ -73,7 +72,7 @@ from . import startup
 from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
                        odometry_from_msg, planar_transform_msg, pose_estimate_from_msg,
                        pose_msg, scan_from_msg, time_msg, transforms_from_msg)
-from .qos import MAP_QOS, TF_QOS, TF_STATIC_QOS
+from .qos import MAP_QOS, sensor_data, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
 from ..params import all_params, settings_from
@@ -162,11 +161,11 @@ class PolylineMapperNode(Node):
                                      TF_STATIC_QOS)
         elif self.settings.pose_source == 'odom':
             self.create_subscription(
-                Odometry, 'odom', self._on_odom, qos_profile_sensor_data,
+                Odometry, 'odom', self._on_odom, sensor_data(),
                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.odometry_received = 0
         overrides = QoSOverridingOptions.with_default_policies()   # reliability, depth, history
-        self.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data,
+        self.create_subscription(LaserScan, 'scan', self._on_scan, sensor_data(),
                                  qos_overriding_options=overrides)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)

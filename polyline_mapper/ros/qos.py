@@ -13,3 +13,17 @@ TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
 TF_STATIC_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                            reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def sensor_data() -> QoSProfile:
+    """
+    Return a new copy of rclpy's sensor-data profile (best effort, volatile, depth 5).
+
+    A subscription with ``qos_overriding_options`` writes its overrides into the profile it is
+    given: given rclpy's shared ``qos_profile_sensor_data``, the overrides of one topic (odom
+    made reliable) would become every later subscription's (the scans', which then hear nothing
+    from a best-effort laser driver).
+    """
+    return QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
