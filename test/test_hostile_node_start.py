@@ -30,6 +30,14 @@ CASES = [
     (['-p'], ['trailing -p flag']),
     (['--bogus'], ['unknown ROS argument(s): --bogus']),
     (['--log-level', 'nonsense'], ['log level']),
+    # The inputs' QoS overrides (rclpy's own errors were tracebacks, a depth of 0 or less an
+    # "invalid allocator" from rcl).
+    (['-p', 'qos_overrides./scan.subscription.reliability:=bogus'],
+     ['qos_overrides./scan.subscription: ', 'reliability', 'bogus']),
+    (['-p', 'qos_overrides./scan.subscription.depth:=0'],
+     ['qos_overrides./scan.subscription: ', 'depth must be >= 1 with history keep_last, got 0']),
+    (['-p', 'pose_source:=odom', '-p', 'qos_overrides./odom.subscription.depth:=abc'],
+     ['qos_overrides./odom.subscription: ', "expecting type 'INTEGER'"]),
 ]
 
 

@@ -50,6 +50,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
@@ -62,7 +63,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import LaserScan
 from std_srvs.srv import Trigger
@@ -72,7 +73,7 @@ from . import startup
 from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
                        odometry_from_msg, planar_transform_msg, pose_estimate_from_msg,
                        pose_msg, scan_from_msg, time_msg, transforms_from_msg)
-from .qos import MAP_QOS, sensor_data, TF_QOS, TF_STATIC_QOS
+from .qos import check_input_qos, MAP_QOS, sensor_data, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
 from ..params import all_params, settings_from
@@ -160,13 +161,9 @@ class PolylineMapperNode(Node):
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      TF_STATIC_QOS)
         elif self.settings.pose_source == 'odom':
-            self.create_subscription(
-                Odometry, 'odom', self._on_odom, sensor_data(),
-                qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            self._sensor_input(Odometry, 'odom', self._on_odom)
         self.odometry_received = 0
-        overrides = QoSOverridingOptions.with_default_policies()   # reliability, depth, history
-        self.create_subscription(LaserScan, 'scan', self._on_scan, sensor_data(),
-                                 qos_overriding_options=overrides)
+        self._sensor_input(LaserScan, 'scan', self._on_scan)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publish_lock = threading.Lock()
@@ -215,6 +212,24 @@ class PolylineMapperNode(Node):
         style = ('publish_markers', 'marker_color', 'marker_width')
         if any(getattr(old, k) != getattr(self.settings, k) for k in style):
             self._dirty = True              # republish the markers in their new style
+
+    def _sensor_input(self, msg_type, topic: str, callback) -> None:
+        """
+        Subscribe to ``topic`` with sensor-data QoS and the standard overrides.
+
+        The overrides (reliability, depth, history) are read-only parameters
+        ``qos_overrides.<resolved topic>.subscription.*``; a bad one (an unknown policy value, a
+        depth below 1, a value of the wrong type) raises ConfigError naming it.
+        """
+        options = QoSOverridingOptions.with_default_policies(callback=check_input_qos)
+        try:
+            with warnings.catch_warnings():     # rclpy's own about a depth of 0: refused below
+                warnings.simplefilter('ignore', UserWarning)
+                self.create_subscription(msg_type, topic, callback, sensor_data(),
+                                         qos_overriding_options=options)
+        except (RuntimeError, ParameterException, InvalidQosOverridesError) as exc:
+            name = f'qos_overrides.{self.resolve_topic_name(topic)}.subscription'
+            raise ConfigError(f"{name}: {' '.join(str(exc).split())}") from None
 
     # -- callbacks -----------------------------------------------------------------------------
     def _on_scan(self, msg: LaserScan) -> None:

@@ -27,3 +27,17 @@ def sensor_data() -> QoSProfile:
     return QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
                       reliability=ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.VOLATILE)
+
+
+def check_input_qos(qos: QoSProfile):
+    """
+    Return whether an input's overridden QoS is usable (``QoSOverridingOptions`` callback).
+
+    rclpy itself passes a depth below 1 with history keep_last on to rcl, which refuses it as
+    an "invalid allocator".
+    """
+    from rcl_interfaces.msg import SetParametersResult
+    if qos.history == HistoryPolicy.KEEP_LAST and qos.depth < 1:
+        return SetParametersResult(successful=False, reason=f'depth must be >= 1 with history '
+                                   f'keep_last, got {qos.depth}')
+    return SetParametersResult(successful=True)
