@@ -161,8 +161,8 @@ class PolylineMapperNode(Node):
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      TF_STATIC_QOS)
         elif self.settings.pose_source == 'odom':
+            self.odometry_received = 0      # counted for the summary (a lossy odometry input)
             self._sensor_input(Odometry, 'odom', self._on_odom)
-        self.odometry_received = 0
         self._sensor_input(LaserScan, 'scan', self._on_scan)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
