@@ -4,19 +4,53 @@ Launch polyline_mapper_node with the installed parameter file.
     ros2 launch polyline_mapper polyline_mapper.launch.py
     ros2 launch polyline_mapper polyline_mapper.launch.py params_file:=/path/my.yaml \
         scan_topic:=/base_scan use_sim_time:=true
+    ros2 launch polyline_mapper polyline_mapper.launch.py pose_source:=odom scan_matching:=true
 
 The parameter file is keyed by node name (polyline_mapper_node); copy the installed one
-(share/polyline_mapper/config/polyline_mapper.yaml) to change the frames, the pose source or
-the fit.
+(share/polyline_mapper/config/polyline_mapper.yaml) to change the frames, the mount or the fit.
+``pose_source`` and ``scan_matching`` left empty (the default) keep the parameter file's values;
+given, they override it: ``scan_matching:=true`` for a robot with only odometry (the node then
+broadcasts map -> odom), ``pose_source:=scan`` for scans alone.
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+
+def _flag(context, name: str):
+    """Return launch argument ``name`` as a bool (true / false, any case), None when empty."""
+    value = LaunchConfiguration(name).perform(context).strip()
+    if not value:
+        return None
+    if value.lower() not in ('true', 'false'):
+        raise ValueError(f'launch argument {name} must be true or false, got {value!r}')
+    return value.lower() == 'true'
+
+
+def _node(context, *args, **kwargs):
+    """Return the node, its parameters resolved: the file, then the arguments given."""
+    overrides = {'use_sim_time': bool(_flag(context, 'use_sim_time'))}
+    pose_source = LaunchConfiguration('pose_source').perform(context)
+    if pose_source:
+        overrides['pose_source'] = pose_source
+    scan_matching = _flag(context, 'scan_matching')
+    if scan_matching is not None:
+        overrides['scan_matching'] = scan_matching
+    return [Node(
+        package='polyline_mapper',
+        executable='polyline_mapper_node',
+        name='polyline_mapper_node',
+        output='screen',
+        emulate_tty=True,
+        parameters=[LaunchConfiguration('params_file').perform(context), overrides],
+        remappings=[('scan', LaunchConfiguration('scan_topic').perform(context)),
+                    ('odom', LaunchConfiguration('odom_topic').perform(context))],
+    )]
 
 
 def generate_launch_description():
@@ -31,15 +65,11 @@ def generate_launch_description():
                               description='sensor_msgs/LaserScan input'),
         DeclareLaunchArgument('odom_topic', default_value='odom',
                               description='nav_msgs/Odometry input (pose_source odom)'),
-        Node(
-            package='polyline_mapper',
-            executable='polyline_mapper_node',
-            name='polyline_mapper_node',
-            output='screen',
-            emulate_tty=True,
-            parameters=[LaunchConfiguration('params_file'),
-                        {'use_sim_time': LaunchConfiguration('use_sim_time')}],
-            remappings=[('scan', LaunchConfiguration('scan_topic')),
-                        ('odom', LaunchConfiguration('odom_topic'))],
-        ),
+        DeclareLaunchArgument('pose_source', default_value='',
+                              choices=['', 'tf', 'odom', 'scan'],
+                              description="Where poses come from; empty: the parameter file's"),
+        DeclareLaunchArgument('scan_matching', default_value='',
+                              description='Match scans to the map and broadcast map -> odom; '
+                                          "empty: the parameter file's"),
+        OpaqueFunction(function=_node),
     ])

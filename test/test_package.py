@@ -129,6 +129,76 @@ def test_launch_file_starts_the_installed_executable_with_the_installed_config()
     assert "'polyline_mapper_node = polyline_mapper.ros.node:main'" in setup
 
 
+def launch_node(monkeypatch, **given) -> tuple:
+    """
+    Run the launch file's description with launch arguments ``given``: (declared, node kwargs).
+
+    launch and launch_ros are not on PyPI: stand-ins record what the file builds (the
+    arguments it declares, the keyword arguments of the Node its OpaqueFunction returns) and
+    resolve a LaunchConfiguration from the arguments given, else the declared defaults.
+    """
+    import runpy
+    import sys
+    import types
+
+    class Made:
+        def __init__(self, *args, **kwargs):
+            self.args, self.kwargs = args, kwargs
+
+    class LaunchConfiguration:
+        def __init__(self, name):
+            self.name = name
+
+        def perform(self, context):
+            return context[self.name]
+
+    kinds = {k: type(k, (Made,), {}) for k in ('LaunchDescription', 'DeclareLaunchArgument',
+                                               'OpaqueFunction', 'Node')}
+    fakes = {'launch': {'LaunchDescription': kinds['LaunchDescription']},
+             'launch.actions': {k: kinds[k] for k in ('DeclareLaunchArgument', 'OpaqueFunction')},
+             'launch.substitutions': {'LaunchConfiguration': LaunchConfiguration},
+             'launch_ros': {}, 'launch_ros.actions': {'Node': kinds['Node']},
+             'ament_index_python': {}, 'ament_index_python.packages': {
+                 'get_package_share_directory': lambda package: f'/opt/ros/share/{package}'}}
+    for name, attrs in fakes.items():
+        module = types.ModuleType(name)
+        module.__dict__.update(attrs)
+        monkeypatch.setitem(sys.modules, name, module)
+    path = REPO / 'launch' / 'polyline_mapper.launch.py'
+    actions = runpy.run_path(str(path))['generate_launch_description']().args[0]
+    declared = {a.args[0]: a.kwargs for a in actions if type(a).__name__ ==
+                'DeclareLaunchArgument'}
+    assert set(given) <= set(declared), set(given) - set(declared)
+    context = {k: v['default_value'] for k, v in declared.items()} | given
+    opaque, = [a for a in actions if type(a).__name__ == 'OpaqueFunction']
+    node, = opaque.kwargs['function'](context)
+    return declared, node.kwargs
+
+
+def test_launch_arguments_override_the_parameter_file_only_when_given(monkeypatch):
+    config = '/opt/ros/share/polyline_mapper/config/polyline_mapper.yaml'
+    declared, node = launch_node(monkeypatch)
+    assert declared['params_file']['default_value'] == config
+    assert (node['package'], node['executable'], node['name']) == (
+        'polyline_mapper', 'polyline_mapper_node', 'polyline_mapper_node')
+    # By default the file's pose_source and scan_matching rule: only use_sim_time is set.
+    assert node['parameters'] == [config, {'use_sim_time': False}]
+    assert node['remappings'] == [('scan', 'scan'), ('odom', 'odom')]
+    # A robot with only odometry: one switch (issue 19), then the node's own check.
+    _, node = launch_node(monkeypatch, pose_source='odom', scan_matching='True',
+                          use_sim_time='true', params_file='/my.yaml', scan_topic='/base_scan')
+    file, overrides = node['parameters']
+    assert file == '/my.yaml' and node['remappings'][0] == ('scan', '/base_scan')
+    assert overrides == {'use_sim_time': True, 'pose_source': 'odom', 'scan_matching': True}
+    assert set(overrides) <= {p.name for p in all_params()} | {'use_sim_time'}
+    settings_from(defaults() | {k: v for k, v in overrides.items() if k != 'use_sim_time'})
+    _, node = launch_node(monkeypatch, scan_matching='false')
+    assert node['parameters'][1] == {'use_sim_time': False, 'scan_matching': False}
+    assert declared['pose_source']['choices'] == ['', 'tf', 'odom', 'scan']
+    with pytest.raises(ValueError, match="scan_matching must be true or false, got 'yes'"):
+        launch_node(monkeypatch, scan_matching='yes')
+
+
 def test_the_no_free_space_preset_turns_only_the_evidence_off_and_loads_everywhere():
     # config/no_free_space.yaml is given after polyline_mapper.yaml (node), or alone (--config):
     # node parameters of the declared types, the mapper's evidence off, every other value default.
