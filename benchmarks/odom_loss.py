@@ -1,0 +1,117 @@
+"""
+Lost odometry messages in odom mode: what the interpolated poses cost the map.
+
+Usage (from the repository root, after ``bash tools/dev.sh setup``)::
+
+    .venv/bin/python benchmarks/odom_loss.py [--losses 0 0.05 0.2] [--seeds 0 1 2] \
+        [--modes odom matching]
+
+The node's ``odom`` input is best effort by default (sensor-data QoS): a message lost leaves the
+scans around it a pose interpolated between the odometry before and after the gap
+(``poses.TransformBuffer2D``, as tf2). Two simulated office drives (seed 7), one odometry
+message per scan, true poses (no drift), the laser on the base (mount 0), fed to the session in
+odom mode (``replay_records``, the node's code) with a share of the odometry messages dropped
+at random (``--losses``, each of ``--seeds``; never the first or the last), mapped at the
+odometry's poses (``odom``) and with ``scan_matching`` (``matching``: the odometry predicts,
+the scan is matched to the map):
+
+- ``sparse``: ``office_floor`` every 0.4 m, each corner turned from one message to the next
+  (the drive of ``test_node_modes.py``, played there at 40 Hz);
+- ``dense``: the same path every 0.05 m, turning in place at most 0.1 rad a message (a robot at
+  0.5 m/s and 1 rad/s with odometry at 10 Hz; wheel odometry is usually faster).
+
+Scores: the largest position and heading error of the scans' poses (the session's trajectory
+against the drive's), the largest distance of the map from the world's walls (samples every
+2 cm, as ``test/rosnode.wall_errors``), the walls' F1 (``baselines.walls.wall_scores``) and the
+contradicted share (``freespace.judge``, the session's beams). Writes the table into
+benchmarks/README.md (between the ``odom-loss`` markers) and the rows to results/odom_loss.json.
+"""
+
+import argparse
+import dataclasses
+import json
+import sys
+
+from baselines.walls import wall_scores
+from common import contradicted, stamp, write_readme, write_results
+from matching import flat
+import numpy as np
+from polyline_mapper.core.geometry import sample_segments, wrap_angle
+from polyline_mapper.formats.records import Odometry
+from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
+from polyline_mapper.replay import replay_records
+from polyline_mapper.session import SessionOptions
+
+DRIVES = {'sparse': 'sim:office,step=0.4', 'dense': 'sim:office,step=0.05,turn=0.1'}
+"""The drives (``make_drive`` names), seed 7 as test_node_modes' office drive."""
+OPTIONS = SessionOptions(pose_source='odom', fixed_frame='odom', mount=(0.0, 0.0, 0.0),
+                         keep_points=True, grid_resolution=None)
+
+
+def one(drive, records: list, loss: float, seed: int, matching: bool = False) -> dict:
+    """Map ``records`` with a share ``loss`` of the odometry dropped; return the scores."""
+    odom = [i for i, r in enumerate(records) if isinstance(r, Odometry)]
+    inner = odom[1:-1]
+    rng = np.random.default_rng(seed)
+    drop = set(rng.choice(inner, size=int(round(loss * len(inner))), replace=False).tolist())
+    session = replay_records([r for i, r in enumerate(records) if i not in drop],
+                             options=dataclasses.replace(OPTIONS, scan_matching=matching))
+    value = session.map_value()
+    traj = np.asarray(value.trajectory)
+    k = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
+    err = np.hypot(*(traj[:, 1:3] - drive.poses[k, :2]).T)
+    turn = np.abs(wrap_angle(traj[:, 3] - drive.poses[k, 2]))
+    world = drive.world
+    samples, _ = sample_segments(value.segments, 0.02)
+    walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
+    free = contradicted(value.segments, session.points(), session.origins())
+    return {'scans': int(len(traj)), 'dropped': len(drop),
+            'pose_max_cm': round(100 * float(err.max()), 2),
+            'heading_max_deg': round(float(np.degrees(turn.max())), 2),
+            'stray_m': round(float(world.distance(samples).max()), 3),
+            'f1': round(walls['f1'], 3), 'segments': int(len(value.segments)),
+            'contradicted_pct': round(free['contradicted_pct'], 2)}
+
+
+def main() -> int:
+    """Map every drive with every loss and seed; write the JSON and the README block."""
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
+    ap.add_argument('--losses', type=float, nargs='+', default=[0.0, 0.05, 0.2],
+                    help='shares of the odometry messages dropped (default 0 0.05 0.2)')
+    ap.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2],
+                    help='seeds of the messages dropped (default 0 1 2)')
+    ap.add_argument('--modes', nargs='+', choices=['odom', 'matching'],
+                    default=['odom', 'matching'],
+                    help='map at the odometry poses, with scan matching, or both (default)')
+    args = ap.parse_args()
+    meta = stamp('.venv/bin/python benchmarks/odom_loss.py ' + ' '.join(sys.argv[1:]))
+    rows = []
+    for label, name in DRIVES.items():
+        drive = make_drive(name, 7)
+        records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0),
+                                      map_to_odom=(0.0, 0.0, 0.0)))
+        for mode in args.modes:
+            for loss in args.losses:
+                for seed in (args.seeds if loss > 0 else args.seeds[:1]):
+                    rows.append({'drive': label, 'mode': mode, 'loss': loss, 'seed': seed,
+                                 **one(drive, records, loss, seed, mode == 'matching')})
+                    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    write_results('odom_loss', meta, rows)
+    lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
+             f"`{meta['command']}`.", '',
+             '| drive | mode | odometry lost | seed | scans | messages dropped | largest pose '
+             'error (cm, deg) | map farthest from a wall (m) | walls F1 | segments '
+             '| contradicted % |',
+             '|---|---|---|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        lines.append(f"| {r['drive']} | {r['mode']} | {100 * r['loss']:g} % | {r['seed']} "
+                     f"| {r['scans']} "
+                     f"| {r['dropped']} | {r['pose_max_cm']:.1f}, {r['heading_max_deg']:.1f} "
+                     f"| {r['stray_m']:.3f} | {r['f1']:.2f} | {r['segments']} "
+                     f"| {r['contradicted_pct']:.2f} |")
+    write_readme('odom-loss', '\n'.join(lines) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
