@@ -33,7 +33,7 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import contradicted, stamp, write_readme, write_results
+from common import contradicted, stamp, table_header, write_readme, write_results
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import sample_segments, wrap_angle
@@ -97,12 +97,10 @@ def main() -> int:
                                  **one(drive, records, loss, seed, mode == 'matching')})
                     print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     write_results('odom_loss', meta, rows)
-    lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
-             f"`{meta['command']}`.", '',
-             '| drive | mode | odometry lost | seed | scans | messages dropped | largest pose '
-             'error (cm, deg) | map farthest from a wall (m) | walls F1 | segments '
-             '| contradicted % |',
-             '|---|---|---|---|---|---|---|---|---|---|---|']
+    lines = table_header(meta, ['drive', 'mode', 'odometry lost', 'seed', 'scans',
+                                'messages dropped', 'largest pose error (cm, deg)',
+                                'map farthest from a wall (m)', 'walls F1', 'segments',
+                                'contradicted %'])
     for r in rows:
         lines.append(f"| {r['drive']} | {r['mode']} | {100 * r['loss']:g} % | {r['seed']} "
                      f"| {r['scans']} "

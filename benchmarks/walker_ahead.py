@@ -32,7 +32,7 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import contradicted, stamp, write_readme, write_results
+from common import contradicted, stamp, table_header, write_readme, write_results
 from matching import flat
 import numpy as np
 from polyline_mapper.core.incremental import IncrementalConfig
@@ -87,11 +87,8 @@ def main() -> int:
             rows.append({'seed': seed, 'setting': name, **one(drive, fields)})
             print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     write_results('walker_ahead', meta, rows)
-    lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
-             f"`{meta['command']}`.", '',
-             '| seed | setting | RMS / largest position error (m) | walls F1 | held scans | '
-             'segments | contradicted % |',
-             '|---|---|---|---|---|---|---|']
+    lines = table_header(meta, ['seed', 'setting', 'RMS / largest position error (m)',
+                                'walls F1', 'held scans', 'segments', 'contradicted %'])
     for r in rows:
         lines.append(f"| {r['seed']} | {r['setting']} | {r['rms_m']:.3f} / {r['max_m']:.3f} "
                      f"| {r['f1']:.2f} | {r['held']} | {r['segments']} "
