@@ -68,9 +68,12 @@ def test_play_into_the_live_node_equals_the_offline_replay(tmp_path, office_bag,
     # Every scan must arrive for the live map to equal the offline replay, so the node's scan
     # input is made reliable through the standard QoS overrides (the player publishes
     # reliably). With the default best-effort sensor QoS, DDS may drop a sample: seen in CI as
-    # 354 of 355 scans, with discovery settled.
+    # 354 of 355 scans, with discovery settled. Nor may the node shed scans when a loaded
+    # machine's updates fall behind the played rate (max_scan_latency off, a queue that holds
+    # the whole bag); test_node_load covers the shedding.
     node = NodeProcess(tmp_path, {'use_sim_time': True, 'stats_period': 0.0,
-                                  'update_every_n_scans': n,
+                                  'update_every_n_scans': n, 'max_scan_latency': 0.0,
+                                  'scan_buffer_size': 1000,
                                   'qos_overrides./scan.subscription.reliability': 'reliable',
                                   'qos_overrides./scan.subscription.depth': 50})
     last = 1000.0 + drive.stamps[-1]
