@@ -258,7 +258,9 @@ def test_live_demo_maps_the_office_and_reports_node_update_times(tmp_path, capsy
     out, png = tmp_path / 'demo.json', tmp_path / 'demo.png'
     domain = os.environ.get('ROS_DOMAIN_ID', '42')
     t0 = time.monotonic()
-    assert main(['demo', '-o', str(out), '--plot', str(png), '--rate', '4',
+    # At 2x (20 scans a second): the demo's node sheds scans that wait over 1 s of drive time
+    # (0.25 s at 4x), and with two busy-loop processes beside the test 4x lost 72 of 355.
+    assert main(['demo', '-o', str(out), '--plot', str(png), '--rate', '2',
                  '--domain-id', domain]) == 0
     took = time.monotonic() - t0
     line = capsys.readouterr().out.strip().splitlines()[-1]
@@ -271,4 +273,4 @@ def test_live_demo_maps_the_office_and_reports_node_update_times(tmp_path, capsy
     assert 0 < st['update_ms_median'] <= st['update_ms_p99'], st
     assert f"{st['segments']} segments from 355 of 355 scans" in line, line
     assert 'node update median' in line and png.stat().st_size > 10_000
-    assert took < 60, took      # 355 scans at 4x: about 9 s of drive
+    assert took < 60, took      # 355 scans at 2x: about 18 s of drive
