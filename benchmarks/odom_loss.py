@@ -4,16 +4,18 @@ Lost odometry messages in odom mode: what the interpolated poses cost the map.
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/odom_loss.py [--losses 0 0.05 0.2] [--seeds 0 1 2] \
-        [--modes odom matching]
+        [--modes odom matching] [--gap-factors 1.5 0]
 
 The node's ``odom`` input is best effort by default (sensor-data QoS): a message lost leaves the
 scans around it a pose interpolated between the odometry before and after the gap
-(``poses.TransformBuffer2D``, as tf2). Two simulated office drives (seed 7), one odometry
-message per scan, true poses (no drift), the laser on the base (mount 0), fed to the session in
-odom mode (``replay_records``, the node's code) with a share of the odometry messages dropped
-at random (``--losses``, each of ``--seeds``; never the first or the last), mapped at the
-odometry's poses (``odom``) and with ``scan_matching`` (``matching``: the odometry predicts,
-the scan is matched to the map):
+(``poses.TransformBuffer2D``, as tf2), unless the session skips them: ``odom_gap_factor``
+(default 1.5) skips a scan whose odometry interval is longer than that many times the typical
+one (``--gap-factors``: each is run; 0 interpolates across every gap). Two simulated office
+drives (seed 7), one odometry message per scan, true poses (no drift), the laser on the base
+(mount 0), fed to the session in odom mode (``replay_records``, the node's code) with a share
+of the odometry messages dropped at random (``--losses``, each of ``--seeds``; never the first
+or the last), mapped at the odometry's poses (``odom``) and with ``scan_matching``
+(``matching``: the odometry predicts, the scan is matched to the map):
 
 - ``sparse``: ``office_floor`` every 0.4 m, each corner turned from one message to the next
   (the drive of ``test_node_modes.py``, played there at 40 Hz);
@@ -48,14 +50,16 @@ OPTIONS = SessionOptions(pose_source='odom', fixed_frame='odom', mount=(0.0, 0.0
                          keep_points=True, grid_resolution=None)
 
 
-def one(drive, records: list, loss: float, seed: int, matching: bool = False) -> dict:
+def one(drive, records: list, loss: float, seed: int, matching: bool = False,
+        gap_factor: float = 1.5) -> dict:
     """Map ``records`` with a share ``loss`` of the odometry dropped; return the scores."""
     odom = [i for i, r in enumerate(records) if isinstance(r, Odometry)]
     inner = odom[1:-1]
     rng = np.random.default_rng(seed)
     drop = set(rng.choice(inner, size=int(round(loss * len(inner))), replace=False).tolist())
     session = replay_records([r for i, r in enumerate(records) if i not in drop],
-                             options=dataclasses.replace(OPTIONS, scan_matching=matching))
+                             options=dataclasses.replace(OPTIONS, scan_matching=matching,
+                                                         odom_gap_factor=gap_factor))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
     k = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
@@ -83,6 +87,9 @@ def main() -> int:
     ap.add_argument('--modes', nargs='+', choices=['odom', 'matching'],
                     default=['odom', 'matching'],
                     help='map at the odometry poses, with scan matching, or both (default)')
+    ap.add_argument('--gap-factors', type=float, nargs='+', default=[1.5, 0.0],
+                    help="the session's odom_gap_factor, each run (default 1.5, the default, "
+                         'and 0: interpolate across every gap)')
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/odom_loss.py ' + ' '.join(sys.argv[1:]))
     rows = []
@@ -91,18 +98,23 @@ def main() -> int:
         records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0),
                                       map_to_odom=(0.0, 0.0, 0.0)))
         for mode in args.modes:
-            for loss in args.losses:
-                for seed in (args.seeds if loss > 0 else args.seeds[:1]):
-                    rows.append({'drive': label, 'mode': mode, 'loss': loss, 'seed': seed,
-                                 **one(drive, records, loss, seed, mode == 'matching')})
-                    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+            for gap in args.gap_factors:
+                for loss in args.losses:
+                    for seed in (args.seeds if loss > 0 else args.seeds[:1]):
+                        rows.append({'drive': label, 'mode': mode, 'gap_factor': gap,
+                                     'loss': loss, 'seed': seed,
+                                     **one(drive, records, loss, seed, mode == 'matching',
+                                           gap)})
+                        print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     write_results('odom_loss', meta, rows)
-    lines = table_header(meta, ['drive', 'mode', 'odometry lost', 'seed', 'scans',
+    lines = table_header(meta, ['drive', 'mode', 'odom_gap_factor', 'odometry lost', 'seed',
+                                'scans mapped',
                                 'messages dropped', 'largest pose error (cm, deg)',
                                 'map farthest from a wall (m)', 'walls F1', 'segments',
                                 'contradicted %'])
     for r in rows:
-        lines.append(f"| {r['drive']} | {r['mode']} | {100 * r['loss']:g} % | {r['seed']} "
+        lines.append(f"| {r['drive']} | {r['mode']} | {r['gap_factor']:g} "
+                     f"| {100 * r['loss']:g} % | {r['seed']} "
                      f"| {r['scans']} "
                      f"| {r['dropped']} | {r['pose_max_cm']:.1f}, {r['heading_max_deg']:.1f} "
                      f"| {r['stray_m']:.3f} | {r['f1']:.2f} | {r['segments']} "

@@ -92,6 +92,12 @@ NODE_PARAMS = (
     ParamSpec('laser_upside_down', False,
               'odom mode: the laser is mounted upside down (rolled 180 deg): beams sweep '
               'clockwise seen from above.'),
+    ParamSpec('odom_gap_factor', 1.5,
+              'odom mode: a scan stamped between two odometry messages more than this many '
+              'times the typical interval apart (a lost message; typical: the median of the '
+              'last 50 intervals) is skipped instead of given a pose interpolated '
+              'across motion nobody saw. 0 interpolates across any gap, as tf2 does.',
+              0.0, 100.0),
     ParamSpec('scan_buffer_size', 50,
               'Scans that may wait for their pose and the next update; when updates fall '
               'behind, the oldest are dropped (and counted).', 1, 10000),
@@ -253,6 +259,7 @@ class NodeSettings:
     laser_y: float
     laser_yaw: float
     laser_upside_down: bool
+    odom_gap_factor: float
     scan_buffer_size: int
     max_scan_latency: float
     update_every_n_scans: int
@@ -355,6 +362,7 @@ def settings_from(values: dict) -> tuple:
                          f"scan_buffer_size ({node['scan_buffer_size']})")
     for name in ('map_odom_post_date', 'transform_tolerance', 'transform_timeout',
                  'transform_cache', 'max_scan_latency', 'laser_x', 'laser_y', 'laser_yaw',
+                 'odom_gap_factor',
                  'map_publish_period', 'marker_width', 'warning_period', 'stats_period',
                  'grid_resolution', 'grid_publish_period'):
         node[name] = float(node[name])

@@ -45,6 +45,7 @@ queued scans are shed (``max_queue``; counted under ``dropped: queue_full``) and
 is always the one published.
 """
 
+import bisect
 from collections import Counter, deque
 from dataclasses import dataclass
 import math
@@ -73,6 +74,13 @@ MAX_SCAN_SPAN = 1.0
 """Seconds the beams of one scan may span for motion compensation (longer: taken as bad)."""
 MAX_MOTION_GAP = 1.0
 """Seconds between the last two poses beyond which their motion is not extrapolated."""
+ODOM_GAP_STEPS = (3, 51)
+"""Odom mode, ``odom_gap_factor``: the intervals between odometry messages that must be seen
+before a gap is judged, and how many of the newest give the typical interval (their median:
+stamps jittering by +-20 % of the period leave intervals within 1.4 x it, and one lost message
+makes one of 1.6 x or more)."""
+ODOM_GAP_STAMPS = 1000
+"""Odom mode: the newest odometry stamps kept to find the two a scan's pose lies between."""
 TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
@@ -434,6 +442,12 @@ class SessionOptions:
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
     consistent as the scans, not as the odometry. Off: the poses are used as given."""
+    odom_gap_factor: float = 1.5
+    """Odom mode: a scan whose stamp falls between two odometry messages more than this many
+    times the odometry's typical interval apart is skipped (``no pose: odom_gap``) instead of
+    given a pose interpolated across the gap, where a lost message hides the motion (a turn
+    begun or ended in it). One lost message doubles an interval; 0 interpolates across any
+    gap, as tf2 does."""
     grid_resolution: Optional[float] = 0.05
     """Cell size (m) of the planner map (``occupancy``): the beams of every mapped scan are
     traced into a free-space grid. None: no grid (and no cost)."""
@@ -456,7 +470,7 @@ class SessionOptions:
                                                  and self.max_latency > 0):
             raise ValueError(f'max_latency must be a finite number > 0 or None, got '
                              f'{self.max_latency!r}')
-        for name in ('tolerance', 'wait', 'cache_seconds'):
+        for name in ('tolerance', 'wait', 'cache_seconds', 'odom_gap_factor'):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name} must be a finite number >= 0, got {v!r}')
@@ -511,6 +525,10 @@ class PoseSource:
         self._mounted = False
         self._newest = {}
         """Child frame -> (stamp, translation, rotation) of its newest dynamic edge sample."""
+        self._odom_stamps = deque(maxlen=ODOM_GAP_STAMPS)
+        """Odom mode: stamps of the newest odometry messages stored, in order."""
+        self._odom_steps = deque(maxlen=ODOM_GAP_STEPS[1])
+        """Odom mode: the intervals between them (the newest), seconds."""
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -560,6 +578,9 @@ class PoseSource:
             note = self._time_jump(record.stamp)
             self._set(record.frame_id, record.child_frame_id, record.stamp, record.translation,
                       record.rotation, False)
+            if self._odom_stamps:
+                self._odom_steps.append(record.stamp - self._odom_stamps[-1])
+            self._odom_stamps.append(record.stamp)
             m = self.options.mount
             if m is not None and not self._mounted:
                 self._set(record.child_frame_id, MOUNT_FRAME, 0.0, (m[0], m[1], 0.0),
@@ -612,6 +633,8 @@ class PoseSource:
         self._last_lookup = None
         self.latest = -math.inf
         self._newest.clear()
+        self._odom_stamps.clear()
+        self._odom_steps.clear()
         return ('time_jump', f'pose data stamped {stamp:.3f}, {gap:.1f} s before the newest: '
                 'the clock jumped back, dropping the stored dynamic transforms')
 
@@ -656,11 +679,30 @@ class PoseSource:
         pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
                                          self.options.tolerance if tolerance is None
                                          else tolerance)
+        if self.options.pose_source == 'odom' and stamp is None:
+            self._check_odom_gap(scan.stamp)
         if self.localizer:
             self.odom_frame = target
         else:
             self.fixed_frame = self.odom_frame = target
         return pose
+
+    def _check_odom_gap(self, stamp: float) -> None:
+        """Raise TransformLookupError ``odom_gap`` if ``stamp`` lies in a gap of the odometry."""
+        factor = self.options.odom_gap_factor
+        stamps = self._odom_stamps
+        if not factor or len(self._odom_steps) < ODOM_GAP_STEPS[0]:
+            return
+        i = bisect.bisect_left(stamps, stamp)
+        if i == 0 or i >= len(stamps) or stamps[i] == stamp:
+            return                  # at a message, or outside them (the tolerance rules)
+        gap = stamps[i] - stamps[i - 1]
+        typical = float(np.median(self._odom_steps))
+        if gap > factor * typical:
+            raise TransformLookupError(
+                'odom_gap', f'no odometry between {stamps[i - 1]:.3f} and {stamps[i]:.3f} s '
+                f'({gap / typical:.1f} x its typical interval of {1e3 * typical:.0f} ms): a '
+                'message was lost, and the motion in the gap is unknown')
 
     def base_pose(self, stamp: float) -> Optional[np.ndarray]:
         """Return (x, y, yaw) of ``base_frame`` in ``odom_frame`` at ``stamp``, or None."""
