@@ -882,8 +882,9 @@ class MappingSession:
                  warn: Optional[Callable[[str, str], object]] = None,
                  info: Optional[Callable[[str], object]] = None):
         self.options = options or SessionOptions()
-        config = (config or IncrementalConfig()).resolved(self.options.scan_matching)
-        self.mapper = IncrementalMapper(config)
+        self._config = config or IncrementalConfig()
+        """The mapper's configuration as given (``free_space_window`` -1: by the pose source)."""
+        self.mapper = IncrementalMapper(self._config.resolved(self.options.scan_matching))
         self.grid = (None if self.options.grid_resolution is None
                      else FreeSpaceGrid(self.options.grid_resolution))
         """The free space traced by the mapped scans' beams (None without a grid)."""
@@ -976,7 +977,8 @@ class MappingSession:
         The map's segments, support and noise scale (``stats['sigma']``, ``stats['r']``) become
         the mapper's G(0), its frame the frame of the map value. Scan matching is turned on
         (``options.scan_matching``): the given poses (odometry, TF) are in their own frame, and
-        only matching registers the scans to the saved map. ``initial_pose`` (x, y, yaw; m,
+        only matching registers the scans to the saved map; the mapper's ``free_space_window``
+        left at -1 then resolves as with scan matching (0), as in a session started with it. ``initial_pose`` (x, y, yaw; m,
         rad): where the robot (the frame the laser is mounted on, see
         ``PoseSource.robot_pose``) is in the map at the first scan; None: where the given poses
         say (the given frame is the map's). With ``options.mapping`` False the map is never
@@ -1005,7 +1007,12 @@ class MappingSession:
                              f'm; got {stats.get("sigma")!r}): scans cannot be matched against '
                              'it; set smemsf.sigma')
         with self._map_lock:
-            self.mapper.load(value.segments, value.support, sigma, r)
+            mapper = self.mapper
+            config = self._config.resolved(True)
+            if config != mapper.config:     # the evidence's default follows scan matching
+                mapper = IncrementalMapper(config)
+            mapper.load(value.segments, value.support, sigma, r)
+            self.mapper = mapper
         with self._cv:
             self.options.scan_matching = True
             self._loaded = (value, grid, pose)

@@ -232,6 +232,30 @@ def test_reset_goes_back_to_the_loaded_map_and_a_bad_pose_is_refused(saved, offi
     assert back.trajectory.shape == (0, 4)
 
 
+def test_load_map_maps_as_a_session_started_with_scan_matching(saved, office):
+    # load_map turns scan matching on, and the evidence's default (free_space_window -1) with
+    # it: off, as in the node and replay --map, which start the session with scan matching.
+    # Before, a session made without it kept the evidence on (window 10) after load_map.
+    from polyline_mapper.core.incremental import IncrementalConfig
+    saved_map = read_map(saved[1])
+    records = records_of(drifted_messages(office, 1), 60)
+    maps = []
+    for matching in (False, True):
+        session = MappingSession(options=SessionOptions(scan_matching=matching))
+        session.load_map(saved_map.value)
+        assert session.mapper.config.free_space_window == 0
+        for record in records:
+            session.add(record)
+            session.step()
+        session.flush()
+        maps.append(session.map_value().segments)
+    assert len(maps[0]) > 0 and np.array_equal(maps[0], maps[1])
+    # A window given explicitly is kept.
+    session = MappingSession(IncrementalConfig(free_space_window=10))
+    session.load_map(saved_map.value)
+    assert session.mapper.config.free_space_window == 10
+
+
 def test_a_map_without_noise_scale_is_refused_unless_sigma_is_set(saved, tmp_path):
     _, path, _ = saved
     data = json.loads(path.read_text())
