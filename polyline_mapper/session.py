@@ -978,13 +978,14 @@ class MappingSession:
         the mapper's G(0), its frame the frame of the map value. Scan matching is turned on
         (``options.scan_matching``): the given poses (odometry, TF) are in their own frame, and
         only matching registers the scans to the saved map; the mapper's ``free_space_window``
-        left at -1 then resolves as with scan matching (0), as in a session started with it. ``initial_pose`` (x, y, yaw; m,
-        rad): where the robot (the frame the laser is mounted on, see
-        ``PoseSource.robot_pose``) is in the map at the first scan; None: where the given poses
-        say (the given frame is the map's). With ``options.mapping`` False the map is never
-        changed: ``map_value`` returns the loaded segments, support, polylines and closed flags
-        as they are, and ``occupancy`` the loaded planner map (``grid``) when there is one.
-        With mapping True the scans are mapped into it. ``reset`` goes back to it.
+        left at -1 then resolves as with scan matching (0), as in a session started with it.
+        ``initial_pose`` (x, y, yaw; m, rad): where the robot (the frame the laser is mounted
+        on, see ``PoseSource.robot_pose``) is in the map at the first scan; None: where the
+        given poses say (the given frame is the map's). With ``options.mapping`` False the map
+        is never changed: ``map_value`` returns the loaded segments, support, polylines and
+        closed flags as they are, and ``occupancy`` the loaded planner map (``grid``) when
+        there is one. With mapping True the scans are mapped into it. ``reset`` goes back to
+        it.
 
         Raises ValueError (one line) when the map or the pose cannot be used.
         """
