@@ -25,8 +25,9 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
         # depth-5 input, a slow machine loses scans while an update stalls (seen in CI: 225 of
         # 230 received, update p95 18 ms, latency p99 115 ms). The odometry too: this drive
         # steps 0.4 m and turns corners from one message to the next, so a scan whose odometry
-        # was lost gets a pose interpolated across the corner (seen in CI: a wall 0.84 m off;
-        # offline, 5 % of the odometry dropped puts walls 1.2 m off). And no shedding in the
+        # was lost got a pose interpolated across the corner (seen in CI: a wall 0.84 m off;
+        # since odom_gap_factor such a scan is skipped, test_odom_gaps.py, and here every scan
+        # must be used). And no shedding in the
         # node: on a loaded machine updates fall behind 40 Hz for a while, and the default
         # max_scan_latency (1 s) then drops scans as designed (seen in CI: one scan dropped
         # too_late). test_node_load covers the shedding; here every scan must be mapped.
