@@ -92,3 +92,16 @@ def test_a_lost_message_at_a_corner_no_longer_bends_the_map():
     scans, heading, stray, skipped = result[0.0]
     assert scans == len(drive.poses) and not skipped
     assert heading > 0.5 and stray > 0.5, result[0.0]          # what the guard prevents
+
+
+def test_the_node_parameter_reaches_the_session_and_is_checked():
+    pytest.importorskip('polyline_mapper_msgs.msg', reason='the messages are not built')
+    from polyline_mapper.params import defaults, settings_from
+    from polyline_mapper.ros.node import session_options
+    odom = defaults() | {'pose_source': 'odom', 'fixed_frame': 'odom'}
+    assert session_options(settings_from(odom)[0]).odom_gap_factor == 1.5
+    assert session_options(settings_from(odom | {'odom_gap_factor': 0.0})[0]) \
+        .odom_gap_factor == 0.0
+    for bad in (-1.0, 'wide'):
+        with pytest.raises(ValueError, match='odom_gap_factor'):
+            settings_from(odom | {'odom_gap_factor': bad})
