@@ -95,7 +95,7 @@ NODE_PARAMS = (
     ParamSpec('odom_gap_factor', 1.5,
               'odom mode: a scan stamped between two odometry messages more than this many '
               'times the typical interval apart (a lost message; typical: the median of the '
-              'last 50 intervals) is skipped instead of given a pose interpolated '
+              'last 51 intervals) is skipped instead of given a pose interpolated '
               'across motion nobody saw. 0 interpolates across any gap, as tf2 does.',
               0.0, 100.0),
     ParamSpec('scan_buffer_size', 50,

@@ -48,6 +48,7 @@ is always the one published.
 import bisect
 from collections import Counter, deque
 from dataclasses import dataclass
+import itertools
 import math
 import threading
 import time
@@ -527,8 +528,6 @@ class PoseSource:
         """Child frame -> (stamp, translation, rotation) of its newest dynamic edge sample."""
         self._odom_stamps = deque(maxlen=ODOM_GAP_STAMPS)
         """Odom mode: stamps of the newest odometry messages stored, in order."""
-        self._odom_steps = deque(maxlen=ODOM_GAP_STEPS[1])
-        """Odom mode: the intervals between them (the newest), seconds."""
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -578,8 +577,6 @@ class PoseSource:
             note = self._time_jump(record.stamp)
             self._set(record.frame_id, record.child_frame_id, record.stamp, record.translation,
                       record.rotation, False)
-            if self._odom_stamps:
-                self._odom_steps.append(record.stamp - self._odom_stamps[-1])
             self._odom_stamps.append(record.stamp)
             m = self.options.mount
             if m is not None and not self._mounted:
@@ -634,7 +631,6 @@ class PoseSource:
         self.latest = -math.inf
         self._newest.clear()
         self._odom_stamps.clear()
-        self._odom_steps.clear()
         return ('time_jump', f'pose data stamped {stamp:.3f}, {gap:.1f} s before the newest: '
                 'the clock jumped back, dropping the stored dynamic transforms')
 
@@ -691,13 +687,14 @@ class PoseSource:
         """Raise TransformLookupError ``odom_gap`` if ``stamp`` lies in a gap of the odometry."""
         factor = self.options.odom_gap_factor
         stamps = self._odom_stamps
-        if not factor or len(self._odom_steps) < ODOM_GAP_STEPS[0]:
+        if not factor or len(stamps) <= ODOM_GAP_STEPS[0]:
             return
         i = bisect.bisect_left(stamps, stamp)
         if i == 0 or i >= len(stamps) or stamps[i] == stamp:
             return                  # at a message, or outside them (the tolerance rules)
         gap = stamps[i] - stamps[i - 1]
-        typical = float(np.median(self._odom_steps))
+        newest = itertools.islice(reversed(stamps), ODOM_GAP_STEPS[1] + 1)
+        typical = float(np.median(-np.diff(np.fromiter(newest, dtype=np.float64))))
         if gap > factor * typical:
             raise TransformLookupError(
                 'odom_gap', f'no odometry between {stamps[i - 1]:.3f} and {stamps[i]:.3f} s '
