@@ -93,10 +93,12 @@ NODE_PARAMS = (
               'odom mode: the laser is mounted upside down (rolled 180 deg): beams sweep '
               'clockwise seen from above.'),
     ParamSpec('odom_gap_factor', 1.5,
-              'odom mode: a scan stamped between two odometry messages more than this many '
-              'times the typical interval apart (a lost message; typical: the median of the '
-              'last 51 intervals) is skipped instead of given a pose interpolated '
-              'across motion nobody saw. 0 interpolates across any gap, as tf2 does.',
+              'A scan stamped between two odometry messages (odom mode) or two transforms of '
+              'the odometry edge (tf mode: the lowest moving transform above the laser, '
+              'odom -> base_link) more than this many times the typical interval apart (a '
+              'lost message; typical: the median of the last 51 intervals) is skipped instead '
+              'of given a pose interpolated across motion nobody saw. 0 interpolates across '
+              'any gap, as tf2 does.',
               0.0, 100.0),
     ParamSpec('scan_buffer_size', 50,
               'Scans that may wait for their pose and the next update; when updates fall '

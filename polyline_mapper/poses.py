@@ -385,6 +385,13 @@ class TransformBuffer2D:
         """Return the number of stored transforms (over all edges)."""
         return sum(len(e) for e in self._edges.values())
 
+    def stamps(self, child: str) -> list:
+        """Return the stored stamps of the edge above ``child`` (s, ascending; none if static)."""
+        edge = self._edges.get(_frame(child))
+        if edge is None or edge.static:
+            return []
+        return edge.stamps[edge.start:]
+
     # -- queries -------------------------------------------------------------------------------
     def lookup(self, target: str, source: str, stamp: float, tolerance: float = 0.1,
                max_tilt: float = math.radians(20.0)) -> np.ndarray:

@@ -76,12 +76,14 @@ MAX_SCAN_SPAN = 1.0
 MAX_MOTION_GAP = 1.0
 """Seconds between the last two poses beyond which their motion is not extrapolated."""
 ODOM_GAP_STEPS = (3, 51)
-"""Odom mode, ``odom_gap_factor``: the intervals between odometry messages that must be seen
-before a gap is judged, and how many of the newest give the typical interval (their median:
-stamps jittering by +-20 % of the period leave intervals within 1.4 x it, and one lost message
-makes one of 1.6 x or more)."""
+"""``odom_gap_factor``: the intervals between odometry messages (odom mode) or between the
+transforms of the odometry edge (tf mode: the lowest moving edge above the laser) that must be
+seen before a gap is judged, and how many of the newest give the typical interval (their
+median: stamps jittering by +-20 % of the period leave intervals within 1.4 x it, and one lost
+message makes one of 1.6 x or more)."""
 ODOM_GAP_STAMPS = 1000
-"""Odom mode: the newest odometry stamps kept to find the two a scan's pose lies between."""
+"""Odom mode: the newest odometry stamps kept to find the two a scan's pose lies between (tf
+mode reads the stamps the transform buffer holds)."""
 TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
@@ -444,11 +446,12 @@ class SessionOptions:
     starting from the odometry / TF pose corrected as the last match was: the map is then as
     consistent as the scans, not as the odometry. Off: the poses are used as given."""
     odom_gap_factor: float = 1.5
-    """Odom mode: a scan whose stamp falls between two odometry messages more than this many
-    times the odometry's typical interval apart is skipped (``no pose: odom_gap``) instead of
-    given a pose interpolated across the gap, where a lost message hides the motion (a turn
-    begun or ended in it). One lost message doubles an interval; 0 interpolates across any
-    gap, as tf2 does."""
+    """A scan whose stamp falls between two odometry messages (odom mode) or two transforms of
+    the odometry edge (tf mode: the lowest moving transform above the laser, odom ->
+    base_link) more than this many times the odometry's typical interval apart is skipped
+    (``no pose: odom_gap``) instead of given a pose interpolated across the gap, where a lost
+    message hides the motion (a turn begun or ended in it). One lost message doubles an
+    interval; 0 interpolates across any gap, as tf2 does."""
     grid_resolution: Optional[float] = 0.05
     """Cell size (m) of the planner map (``occupancy``): the beams of every mapped scan are
     traced into a free-space grid. None: no grid (and no cost)."""
@@ -675,18 +678,63 @@ class PoseSource:
         pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
                                          self.options.tolerance if tolerance is None
                                          else tolerance)
-        if self.options.pose_source == 'odom' and stamp is None:
-            self._check_odom_gap(scan.stamp)
+        if stamp is None and self.options.odom_gap_factor:
+            if self.options.pose_source == 'odom':
+                self._check_odom_gap(scan.stamp, self._odom_stamps, 'odometry')
+            else:
+                self._check_tf_gap(frame, target, scan.stamp)
         if self.localizer:
             self.odom_frame = target
         else:
             self.fixed_frame = self.odom_frame = target
         return pose
 
-    def _check_odom_gap(self, stamp: float) -> None:
-        """Raise TransformLookupError ``odom_gap`` if ``stamp`` lies in a gap of the odometry."""
+    def _odometry_edge(self, frame: str, target: Optional[str]) -> Optional[str]:
+        """
+        Tf mode: the child frame of the odometry edge above ``frame``, None when it has none.
+
+        The odometry edge is the lowest moving transform between the laser and ``target``
+        (None or not on the chain: its root): odom -> base_link under REP 105, with the static
+        mount below it and a localizer's map -> odom above it, whose corrections come when
+        they come and carry no motion of their own.
+        """
+        try:
+            chain = self._chain(frame)
+        except TransformLookupError:
+            return None
+        top = chain.index(target) if target in chain else len(chain) - 1
+        return next((child for child in chain[:top] if child not in self._static), None)
+
+    def newest(self, scan: Scan) -> float:
+        """
+        Return the newest stamp of the pose data a lookup at ``scan``'s stamp interpolates in.
+
+        Odom mode: the odometry's. Tf mode: the odometry edge's (``_odometry_edge``); a
+        localizer's map -> odom newer than it says nothing about the motion at the scan.
+        """
+        if self.options.pose_source != 'tf':
+            return self.latest
+        child = self._odometry_edge(scan.frame_id, self.odom_frame if self.localizer
+                                    else self.fixed_frame)
+        entry = self._newest.get(child)
+        return self.latest if entry is None else entry[0]
+
+    def _check_tf_gap(self, frame: str, target: str, stamp: float) -> None:
+        """Tf mode: ``_check_odom_gap`` on the odometry edge of ``frame``'s chain to ``target``."""
+        child = self._odometry_edge(frame, target)
+        if child is not None:
+            self._check_odom_gap(stamp, self.buffer.stamps(child),
+                                 f'transform {self._parents[child]} -> {child}')
+
+    def _check_odom_gap(self, stamp: float, stamps, what: str) -> None:
+        """
+        Raise TransformLookupError ``odom_gap`` if ``stamp`` lies in a gap of ``stamps``.
+
+        ``stamps``: the stamps of the odometry (``what``), ascending. A gap: two neighbours
+        more than ``odom_gap_factor`` times the median of the newest ``ODOM_GAP_STEPS[1]``
+        intervals apart.
+        """
         factor = self.options.odom_gap_factor
-        stamps = self._odom_stamps
         if not factor or len(stamps) <= ODOM_GAP_STEPS[0]:
             return
         i = bisect.bisect_left(stamps, stamp)
@@ -697,7 +745,7 @@ class PoseSource:
         typical = float(np.median(-np.diff(np.fromiter(newest, dtype=np.float64))))
         if gap > factor * typical:
             raise TransformLookupError(
-                'odom_gap', f'no odometry between {stamps[i - 1]:.3f} and {stamps[i]:.3f} s '
+                'odom_gap', f'no {what} between {stamps[i - 1]:.3f} and {stamps[i]:.3f} s '
                 f'({gap / typical:.1f} x its typical interval of {1e3 * typical:.0f} ms): a '
                 'message was lost, and the motion in the gap is unknown')
 
@@ -1243,9 +1291,8 @@ class MappingSession:
                     continue
                 give_up = (final or len(self._waiting) > opts.max_waiting
                            or now - arrived >= opts.wait)
-                latest = self.poses.latest
-                if (scan.pose is None and not give_up and math.isfinite(latest)
-                        and latest < scan.stamp):
+                if (scan.pose is None and not give_up and math.isfinite(self.poses.latest)
+                        and self.poses.newest(scan) < scan.stamp):
                     break           # pose data at or after the scan's stamp may still come
                 if not give_up and not self._last_beam_posed(scan):
                     break           # motion compensation: the last beam's pose may still come

@@ -1,10 +1,10 @@
-"""Odom mode: a scan inside a gap of the odometry (a lost message) is skipped, not mis-posed."""
+"""A scan inside a gap of the odometry (a lost message) is skipped, not mis-posed (odom, tf)."""
 
 import math
 
 import numpy as np
 from polyline_mapper.core.geometry import sample_segments, wrap_angle
-from polyline_mapper.formats.records import Odometry, Scan
+from polyline_mapper.formats.records import Odometry, Scan, Transform
 from polyline_mapper.poses import quaternion_from_yaw
 from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
 from polyline_mapper.replay import replay_records
@@ -62,36 +62,100 @@ def test_scans_in_an_odometry_gap_are_refused_and_jitter_is_not_a_gap(factor):
             assert np.allclose(pose[:2], turning(t)[:2], atol=0.002 if not gap else 0.01)
 
 
+def office_records(lost: str, seed: int = 0) -> tuple:
+    """
+    Return the drive of ``test_a_lost_message_at_a_corner...`` and its records, 5 % lost.
+
+    ``lost``: 'odom' (the /odom messages) or 'tf' (the odom -> base_link transforms on /tf,
+    the map -> odom beside them kept).
+    """
+    drive = make_drive('sim:office,step=0.4', 7)
+    messages = drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0))
+    records = [x for _, _, r in messages for x in (r if isinstance(r, list) else [r])]
+    if lost == 'odom':
+        moving = [i for i, r in enumerate(records) if isinstance(r, Odometry)]
+    else:
+        moving = [i for i, r in enumerate(records) if isinstance(r, Transform)
+                  and r.child == 'base_link' and not r.static]
+    rng = np.random.default_rng(seed)
+    drop = set(rng.choice(moving[1:-1], size=round(0.05 * (len(moving) - 2)), replace=False))
+    return drive, [r for i, r in enumerate(records) if i not in drop]
+
+
+def scored(drive, session) -> tuple:
+    """Return (scans mapped, largest heading error (rad), map farthest from a wall, skips)."""
+    value = session.map_value()
+    traj = np.asarray(value.trajectory)
+    k = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
+    heading = np.abs(wrap_angle(traj[:, 3] - drive.poses[k, 2])).max()
+    samples, _ = sample_segments(value.segments, 0.02)
+    return len(traj), heading, drive.world.distance(samples).max(), session.stats()['skipped']
+
+
 def test_a_lost_message_at_a_corner_no_longer_bends_the_map():
     # The drive of test_node_modes (0.4 m a scan, one odometry message per scan, each corner
     # turned from one message to the next), 5 % of the odometry lost at random: the scans
     # whose odometry was lost have no known pose. Interpolated across the gap (tf2's way,
     # odom_gap_factor 0) they turn walls a corner too early; skipped, the map is the true one.
-    drive = make_drive('sim:office,step=0.4', 7)
-    messages = drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0))
-    records = [x for _, _, r in messages for x in (r if isinstance(r, list) else [r])]
-    odom = [i for i, r in enumerate(records) if isinstance(r, Odometry)]
-    rng = np.random.default_rng(0)
-    drop = set(rng.choice(odom[1:-1], size=round(0.05 * (len(odom) - 2)), replace=False))
-    kept = [r for i, r in enumerate(records) if i not in drop]
+    drive, kept = office_records('odom')
     result = {}
     for factor in (1.5, 0.0):
         session = replay_records(kept, options=SessionOptions(
             pose_source='odom', fixed_frame='odom', mount=(0.0, 0.0, 0.0),
             grid_resolution=None, keep_points=True, odom_gap_factor=factor))
-        value = session.map_value()
-        traj = np.asarray(value.trajectory)
-        k = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
-        heading = np.abs(wrap_angle(traj[:, 3] - drive.poses[k, 2])).max()
-        samples, _ = sample_segments(value.segments, 0.02)
-        result[factor] = (len(traj), heading, drive.world.distance(samples).max(),
-                          session.stats()['skipped'])
+        result[factor] = scored(drive, session)
     scans, heading, stray, skipped = result[1.5]
     assert skipped == {'no pose: odom_gap': len(drive.poses) - scans} and scans >= 210
     assert heading < 1e-6 and stray < 0.1, result[1.5]
     scans, heading, stray, skipped = result[0.0]
     assert scans == len(drive.poses) and not skipped
     assert heading > 0.5 and stray > 0.5, result[0.0]          # what the guard prevents
+
+
+def test_tf_mode_skips_a_scan_in_a_gap_of_the_odometry_transform():
+    # The same drive and loss through /tf (tf mode, the default pose source): the odometry
+    # edge is odom -> base_link, the lowest moving transform above the laser; map -> odom
+    # (here published with every scan, none lost) is not the odometry and is not checked.
+    drive, kept = office_records('tf')
+    result = {}
+    for factor in (1.5, 0.0):
+        session = replay_records(kept, options=SessionOptions(
+            pose_source='tf', grid_resolution=None, keep_points=True, odom_gap_factor=factor))
+        assert session.fixed_frame == 'map'
+        result[factor] = scored(drive, session)
+    scans, heading, stray, skipped = result[1.5]
+    assert skipped == {'no pose: odom_gap': len(drive.poses) - scans} and scans >= 210
+    assert heading < 1e-6 and stray < 0.1, result[1.5]
+    scans, heading, stray, skipped = result[0.0]
+    assert scans == len(drive.poses) and not skipped
+    assert heading > 0.5 and stray > 0.5, result[0.0]
+
+
+def test_tf_mode_checks_only_the_odometry_edge():
+    # A localizer's map -> odom at 2 Hz with a 1.5 s pause (it corrects when it has something
+    # to say) above odometry at 20 Hz: no scan is refused for the pause; one lost odometry
+    # transform refuses the scans in its gap, through the mount below it.
+    session = MappingSession(None, SessionOptions(pose_source='tf'))
+    session.add(Transform(0.0, 'base_link', 'laser', np.zeros(3), quaternion_from_yaw(0.0),
+                          static=True))
+    for t in np.arange(0.0, 6.01, 0.5):
+        if not 2.0 < t < 3.5:
+            session.add(Transform(float(t), 'map', 'odom', np.array([0.1, 0.0, 0.0]),
+                                  quaternion_from_yaw(0.0)))
+    odom = np.round(np.arange(0.0, 6.001, 0.05), 6)
+    for k, t in enumerate(odom):
+        if k != 60:                                        # 3.00 s lost
+            pose = turning(t)
+            session.add(Transform(float(t), 'odom', 'base_link',
+                                  np.array([pose[0], pose[1], 0.0]), quaternion_from_yaw(pose[2])))
+    scans = odom[:-1] + 0.025
+    got = posed(session, scans)
+    refused = [t for t, pose in zip(scans, got) if isinstance(pose, str)]
+    assert refused == pytest.approx([2.975, 3.025]), refused
+    assert {pose for pose in got if isinstance(pose, str)} == {'odom_gap'}
+    for t, pose in zip(scans, got):
+        if not isinstance(pose, str):
+            assert np.allclose(pose[:2], turning(t)[:2] + [0.1, 0.0], atol=0.002), (t, pose)
 
 
 def test_the_node_parameter_reaches_the_session_and_is_checked():

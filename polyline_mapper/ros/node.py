@@ -8,8 +8,8 @@ Topics (relative names, remappable):
   lossless playback from a reliable publisher such as ``polyline-mapper play``), ``.depth`` and
   ``.history``, with the resolved topic name after remapping;
 - ``/tf``, ``/tf_static`` (pose_source tf) or ``odom`` (nav_msgs/Odometry, pose_source odom,
-  sensor-data QoS with the same overrides as ``scan``: a scan stamped in the gap a lost
-  odometry message leaves is skipped, ``odom_gap_factor``) in;
+  sensor-data QoS with the same overrides as ``scan``) in; a scan stamped in the gap a lost
+  odometry message or odom -> base_link transform leaves is skipped (``odom_gap_factor``);
 - ``polyline_map`` (polyline_mapper_msgs/PolylineMap) and ``polyline_map/markers``
   (visualization_msgs/MarkerArray) out, reliable + transient local, depth 1: a subscriber that
   starts late gets the current map at once.
