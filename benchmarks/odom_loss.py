@@ -1,10 +1,10 @@
 """
-Lost odometry messages in odom mode: what the interpolated poses cost the map.
+Lost odometry messages (odom and tf mode): what the interpolated poses cost the map.
 
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/odom_loss.py [--losses 0 0.05 0.2] [--seeds 0 1 2] \
-        [--modes odom matching] [--gap-factors 1.5 0]
+        [--modes odom matching] [--gap-factors 1.5 0] [--sources odom tf] [--jobs 2]
 
 The node's ``odom`` input is best effort by default (sensor-data QoS): a message lost leaves the
 scans around it a pose interpolated between the odometry before and after the gap
@@ -15,7 +15,10 @@ drives (seed 7), one odometry message per scan, true poses (no drift), the laser
 (mount 0), fed to the session in odom mode (``replay_records``, the node's code) with a share
 of the odometry messages dropped at random (``--losses``, each of ``--seeds``; never the first
 or the last), mapped at the odometry's poses (``odom``) and with ``scan_matching``
-(``matching``: the odometry predicts, the scan is matched to the map):
+(``matching``: the odometry predicts, the scan is matched to the map). ``--sources``: the
+odometry as /odom messages (``odom``, pose_source odom) or as the odom -> base_link transforms
+on /tf (``tf``, pose_source tf, the default pose source; the map -> odom transforms beside them
+are never dropped, and the map is in the map frame): the same drops, the same scores.
 
 - ``sparse``: ``office_floor`` every 0.4 m, each corner turned from one message to the next
   (the drive of ``test_node_modes.py``, played there at 40 Hz);
@@ -32,6 +35,7 @@ benchmarks/README.md (between the ``odom-loss`` markers) and the rows to results
 import argparse
 import dataclasses
 import json
+from multiprocessing import Pool
 import sys
 
 from baselines.walls import wall_scores
@@ -39,26 +43,35 @@ from common import contradicted, stamp, table_header, write_readme, write_result
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import sample_segments, wrap_angle
-from polyline_mapper.formats.records import Odometry
+from polyline_mapper.formats.records import Odometry, Transform
 from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
 DRIVES = {'sparse': 'sim:office,step=0.4', 'dense': 'sim:office,step=0.05,turn=0.1'}
 """The drives (``make_drive`` names), seed 7 as test_node_modes' office drive."""
-OPTIONS = SessionOptions(pose_source='odom', fixed_frame='odom', mount=(0.0, 0.0, 0.0),
-                         keep_points=True, grid_resolution=None)
+OPTIONS = {'odom': SessionOptions(pose_source='odom', fixed_frame='odom', mount=(0.0, 0.0, 0.0),
+                                  keep_points=True, grid_resolution=None),
+           'tf': SessionOptions(pose_source='tf', keep_points=True, grid_resolution=None)}
+"""The session's options per odometry source (``--sources``)."""
+
+
+def odometry_of(record, source: str) -> bool:
+    """Whether ``record`` is the odometry of ``source``: an /odom message or odom -> base_link."""
+    if source == 'odom':
+        return isinstance(record, Odometry)
+    return isinstance(record, Transform) and record.child == 'base_link' and not record.static
 
 
 def one(drive, records: list, loss: float, seed: int, matching: bool = False,
-        gap_factor: float = 1.5) -> dict:
+        gap_factor: float = 1.5, source: str = 'odom') -> dict:
     """Map ``records`` with a share ``loss`` of the odometry dropped; return the scores."""
-    odom = [i for i, r in enumerate(records) if isinstance(r, Odometry)]
+    odom = [i for i, r in enumerate(records) if odometry_of(r, source)]
     inner = odom[1:-1]
     rng = np.random.default_rng(seed)
     drop = set(rng.choice(inner, size=int(round(loss * len(inner))), replace=False).tolist())
     session = replay_records([r for i, r in enumerate(records) if i not in drop],
-                             options=dataclasses.replace(OPTIONS, scan_matching=matching,
+                             options=dataclasses.replace(OPTIONS[source], scan_matching=matching,
                                                          odom_gap_factor=gap_factor))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
@@ -77,6 +90,16 @@ def one(drive, records: list, loss: float, seed: int, matching: bool = False,
             'contradicted_pct': round(free['contradicted_pct'], 2)}
 
 
+def run(job: dict) -> dict:
+    """Map one row's drive as ``job`` says (a worker of ``main``); return the row."""
+    drive = make_drive(DRIVES[job['drive']], 7)
+    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0)))
+    row = {**job, **one(drive, records, job['loss'], job['seed'], job['mode'] == 'matching',
+                        job['gap_factor'], job['source'])}
+    print(json.dumps(row), file=sys.stderr, flush=True)
+    return row
+
+
 def main() -> int:
     """Map every drive with every loss and seed; write the JSON and the README block."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
@@ -90,30 +113,31 @@ def main() -> int:
     ap.add_argument('--gap-factors', type=float, nargs='+', default=[1.5, 0.0],
                     help="the session's odom_gap_factor, each run (default 1.5, the default, "
                          'and 0: interpolate across every gap)')
+    ap.add_argument('--sources', nargs='+', choices=['odom', 'tf'], default=['odom', 'tf'],
+                    help='the odometry as /odom messages (pose_source odom), as odom -> '
+                         'base_link on /tf (pose_source tf), or both (default)')
+    ap.add_argument('--jobs', type=int, default=1, help='rows mapped at once (default 1)')
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/odom_loss.py ' + ' '.join(sys.argv[1:]))
-    rows = []
-    for label, name in DRIVES.items():
-        drive = make_drive(name, 7)
-        records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0),
-                                      map_to_odom=(0.0, 0.0, 0.0)))
-        for mode in args.modes:
-            for gap in args.gap_factors:
-                for loss in args.losses:
-                    for seed in (args.seeds if loss > 0 else args.seeds[:1]):
-                        rows.append({'drive': label, 'mode': mode, 'gap_factor': gap,
-                                     'loss': loss, 'seed': seed,
-                                     **one(drive, records, loss, seed, mode == 'matching',
-                                           gap)})
-                        print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    jobs = [{'source': source, 'drive': label, 'mode': mode, 'gap_factor': gap, 'loss': loss,
+             'seed': seed}
+            for source in args.sources for label in DRIVES for mode in args.modes
+            for gap in args.gap_factors for loss in args.losses
+            for seed in (args.seeds if loss > 0 else args.seeds[:1])]
+    if args.jobs > 1:
+        with Pool(args.jobs) as pool:
+            rows = pool.map(run, jobs, chunksize=1)
+    else:
+        rows = [run(job) for job in jobs]
     write_results('odom_loss', meta, rows)
-    lines = table_header(meta, ['drive', 'mode', 'odom_gap_factor', 'odometry lost', 'seed',
+    lines = table_header(meta, ['source', 'drive', 'mode', 'odom_gap_factor', 'odometry lost',
+                                'seed',
                                 'scans mapped',
                                 'messages dropped', 'largest pose error (cm, deg)',
                                 'map farthest from a wall (m)', 'walls F1', 'segments',
                                 'contradicted %'])
     for r in rows:
-        lines.append(f"| {r['drive']} | {r['mode']} | {r['gap_factor']:g} "
+        lines.append(f"| {r['source']} | {r['drive']} | {r['mode']} | {r['gap_factor']:g} "
                      f"| {100 * r['loss']:g} % | {r['seed']} "
                      f"| {r['scans']} "
                      f"| {r['dropped']} | {r['pose_max_cm']:.1f}, {r['heading_max_deg']:.1f} "
