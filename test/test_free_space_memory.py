@@ -97,6 +97,49 @@ def test_counting_in_a_box_and_sorting_the_samples_give_the_same_counts(monkeypa
     assert np.array_equal(counts_b, counts_s) and counts_b[:, 1:].max() > 1.0
 
 
+@pytest.mark.parametrize('shift, max_cells', [
+    ((0.0, 0.0), memory.DEFAULT_MAX_CELLS), ((-8.0, -3.0), memory.DEFAULT_MAX_CELLS),
+    ((-8.0, -3.0), 40 * CHUNK * CHUNK)])
+def test_the_chunk_table_and_the_binary_search_store_the_same_counts(monkeypatch, shift,
+                                                                     max_cells):
+    # A scan's chunks are looked up in a table over the box they span (memory.CHUNK_TABLE),
+    # or by binary search in the sorted chunk keys when that box is huge. Both must store the
+    # same chunks in the same slots and the same counts, also across the axes (negative cells)
+    # and when the memory is full (the chunks of the smallest keys first; the rest clipped).
+    drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), rng=2)
+    spec = LaserSpec(noise=0.01)
+    views = []
+    for ranges, pose in list(zip(drive.ranges, drive.poses))[:40]:
+        ok = np.isfinite(ranges) & (ranges < spec.range_max)
+        a = spec.angles()[ok] + pose[2]
+        at = pose[:2] + shift
+        views.append((at, at + ranges[ok, None] * np.c_[np.cos(a), np.sin(a)]))
+    mems, tables, boxes = [], (memory.CHUNK_TABLE, 0), (memory.DENSE, 0)
+    for table in tables:
+        monkeypatch.setattr(memory, 'CHUNK_TABLE', table)
+        for dense in boxes:
+            monkeypatch.setattr(memory, 'DENSE', dense)
+            mem = BeamMemory(0.1, window=10, max_cells=max_cells)
+            for origin, pts in views:
+                mem.add(origin, pts, tol=0.05)
+            mems.append(mem)
+    first = mems[0]
+    assert first.cells > 0 and (first.clipped > 0) == (max_cells < memory.DEFAULT_MAX_CELLS)
+    for a, b in ((0, 2), (1, 3)):       # the same path (box or sorted), table or search: the
+        assert np.array_equal(mems[a]._slot, mems[b]._slot)             # same slots
+        assert np.array_equal(mems[a]._pool[:first.cells], mems[b]._pool[:first.cells])
+    for mem in mems[1:]:                # and every way the same counts, chunk for chunk
+        assert (mem.cells, mem.clipped) == (first.cells, first.clipped)
+        assert np.array_equal(mem._keys, first._keys)
+        assert np.array_equal(by_key(mem), by_key(first))
+
+
+def by_key(mem: BeamMemory) -> np.ndarray:
+    """Return the counts of every stored chunk, in the order of the chunk keys."""
+    return np.concatenate([mem._pool[s * CHUNK * CHUNK:(s + 1) * CHUNK * CHUNK]
+                           for s in mem._slot])
+
+
 @pytest.mark.parametrize('seed', [1, 3])
 def test_dynamic_office_with_the_memory(seed):
     # The door, the box carried away and the people still go, every wall stays.

@@ -51,6 +51,9 @@ AROUND = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)], dtype=np
 DENSE = 1 << 21
 """A scan whose beams fit in a box of at most this many cells x channels is counted in that box
 (``bincount``) and stored once per cell; larger ones (long outdoor beams) sort their samples."""
+CHUNK_TABLE = 1 << 20
+"""Most chunks in the box a call of ``_rows`` spans for its lookup table (8 MB); wider boxes
+are searched in the sorted chunk keys instead."""
 DEFAULT_MAX_CELLS = 2 ** 24
 """Most cells stored (16.8 M: 300 MiB at 18 bytes a cell, a 410 m square at 0.1 m). Beams beyond
 are left out, counted in ``clipped``."""
@@ -94,9 +97,63 @@ class BeamMemory:
         """
         Return the pool row of every (col, row) cell, -1 where none is stored.
 
-        With ``grow`` the chunks missing are added first (as far as ``max_cells`` allows).
+        With ``grow`` the chunks missing are added first (as far as ``max_cells`` allows), in
+        the order of their keys. The chunks are looked up in a table over the box of chunks
+        the cells span (``CHUNK_TABLE`` entries at most, else by binary search): a scan's beam
+        samples cost one table read each.
         """
+        if not len(cells):
+            return np.full(0, -1, dtype=np.intp)
         chunk = cells // CHUNK
+        col, row = chunk[:, 0], chunk[:, 1]         # (per column: faster than along axis 0)
+        c0, r0, c1, r1 = col.min(), row.min(), col.max(), row.max()
+        nc, nr = int(c1 - c0) + 1, int(r1 - r0) + 1
+        if nc * nr > CHUNK_TABLE:
+            return self._rows_searched(cells, chunk, grow)
+        local = (col - c0) * nr + (row - r0)
+        table = self._chunk_table(int(c0), int(r0), nc, nr)
+        if grow:
+            touched = np.bincount(local, minlength=nc * nr) > 0
+            missing = np.flatnonzero(touched & (table < 0))
+            room = self.max_cells // (CHUNK * CHUNK) - self._used
+            if missing.size and room > 0:
+                cols, rows = missing // nr + c0, missing % nr + r0
+                key = (cols << 32) + (rows & 0xFFFFFFFF)
+                order = np.argsort(key, kind='stable')[:room]    # the smallest keys first
+                self._add_chunks(key[order])
+                table[missing[order]] = self._used - order.size + np.arange(order.size)
+        slot = table.take(local)
+        inner = (cells[:, 1] % CHUNK) * CHUNK + cells[:, 0] % CHUNK
+        return np.where(slot >= 0, slot * (CHUNK * CHUNK) + inner, -1)
+
+    def _chunk_table(self, c0: int, r0: int, nc: int, nr: int) -> np.ndarray:
+        """Return the slot of every chunk of the box (c0.., r0..; nc x nr), -1 where none."""
+        table = np.full(nc * nr, -1, dtype=np.intp)
+        a, b = np.searchsorted(self._keys, [c0 << 32, (c0 + nc) << 32])
+        if a < b:
+            keys = self._keys[a:b]
+            cols = keys >> 32
+            rows = keys & 0xFFFFFFFF
+            rows = np.where(rows >= 1 << 31, rows - (1 << 32), rows)
+            inside = np.flatnonzero((rows >= r0) & (rows < r0 + nr))
+            table[(cols[inside] - c0) * nr + (rows[inside] - r0)] = self._slot[a:b][inside]
+        return table
+
+    def _add_chunks(self, new: np.ndarray) -> None:
+        """Store the chunks of keys ``new`` (sorted, none stored yet) in the next pool slots."""
+        need = (self._used + new.size) * CHUNK * CHUNK
+        if need > len(self._pool):
+            pool = np.zeros((max(need, 2 * len(self._pool)), 1 + BINS), np.float16)
+            pool[:len(self._pool)] = self._pool
+            self._pool = pool
+        keys = np.concatenate([self._keys, new])
+        slot = np.concatenate([self._slot, self._used + np.arange(new.size)])
+        order = np.argsort(keys, kind='stable')
+        self._keys, self._slot = keys[order], slot[order]
+        self._used += new.size
+
+    def _rows_searched(self, cells: np.ndarray, chunk: np.ndarray, grow: bool) -> np.ndarray:
+        """``_rows`` by binary search in the sorted chunk keys (cells spanning a huge box)."""
         key = (chunk[:, 0] << 32) + (chunk[:, 1] & 0xFFFFFFFF)
         if grow:
             # Samples along a beam share chunks: one key per run of equal keys is enough.
@@ -105,16 +162,7 @@ class BeamMemory:
             room = self.max_cells // (CHUNK * CHUNK) - self._used
             new = new[:max(room, 0)]
             if new.size:
-                need = (self._used + new.size) * CHUNK * CHUNK
-                if need > len(self._pool):
-                    pool = np.zeros((max(need, 2 * len(self._pool)), 1 + BINS), np.float16)
-                    pool[:len(self._pool)] = self._pool
-                    self._pool = pool
-                keys = np.concatenate([self._keys, new])
-                slot = np.concatenate([self._slot, self._used + np.arange(new.size)])
-                order = np.argsort(keys, kind='stable')
-                self._keys, self._slot = keys[order], slot[order]
-                self._used += new.size
+                self._add_chunks(new)
         out = np.full(len(key), -1, dtype=np.intp)
         if not self._keys.size:
             return out
