@@ -68,16 +68,23 @@ def test_memory_follows_where_the_beams_went_and_stays_within_its_bound():
         IncrementalConfig(free_space_memory=-0.1)
 
 
-def test_counting_in_a_box_and_sorting_the_samples_give_the_same_counts(monkeypatch):
-    # Scans whose beams fit a small box are counted in it (memory.DENSE); larger ones sort their
-    # samples. Both must store the same counts, cell for cell: 60 looks of a simulated drive.
+def office_views(looks: int, shift=(0.0, 0.0)) -> list:
+    """Return (laser position, returns) of the first ``looks`` scans of an office drive, moved."""
     drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), rng=2)
     spec = LaserSpec(noise=0.01)
     views = []
-    for ranges, pose in list(zip(drive.ranges, drive.poses))[:60]:
+    for ranges, pose in list(zip(drive.ranges, drive.poses))[:looks]:
         ok = np.isfinite(ranges) & (ranges < spec.range_max)
         a = spec.angles()[ok] + pose[2]
-        views.append((pose[:2], pose[:2] + ranges[ok, None] * np.c_[np.cos(a), np.sin(a)]))
+        at = pose[:2] + np.asarray(shift)
+        views.append((at, at + ranges[ok, None] * np.c_[np.cos(a), np.sin(a)]))
+    return views
+
+
+def test_counting_in_a_box_and_sorting_the_samples_give_the_same_counts(monkeypatch):
+    # Scans whose beams fit a small box are counted in it (memory.DENSE); larger ones sort their
+    # samples. Both must store the same counts, cell for cell: 60 looks of a simulated drive.
+    views = office_views(60)
     boxed, sorted_ = BeamMemory(0.1, window=10), BeamMemory(0.1, window=10)
     for origin, pts in views:
         boxed.add(origin, pts, tol=0.05)
@@ -106,14 +113,7 @@ def test_the_chunk_table_and_the_binary_search_store_the_same_counts(monkeypatch
     # or by binary search in the sorted chunk keys when that box is huge. Both must store the
     # same chunks in the same slots and the same counts, also across the axes (negative cells)
     # and when the memory is full (the chunks of the smallest keys first; the rest clipped).
-    drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), rng=2)
-    spec = LaserSpec(noise=0.01)
-    views = []
-    for ranges, pose in list(zip(drive.ranges, drive.poses))[:40]:
-        ok = np.isfinite(ranges) & (ranges < spec.range_max)
-        a = spec.angles()[ok] + pose[2]
-        at = pose[:2] + shift
-        views.append((at, at + ranges[ok, None] * np.c_[np.cos(a), np.sin(a)]))
+    views = office_views(40, shift)
     mems, tables, boxes = [], (memory.CHUNK_TABLE, 0), (memory.DENSE, 0)
     for table in tables:
         monkeypatch.setattr(memory, 'CHUNK_TABLE', table)
