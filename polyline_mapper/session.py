@@ -81,9 +81,6 @@ transforms of the odometry edge (tf mode: the lowest moving edge above the laser
 seen before a gap is judged, and how many of the newest give the typical interval (their
 median: stamps jittering by +-20 % of the period leave intervals within 1.4 x it, and one lost
 message makes one of 1.6 x or more)."""
-ODOM_GAP_STAMPS = 1000
-"""Odom mode: the newest odometry stamps kept to find the two a scan's pose lies between (tf
-mode reads the stamps the transform buffer holds)."""
 TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
@@ -529,8 +526,6 @@ class PoseSource:
         self._mounted = False
         self._newest = {}
         """Child frame -> (stamp, translation, rotation) of its newest dynamic edge sample."""
-        self._odom_stamps = deque(maxlen=ODOM_GAP_STAMPS)
-        """Odom mode: stamps of the newest odometry messages stored, in order."""
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -580,7 +575,6 @@ class PoseSource:
             note = self._time_jump(record.stamp)
             self._set(record.frame_id, record.child_frame_id, record.stamp, record.translation,
                       record.rotation, False)
-            self._odom_stamps.append(record.stamp)
             m = self.options.mount
             if m is not None and not self._mounted:
                 self._set(record.child_frame_id, MOUNT_FRAME, 0.0, (m[0], m[1], 0.0),
@@ -633,7 +627,6 @@ class PoseSource:
         self._last_lookup = None
         self.latest = -math.inf
         self._newest.clear()
-        self._odom_stamps.clear()
         return ('time_jump', f'pose data stamped {stamp:.3f}, {gap:.1f} s before the newest: '
                 'the clock jumped back, dropping the stored dynamic transforms')
 
@@ -679,10 +672,7 @@ class PoseSource:
                                          self.options.tolerance if tolerance is None
                                          else tolerance)
         if stamp is None and self.options.odom_gap_factor:
-            if self.options.pose_source == 'odom':
-                self._check_odom_gap(scan.stamp, self._odom_stamps, 'odometry')
-            else:
-                self._check_tf_gap(frame, target, scan.stamp)
+            self._check_odom_gap(frame, target, scan.stamp)
         if self.localizer:
             self.odom_frame = target
         else:
@@ -691,12 +681,12 @@ class PoseSource:
 
     def _odometry_edge(self, frame: str, target: Optional[str]) -> Optional[str]:
         """
-        Tf mode: the child frame of the odometry edge above ``frame``, None when it has none.
+        Return the child frame of the odometry edge above ``frame``, None when it has none.
 
         The odometry edge is the lowest moving transform between the laser and ``target``
-        (None or not on the chain: its root): odom -> base_link under REP 105, with the static
-        mount below it and a localizer's map -> odom above it, whose corrections come when
-        they come and carry no motion of their own.
+        (None or not on the chain: its root): odom -> base_link under REP 105 (in odom mode
+        the odometry's own), with the static mount below it and a localizer's map -> odom
+        above it, whose corrections come when they come and carry no motion of their own.
         """
         try:
             chain = self._chain(frame)
@@ -719,21 +709,19 @@ class PoseSource:
         entry = self._newest.get(child)
         return self.latest if entry is None else entry[0]
 
-    def _check_tf_gap(self, frame: str, target: str, stamp: float) -> None:
-        """Tf mode: ``_check_odom_gap`` on the odometry edge of ``frame``'s chain to ``target``."""
+    def _check_odom_gap(self, frame: str, target: str, stamp: float) -> None:
+        """
+        Raise TransformLookupError ``odom_gap`` if ``stamp`` lies in a gap of the odometry.
+
+        The odometry: the stamps the buffer holds of ``frame``'s odometry edge to ``target``
+        (``_odometry_edge``: the odometry messages in odom mode). A gap: two neighbours more
+        than ``odom_gap_factor`` times the median of the newest ``ODOM_GAP_STEPS[1]`` intervals
+        apart.
+        """
         child = self._odometry_edge(frame, target)
-        if child is not None:
-            self._check_odom_gap(stamp, self.buffer.stamps(child),
-                                 f'transform {self._parents[child]} -> {child}')
-
-    def _check_odom_gap(self, stamp: float, stamps, what: str) -> None:
-        """
-        Raise TransformLookupError ``odom_gap`` if ``stamp`` lies in a gap of ``stamps``.
-
-        ``stamps``: the stamps of the odometry (``what``), ascending. A gap: two neighbours
-        more than ``odom_gap_factor`` times the median of the newest ``ODOM_GAP_STEPS[1]``
-        intervals apart.
-        """
+        if child is None:
+            return
+        stamps = self.buffer.stamps(child)
         factor = self.options.odom_gap_factor
         if not factor or len(stamps) <= ODOM_GAP_STEPS[0]:
             return
@@ -744,6 +732,8 @@ class PoseSource:
         newest = itertools.islice(reversed(stamps), ODOM_GAP_STEPS[1] + 1)
         typical = float(np.median(-np.diff(np.fromiter(newest, dtype=np.float64))))
         if gap > factor * typical:
+            what = ('odometry' if self.options.pose_source == 'odom' else
+                    f'transform {self._parents[child]} -> {child}')
             raise TransformLookupError(
                 'odom_gap', f'no {what} between {stamps[i - 1]:.3f} and {stamps[i]:.3f} s '
                 f'({gap / typical:.1f} x its typical interval of {1e3 * typical:.0f} ms): a '
