@@ -59,6 +59,16 @@ DEFAULT_MAX_CELLS = 2 ** 24
 are left out, counted in ``clipped``."""
 
 
+def _chunk_key(col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """Return the sorted-store key of chunks (col, row): col in the high 32 bits, row below."""
+    return (col << 32) + (row & 0xFFFFFFFF)
+
+
+def _in_chunk(cells: np.ndarray) -> np.ndarray:
+    """Return each (col, row) cell's row within its chunk's CHUNK x CHUNK block of the pool."""
+    return (cells[:, 1] % CHUNK) * CHUNK + cells[:, 0] % CHUNK
+
+
 class BeamMemory:
     """Decaying, capped counts of the beams that end in and pass through each grid cell."""
 
@@ -118,13 +128,12 @@ class BeamMemory:
             room = self.max_cells // (CHUNK * CHUNK) - self._used
             if missing.size and room > 0:
                 cols, rows = missing // nr + c0, missing % nr + r0
-                key = (cols << 32) + (rows & 0xFFFFFFFF)
+                key = _chunk_key(cols, rows)
                 order = np.argsort(key, kind='stable')[:room]    # the smallest keys first
                 self._add_chunks(key[order])
                 table[missing[order]] = self._used - order.size + np.arange(order.size)
         slot = table.take(local)
-        inner = (cells[:, 1] % CHUNK) * CHUNK + cells[:, 0] % CHUNK
-        return np.where(slot >= 0, slot * (CHUNK * CHUNK) + inner, -1)
+        return np.where(slot >= 0, slot * (CHUNK * CHUNK) + _in_chunk(cells), -1)
 
     def _chunk_table(self, c0: int, r0: int, nc: int, nr: int) -> np.ndarray:
         """Return the slot of every chunk of the box (c0.., r0..; nc x nr), -1 where none."""
@@ -154,7 +163,7 @@ class BeamMemory:
 
     def _rows_searched(self, cells: np.ndarray, chunk: np.ndarray, grow: bool) -> np.ndarray:
         """``_rows`` by binary search in the sorted chunk keys (cells spanning a huge box)."""
-        key = (chunk[:, 0] << 32) + (chunk[:, 1] & 0xFFFFFFFF)
+        key = _chunk_key(chunk[:, 0], chunk[:, 1])
         if grow:
             # Samples along a beam share chunks: one key per run of equal keys is enough.
             firsts = key[np.flatnonzero(np.diff(key, prepend=key[:1] - 1))]
@@ -168,8 +177,7 @@ class BeamMemory:
             return out
         at = np.minimum(np.searchsorted(self._keys, key), self._keys.size - 1)
         ok = self._keys[at] == key
-        inner = (cells[:, 1] % CHUNK) * CHUNK + cells[:, 0] % CHUNK
-        out[ok] = self._slot[at[ok]] * (CHUNK * CHUNK) + inner[ok]
+        out[ok] = self._slot[at[ok]] * (CHUNK * CHUNK) + _in_chunk(cells[ok])
         return out
 
     def lookup(self, xy: np.ndarray, dirs: np.ndarray) -> np.ndarray:
