@@ -140,6 +140,30 @@ def test_relocalizing_leaves_good_matches_and_new_ground_alone():
     assert not d.relocalized and d.ok == c.ok and np.array_equal(c.pose, d.pose)
 
 
+def test_a_start_the_map_explains_better_replaces_a_prediction_beyond_the_turn_search():
+    # Scan mode: a robot that stopped turning while the constant-velocity prediction turns
+    # on, 0.45 rad, beyond the heading search (+-0.2 rad) and the largest correction taken
+    # (0.35 rad); the last pose is one of the starts.
+    truth = np.array([2.0, 3.0, 0.3])
+    pts = cast(ROOM, truth)
+    pred = truth + (0.1, -0.05, 0.45)
+    stopped = truth + (0.02, 0.01, 0.03)
+    alone = match_scan(pts, pred, ROOM, sigma=0.01)
+    assert not (alone.ok and abs(alone.pose[2] - truth[2]) < 0.05)    # lost without it
+    m = match_scan(pts, pred, ROOM, sigma=0.01, starts=[stopped, pred + (0.0, 0.0, 0.15)])
+    assert m.ok and np.hypot(*(m.pose[:2] - truth[:2])) < 0.01
+    assert abs(m.pose[2] - truth[2]) < 0.005
+
+
+def test_starts_the_map_explains_worse_leave_the_match_as_it_was():
+    truth = np.array([4.0, 2.5, -0.4])
+    pts = cast(ROOM, truth)
+    pred = truth + (0.05, -0.04, 0.03)
+    alone = match_scan(pts, pred, ROOM, sigma=0.01)
+    m = match_scan(pts, pred, ROOM, sigma=0.01, starts=[truth + (0.6, 0.4, 0.5)])
+    assert alone.ok and np.array_equal(m.pose, alone.pose)
+
+
 def test_constant_velocity_prediction():
     a, b = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.1])
     c = predict_constant_velocity(a, b)
