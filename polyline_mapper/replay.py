@@ -303,11 +303,13 @@ def close_loops(scans: list, sigma: float) -> tuple:
     map -> odom), in order; ``sigma``: its map's noise scale (m). Keyframes are taken
     ``LOOP_KEYFRAME`` apart. Returns (stamps (M,), corrections (M, 3): the new map -> odom
     correction at each matched scan's stamp, yaw unwrapped; info dict: keyframes, loops found,
-    active (beyond ``loops.BAND`` from the trajectory), kept after the pose graph, applied).
-    No loop beyond the band, or none kept: stamps and corrections are None (nothing to close).
+    active (beyond ``loops.BAND`` from the trajectory), kept after the pose graph, applied,
+    and when not applied the reason). No loop beyond the band, or none kept: stamps and
+    corrections are None (nothing to close).
     """
     info = {'keyframes': 0, 'loops': 0, 'active': 0, 'kept': 0, 'applied': False}
     if not scans:
+        info['reason'] = 'no matched scan'
         return None, None, info
     keep, last = [], None
     for k, (_, pose, _, _) in enumerate(scans):
@@ -323,6 +325,7 @@ def close_loops(scans: list, sigma: float) -> tuple:
     loops, active = settle(poses, find_loops(poses, [scans[k][2] for k in keep], sigma))
     info.update(keyframes=len(keep), loops=len(loops), active=int(active.sum()))
     if not active.any():
+        info['reason'] = 'no loop beyond the band'
         return None, None, info
     moving = {(e.a, e.b) for e, a in zip(loops, active) if a}
     try:
@@ -335,6 +338,7 @@ def close_loops(scans: list, sigma: float) -> tuple:
         return None, None, info
     info['kept'] = len(kept)
     if not any((e.a, e.b) in moving for e in kept):
+        info['reason'] = 'no loop beyond the band kept'
         return None, None, info
     fix = corrections(poses, after, stamps[keep], stamps)
     new = se2_compose(fix, np.array([s[3] for s in scans]))

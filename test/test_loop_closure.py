@@ -62,6 +62,7 @@ def test_without_a_loop_to_close_the_matched_map_is_kept(tmp_path):
     assert np.array_equal(plain.map_value.trajectory, closed.map_value.trajectory)
     info = closed.map_value.stats['loop_closure']
     assert not info['applied'] and info['active'] == 0
+    assert info['reason'] == 'no loop beyond the band'
     assert 'loop_closure' not in plain.map_value.stats
 
 
