@@ -246,7 +246,12 @@ def test_play_and_record_map_fail_with_one_line(tmp_path, office_bag, capsys):
              (['play', str(bag), '--scan-topic', '/odom'], 'not sensor_msgs/msg/LaserScan'),
              (['play', str(bag), '--rate', '0'], 'rate must be a positive number'),
              (['record-map', '/nobody/publishes/this', '-o', str(tmp_path / 'm.json'),
-               '--timeout', '1'], 'no map on /nobody/publishes/this within 1 s')]
+               '--timeout', '1'], 'no map on /nobody/publishes/this within 1 s'),
+             (['record-map', 'bad topic!', '-o', str(tmp_path / 'm.json'), '--timeout', '1'],
+              "topic 'bad topic!': failed to resolve name"),
+             (['record-map', '-o', str(tmp_path / 'm.json'), '--ros-args', '--bogus'],
+              'unknown ROS argument(s): --bogus'),
+             (['play', 'sim:hall', '--ros-args', '-r', '__ns:=bad'], "Couldn't parse remap rule")]
     for argv, needle in cases:
         assert main(argv + ['-q']) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()

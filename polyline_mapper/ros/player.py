@@ -28,6 +28,7 @@ from typing import Callable, Optional
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from . import startup
 from .messages import odometry_msg, pose_msg, scan_msg, time_msg, transform_msg
 from .qos import TF_QOS
 from ..formats.records import Odometry, PoseEstimate, Scan, Skipped
@@ -343,8 +344,11 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
         for w in rec.warnings:
             log(f'warning: {w}')
         context = rclpy.Context()
-        rclpy.init(args=ros_args, context=context,
-                   signal_handler_options=SignalHandlerOptions.NO)   # ours: stop_on_signals
+        try:        # bad --ros-args or ROS_DOMAIN_ID: one line, as the node says it
+            startup.init(ros_args, context=context,
+                         signal_handler_options=SignalHandlerOptions.NO)  # ours: stop_on_signals
+        except startup.StartupError as exc:
+            raise ValueError(str(exc)) from None
         node = rclpy.create_node('polyline_mapper_player', context=context)
         bar = None
         try:

@@ -15,6 +15,7 @@ from typing import Callable, Optional
 
 from polyline_mapper_msgs.msg import PolylineMap
 
+from . import startup
 from .messages import map_from_msg
 from .qos import MAP_QOS
 from ..core.mapvalue import MapValue
@@ -25,7 +26,10 @@ class MapRecorder:
     """Keep the newest PolylineMap of ``topic`` on ``node`` (and when it came)."""
 
     def __init__(self, node, topic: str = 'polyline_map'):
-        self.topic = node.resolve_topic_name(topic)
+        try:
+            self.topic = node.resolve_topic_name(topic)
+        except Exception as exc:                # noqa: B902 - rclpy's RCLError
+            raise ValueError(f'topic {topic!r}: {startup.rcl_reason(exc)}') from None
         self.latest: Optional[PolylineMap] = None
         self.count = 0
         self.received_at = None
@@ -75,7 +79,10 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise ValueError(f'--{name} must be a number of seconds >= 0, got {value!r}')
     context = rclpy.Context()
-    rclpy.init(args=ros_args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:        # bad --ros-args or ROS_DOMAIN_ID: one line, as the node says it
+        startup.init(ros_args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    except startup.StartupError as exc:
+        raise ValueError(str(exc)) from None
     try:
         node = rclpy.create_node('polyline_mapper_map_recorder', context=context)
         executor = SingleThreadedExecutor(context=context)
