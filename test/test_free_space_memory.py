@@ -66,6 +66,11 @@ def test_memory_follows_where_the_beams_went_and_stays_within_its_bound():
         BeamMemory(0.0, window=10)
     with pytest.raises(ValueError, match='free_space_memory'):
         IncrementalConfig(free_space_memory=-0.1)
+    # A beam counts in every cell it crosses: a micrometre cell would never end a scan.
+    with pytest.raises(ValueError, match='0 .off. or a cell size >= 0.02 m'):
+        IncrementalConfig(free_space_memory=1e-6)
+    assert IncrementalConfig(free_space_memory=0.0).free_space_memory == 0.0
+    assert IncrementalConfig(free_space_memory=0.02).free_space_memory == 0.02
 
 
 def office_views(looks: int, shift=(0.0, 0.0)) -> list:

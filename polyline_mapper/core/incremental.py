@@ -204,7 +204,7 @@ class IncrementalConfig:
     4.53 cm / 90.7 % without, 2.52 % / 3.98 cm / 92.9 % with 0.03)."""
     free_space_memory: float = 0.1
     """With ``free_space_window`` > 0: the cell size (m) of the free-space memory (default 0.1;
-    0: none). Every scan's beams are also counted per cell of a grid over the area seen
+    0: none; at least ``MIN_MEMORY_CELL``). Every scan's beams are also counted per cell of a grid over the area seen
     (``memory.BeamMemory``: the same decaying, capped hits and passes as a square), and a square
     the map gains with no evidence to carry over starts from its cell's counts instead of none: a
     segment drawn where the laser had seen through is cut by the next beams."""
@@ -232,6 +232,9 @@ class IncrementalConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
+        if 0 < self.free_space_memory < MIN_MEMORY_CELL:
+            raise ValueError(f'free_space_memory must be 0 (off) or a cell size >= '
+                             f'{MIN_MEMORY_CELL:g} m, got {self.free_space_memory!r}')
 
     def resolved(self, scan_matching: bool = False) -> 'IncrementalConfig':
         """
@@ -250,6 +253,14 @@ class IncrementalConfig:
 
 AUTO_WINDOW = 10
 """``free_space_window`` of the default (-1) when the poses are given."""
+
+
+MIN_MEMORY_CELL = 0.02
+"""
+The smallest cell (m) of the free-space memory. Each beam is counted in every cell it crosses,
+so the work and memory of a scan grow as 1 / cell: on the first 90 Intel scans 0.1 m took 1.7
+s and 93 MB, 0.02 m 2.2 s and 138 MB, 0.001 m 650 MB, and 1e-6 m did not end in 120 s.
+"""
 
 
 @dataclass
