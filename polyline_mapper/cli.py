@@ -335,6 +335,13 @@ def cmd_record_map(args) -> int:
     return 0
 
 
+def _frame(text: str) -> str:
+    """Parse a frame name: not empty, as a map's ``frame_id`` must be (argparse type)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError('must name a frame, got an empty string')
+    return text
+
+
 def _mount(text: str) -> tuple:
     """Parse ``X,Y,YAW_DEG[,flip]`` into ((x, y, yaw rad) or None, upside_down)."""
     if text is None:
@@ -695,7 +702,8 @@ def build_parser() -> argparse.ArgumentParser:
                    'a log, bag or drive is fitted with its beams (what they see through is cut '
                    'out; --set free_space_window=0 fits the bare points)')
     common(f)
-    f.add_argument('--frame-id', default='map', help='frame of the points (default: map)')
+    f.add_argument('--frame-id', default='map', type=_frame,
+                   help='frame of the points (default: map)')
     f.add_argument('--range-max', type=POSITIVE, default=None,
                    help='for logs: ignore readings beyond this range (m)')
     _pose_args(f)

@@ -106,3 +106,23 @@ def test_cli_no_traceback_as_a_process(tmp_path):
                           env={**os.environ, 'PYTHONWARNINGS': 'ignore'})
     assert proc.returncode == 2
     assert 'Traceback' not in proc.stderr and proc.stderr.count('\n') == 1
+
+
+def test_cli_refuses_an_empty_frame_id_a_map_could_not_be_read_with(tmp_path, capsys):
+    pts = tmp_path / 'ok.npy'
+    np.save(pts, np.random.default_rng(0).uniform(0, 1, (100, 2)))
+    for frame in ('', ' '):
+        code, err, out, _ = run_cli([str(pts), '--frame-id', frame], tmp_path, capsys)
+        assert code == 2 and 'must name a frame' in err and not out.exists()
+
+
+def test_a_csv_with_a_byte_order_mark_keeps_its_first_point(tmp_path):
+    # Spreadsheets write a UTF-8 byte-order mark: it made the first line a "header", and its
+    # point was dropped without a word.
+    from polyline_mapper.formats.points import read_points
+    rows = '0,0\n1,0\n2,0.01\n3,0\n'
+    plain = write(tmp_path, 'plain.csv', rows)
+    bom = write(tmp_path, 'bom.csv', b'\xef\xbb\xbf' + rows.encode(), mode='wb')
+    header = write(tmp_path, 'header.csv', b'\xef\xbb\xbfx,y\n' + rows.encode(), mode='wb')
+    for path in (plain, bom, header):
+        assert np.array_equal(read_points(path), [[0, 0], [1, 0], [2, 0.01], [3, 0]]), path
