@@ -78,7 +78,9 @@ def read_points(path: str) -> np.ndarray:
                 arr = np.load(path, allow_pickle=False)
             else:
                 delim = ',' if ext == '.csv' else None
-                with open(path, 'r', encoding='utf-8') as fh:
+                # utf-8-sig: a byte-order mark (spreadsheets write one) is not part of the
+                # first value, which would make the first line a "header" and drop its point
+                with open(path, 'r', encoding='utf-8-sig') as fh:
                     first = fh.readline(4096)
                 skip = 0
                 if first.strip() and not first.lstrip().startswith('#'):
@@ -86,7 +88,8 @@ def read_points(path: str) -> np.ndarray:
                         [float(v) for v in first.replace(',', ' ').split()]
                     except ValueError:
                         skip = 1                               # a header line
-                arr = np.loadtxt(path, delimiter=delim, skiprows=skip, ndmin=2, comments='#')
+                arr = np.loadtxt(path, delimiter=delim, skiprows=skip, ndmin=2, comments='#',
+                                 encoding='utf-8-sig')
     except (OSError, ValueError, EOFError, UnicodeDecodeError, MemoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
         raise ValueError(f'{path}: unreadable point file ({msg})') from None
