@@ -96,13 +96,25 @@ def _file_values(data: dict, keys: dict, path: str) -> dict:
             for key, value in params.items():
                 group, _, name = str(key).partition('.')
                 if group in GROUPS and isinstance(value, dict) and not name:
+                    _known(group, value, path)
                     out.update({k: v for k, v in value.items() if k in keys})   # nested block
-                elif group in GROUPS and name in keys:
-                    out[name] = value                                           # dotted
+                elif group in GROUPS:
+                    _known(group, {name: value}, path)
+                    if name in keys:
+                        out[name] = value                                       # dotted
                 elif key in keys:
                     out[key] = value                                            # plain
             return out
     return dict(data)
+
+
+def _known(group: str, values: dict, path: str) -> None:
+    """Raise ConfigError for a key of ``values`` that is no parameter of ``group`` (a typo)."""
+    known = table((group,))
+    for name in values:
+        if name not in known:
+            raise ConfigError(f'{path}: unknown parameter {group}.{name} (the {group} '
+                              f'parameters: {", ".join(sorted(known))})')
 
 
 def read_values(path: str = None, overrides: Iterable[str] = (),

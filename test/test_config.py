@@ -23,6 +23,20 @@ def test_dotted_nested_and_plain_keys_of_a_ros_parameter_file(tmp_path):
     assert load_fit_config(str(path)).kappa == 2.5       # the fit takes the smemsf.* entries
 
 
+@pytest.mark.parametrize('block, name', [
+    ('    smemsf:\n      sigmaa: 0.02\n', 'smemsf.sigmaa'),
+    ('    incremental.bogus: 1\n', 'incremental.bogus'),
+])
+def test_a_typo_in_a_ros_parameter_file_is_named_not_dropped(tmp_path, block, name):
+    # Node parameters (fixed_frame) are not the mapper's and are passed over; a key in the
+    # smemsf / incremental groups that is no parameter was dropped without a word.
+    path = tmp_path / 'p.yaml'
+    path.write_text('polyline_mapper_node:\n  ros__parameters:\n    fixed_frame: odom\n' + block)
+    for load in (load_mapper_config, load_fit_config):
+        with pytest.raises(ConfigError, match=f'unknown parameter {name}'):
+            load(str(path))
+
+
 @pytest.mark.parametrize('item, words', [
     ('kappa=-1', ['--set kappa=-1', 'smemsf.kappa must be in [0, 100]']),
     ('buffer_scans=0', ['incremental.buffer_scans must be in [1, 1000]']),
