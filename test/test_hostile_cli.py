@@ -355,6 +355,7 @@ BAD_MAPS = {
     'vertices as strings': (_map(polylines=[[['0', '0'], ['1', '0']]]), 'numbers only'),
     'one-vertex polyline': (_map(polylines=[[[0, 0]]]), 'at least 2 vertices'),
     'support length': (_map(support=[1.0, 2.0]), '2 values for 1 segments'),
+    'negative support': (_map(support=[-5.0]), 'point counts >= 0, got -5 for segment 0'),
     'closed length': (_map(closed=[True, False]), '2 flags for 1 polylines'),
     'schema version 2': (_map(schema_version=2), 'schema_version 2 is not supported'),
     'stats not an object': (_map(stats=[1, 2]), '"stats" must be an object'),
