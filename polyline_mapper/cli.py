@@ -209,9 +209,31 @@ def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig) -> None:
               'empty map', file=sys.stderr)
 
 
+_FORMATS = ('.json', '.png', '.jpg', '.jpeg', '.svg', '.pdf', '.geojson', '.csv', '.yaml', '.yml',
+            '.pgm', '.tum', '.txt', '.npy', '.log', '.gz', '.db3', '.mcap', '.bag')
+"""Suffixes that name a file format: an output named so must be of it."""
+
+
+def _suffixes(map_json: str = None, png: str = None) -> None:
+    """
+    Refuse an output whose name says another format than the file it would get (CliError).
+
+    A map is JSON, a plot PNG; a name without a suffix, or with one that names no format
+    (``map.out``), is taken as given.
+    """
+    for path, want, what in ((map_json, '.json', 'the map is written as JSON'),
+                             (png, '.png', 'the plot is a PNG image')):
+        ext = None if path is None else os.path.splitext(path)[1].lower()
+        if ext in _FORMATS and ext != want:
+            more = (' (polyline-mapper export writes GeoJSON, SVG, CSV, the map_server YAML '
+                    'and trajectories)' if want == '.json' else '')
+            raise CliError(f'{path}: {what}, not {ext}: give a name ending in {want}{more}')
+
+
 def cmd_fit(args) -> int:
     inputs = [args.input, args.config]
     check_outputs([args.output, args.plot], inputs)
+    _suffixes(args.output, args.plot)
     config, extra = load_fit_options(args.config, args.set)
     window = extra['free_space_window']
     t0 = time.perf_counter()
@@ -244,6 +266,7 @@ def cmd_demo(args) -> int:
         return cmd_live_demo(args)
     from .sim import LaserSpec, office_floor, simulate_drive
     check_outputs([args.output, args.plot], [args.config])
+    _suffixes(args.output, args.plot)
     config = load_config(args.config, args.set)
     world = office_floor()
     drive = simulate_drive(world, LaserSpec(noise=args.noise), rng=args.seed)
@@ -264,6 +287,7 @@ def cmd_demo(args) -> int:
 def cmd_live_demo(args) -> int:
     from .ros.live_demo import DemoError, run_live_demo
     check_outputs([args.output, args.plot], [args.config])
+    _suffixes(args.output, args.plot)
     params = {}
     for item in args.set:
         key, sep, value = item.partition('=')
@@ -315,6 +339,7 @@ def cmd_record_map(args) -> int:
     from .ros.player import stop_on_signals
     from .ros.recorder import run_record_map
     check_outputs([args.output, args.plot])
+    _suffixes(args.output, args.plot)
     stops = []
     # SIGINT and SIGTERM (docker stop, systemd, launch) end the recording: the newest map is
     # written and the exit code is 0 (the map was saved as asked; a signal is how an open-ended
@@ -422,6 +447,7 @@ def cmd_replay(args) -> int:
     from .replay import run_replay
     config = load_incremental_config(args.config, args.set)
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
+    _suffixes(args.output, args.plot)
     start, pose = _start_map(args)
     if args.loop_closure and (not args.scan_matching or start is not None
                               or args.pose_source != 'odom'):
@@ -533,6 +559,7 @@ def cmd_plot(args) -> int:
     from .formats.mapjson import read_map
     inputs = [args.map, args.points]
     check_outputs([args.output], inputs)
+    _suffixes(png=args.output)
     if args.free_space and not args.points:
         raise CliError('--free-space needs --points INPUT: a CARMEN log or a bag with the beams')
     data = read_map(args.map)

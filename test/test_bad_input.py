@@ -126,3 +126,21 @@ def test_a_csv_with_a_byte_order_mark_keeps_its_first_point(tmp_path):
     header = write(tmp_path, 'header.csv', b'\xef\xbb\xbfx,y\n' + rows.encode(), mode='wb')
     for path in (plain, bom, header):
         assert np.array_equal(read_points(path), [[0, 0], [1, 0], [2, 0.01], [3, 0]]), path
+
+
+def test_an_output_named_as_another_format_is_refused(tmp_path, capsys):
+    # fit -o map.png wrote JSON into map.png, plot -o map.svg a PNG; a name that says no
+    # format (map.out, map) is taken as given.
+    pts = tmp_path / 'ok.npy'
+    np.save(pts, np.random.default_rng(0).uniform(0, 1, (100, 2)))
+    for argv, needle in ((['fit', str(pts), '-o', str(tmp_path / 'm.png')], 'not .png'),
+                         (['fit', str(pts), '-o', str(tmp_path / 'm.json'), '--plot',
+                           str(tmp_path / 'm.txt')], 'the plot is a PNG image, not .txt')):
+        assert main(argv + ['-q']) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err
+    assert not list(tmp_path.glob('m.*'))
+    assert main(['fit', str(pts), '-o', str(tmp_path / 'm.out'), '-q']) == 0
+    fitted = tmp_path / 'm.out'
+    assert main(['plot', str(fitted), '-o', str(tmp_path / 'm.svg'), '-q']) == 2
+    assert 'the plot is a PNG image, not .svg' in capsys.readouterr().err
