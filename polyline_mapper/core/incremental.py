@@ -204,10 +204,11 @@ class IncrementalConfig:
     4.53 cm / 90.7 % without, 2.52 % / 3.98 cm / 92.9 % with 0.03)."""
     free_space_memory: float = 0.1
     """With ``free_space_window`` > 0: the cell size (m) of the free-space memory (default 0.1;
-    0: none; at least ``MIN_MEMORY_CELL``). Every scan's beams are also counted per cell of a grid over the area seen
-    (``memory.BeamMemory``: the same decaying, capped hits and passes as a square), and a square
-    the map gains with no evidence to carry over starts from its cell's counts instead of none: a
-    segment drawn where the laser had seen through is cut by the next beams."""
+    0: none; at least ``MIN_MEMORY_CELL``). Every scan's beams are also counted per cell of a
+    grid over the area seen (``memory.BeamMemory``: the same decaying, capped hits and passes as
+    a square), and a square the map gains with no evidence to carry over starts from its cell's
+    counts instead of none: a segment drawn where the laser had seen through is cut by the next
+    beams."""
     max_mapping_range: float = 100.0
     """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
     range_max says: far returns set neither r, sigma nor the work of an update. The shared logs

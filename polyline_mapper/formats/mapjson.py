@@ -330,7 +330,8 @@ def map_value_from_dict(data) -> MapValue:
             raise ValueError(f'"support" has {len(sup)} values for {len(segs)} segments')
         if (sup < 0).any():             # point counts (the mapper refuses such a map to start)
             k = int(np.flatnonzero(sup < 0)[0])
-            raise ValueError(f'"support" must be point counts >= 0, got {sup[k]:g} for segment {k}')
+            raise ValueError(f'"support" must be point counts >= 0, got {sup[k]:g} for '
+                             f'segment {k}')
     else:
         sup = np.full(len(segs), np.nan)
     for key in ('stats', 'config'):
