@@ -489,7 +489,20 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
     simulated drives are registered as replay does, without mapping (``range_max``: logs only).
     """
     from .recordings import kind_of
-    if kind_of(path) in ('points', 'carmen'):
+    kind = kind_of(path)
+    if kind in ('points', 'carmen'):
+        # The recording options place a bag's or a drive's scans; a log's records carry their
+        # corrected laser poses, a point file none: given here, they would change nothing.
+        given = [f'--{name.replace("_", "-")}' for name, default in (
+            ('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
+            ('fixed_frame', None), ('laser_mount', None))
+            if getattr(args, name, default) != default]
+        if given:
+            what = ('a point file' if kind == 'points' else
+                    'a CARMEN log (its corrected laser poses place its scans; replay it for '
+                    'other pose sources)')
+            raise CliError(f'{" and ".join(given)} {"does" if len(given) == 1 else "do"} not '
+                           f'apply to {what}')
         return read_input(path, range_max, not args.quiet)
     if range_max is not None:
         raise CliError('--range-max applies to CARMEN logs only')

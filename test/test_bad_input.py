@@ -144,3 +144,17 @@ def test_an_output_named_as_another_format_is_refused(tmp_path, capsys):
     fitted = tmp_path / 'm.out'
     assert main(['plot', str(fitted), '-o', str(tmp_path / 'm.svg'), '-q']) == 2
     assert 'the plot is a PNG image, not .svg' in capsys.readouterr().err
+
+
+def test_recording_options_that_would_change_nothing_are_refused(tmp_path, capsys):
+    # A point file has no poses and a CARMEN log's fit uses its corrected laser poses:
+    # --pose-source, --laser-mount, --scan-topic ... were accepted and ignored.
+    pts = tmp_path / 'ok.npy'
+    np.save(pts, np.random.default_rng(0).uniform(0, 1, (100, 2)))
+    log = write(tmp_path, 'room.log', 'FLASER 4 1.0 1.0 1.0 1.0 0 0 0 0 0 0 1.0 host 1.0\n' * 20)
+    for path, extra, needle in (
+            (str(pts), ['--laser-mount', '1,2,0'], '--laser-mount does not apply to a point file'),
+            (log, ['--pose-source', 'odom', '--scan-topic', '/x'],
+             '--pose-source and --scan-topic do not apply to a CARMEN log')):
+        code, err, out, _ = run_cli([path, *extra], tmp_path, capsys)
+        assert code == 2 and needle in err and not out.exists(), err
