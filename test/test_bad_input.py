@@ -158,3 +158,20 @@ def test_recording_options_that_would_change_nothing_are_refused(tmp_path, capsy
              '--pose-source and --scan-topic do not apply to a CARMEN log')):
         code, err, out, _ = run_cli([path, *extra], tmp_path, capsys)
         assert code == 2 and needle in err and not out.exists(), err
+
+
+def test_a_log_skips_bad_records_with_reasons_a_person_reads(tmp_path):
+    # A pose beyond 1e8 m made fit refuse the whole log (replay skipped the scan); a record
+    # with a non-integer count or too few fields was skipped with Python's own words.
+    from polyline_mapper.formats.carmen import read_carmen
+    good = 'FLASER 4 1.0 1.0 1.0 1.0 {x} 0 0 0 0 0 1.0 host 1.0\n'
+    text = (good.format(x=0) * 5 + good.format(x='1e12')
+            + 'FLASER 4.5 1.0 1.0 1.0 1.0 0 0 0 0 0 0 1.0 host 1.0\n' + 'ROBOTLASER1 0 1\n'
+            + good.format(x=0) * 5)
+    log = read_carmen(write(tmp_path, 'bad.log', text))
+    assert len(log.records) == 10 and log.skipped == 3
+    assert log.skipped_examples == [
+        'line 6: pose beyond +-1e+08 m',
+        'line 7: FLASER record has a field that is not a number (invalid literal for int() '
+        "with base 10: '4.5')",
+        'line 8: ROBOTLASER1 record is shorter than its counts say']

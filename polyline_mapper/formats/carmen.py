@@ -24,6 +24,7 @@ import zlib
 
 import numpy as np
 
+from .points import MAX_COORDINATE
 from .records import f32, Scan
 from ..scan import scan_to_points
 
@@ -116,14 +117,21 @@ def _flaser_step(n: int) -> float:
     return np.pi / n if n % 2 == 0 else np.pi / max(n - 1, 1)
 
 
+def _check_pose(pose: np.ndarray) -> None:
+    """Refuse a record's laser pose that is not finite or lies beyond MAX_COORDINATE metres."""
+    if not np.isfinite(pose).all():
+        raise ValueError('non-finite pose')
+    if np.abs(pose[:2]).max() > MAX_COORDINATE:
+        raise ValueError(f'pose beyond +-{MAX_COORDINATE:.0e} m')
+
+
 def _parse_flaser(tok: list) -> LaserRecord:
     n = int(tok[1])
     if n < 1 or len(tok) < n + 9:
         raise ValueError(f'FLASER announces {n} readings but the line has {len(tok)} fields')
     vals = np.array(tok[2:n + 9], dtype=np.float64)
     ranges, pose, odom, stamp = vals[:n], vals[n:n + 3], vals[n + 3:n + 6], vals[n + 6]
-    if not np.isfinite(pose).all():
-        raise ValueError('non-finite pose')
+    _check_pose(pose)
     step = _flaser_step(n)
     return LaserRecord(ranges, -np.pi / 2 + np.arange(n) * step, pose, float(stamp),
                        odom=odom if np.isfinite(odom).all() else pose.copy(),
@@ -131,6 +139,8 @@ def _parse_flaser(tok: list) -> LaserRecord:
 
 
 def _parse_robotlaser(tok: list) -> LaserRecord:
+    if len(tok) < 10:
+        raise IndexError('short')           # (skipped as shorter than its counts say)
     start, _, res, rmax = (float(v) for v in tok[2:6])
     n = int(tok[8])
     m = int(tok[9 + n])
@@ -141,8 +151,7 @@ def _parse_robotlaser(tok: list) -> LaserRecord:
     pose = np.array(tok[base:base + 3], dtype=np.float64)
     robot = np.array(tok[base + 3:base + 6], dtype=np.float64)
     stamp = float(tok[base + 11])
-    if not np.isfinite(pose).all():
-        raise ValueError('non-finite pose')
+    _check_pose(pose)
     return LaserRecord(ranges, start + res * np.arange(n), pose, stamp, rmax,
                        odom=robot if np.isfinite(robot).all() else pose.copy(),
                        angle_min=start, angle_increment=res)
@@ -222,8 +231,14 @@ def read_carmen(path: str) -> CarmenLog:
                     continue
                 try:
                     rec = _parse_flaser(tok) if tok[0] == 'FLASER' else _parse_robotlaser(tok)
-                except (ValueError, IndexError) as exc:
-                    skip(lineno, exc)
+                except IndexError:
+                    skip(lineno, f'{tok[0]} record is shorter than its counts say')
+                    continue
+                except ValueError as exc:
+                    text = str(exc)
+                    if text.startswith(('invalid literal', 'could not convert')):
+                        text = f'{tok[0]} record has a field that is not a number ({text})'
+                    skip(lineno, text)
                     continue
                 records.append(rec)
                 if robotlaser is None and tok[0] == 'ROBOTLASER1':
