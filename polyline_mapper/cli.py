@@ -624,7 +624,11 @@ def cmd_export(args) -> int:
             print(f'wrote {args.output}: the trajectory, {len(data.value.trajectory)} poses '
                   f'({"TUM" if fmt == "tum" else "CSV t,x,y,yaw"})')
         return 0
-    fmt = export_map(data, args.output, args.format, inputs=[args.map])
+    if args.resolution is not None and args.trajectory:
+        raise CliError('--resolution applies to the map_server YAML + PGM export, not to a '
+                       'trajectory')
+    fmt = export_map(data, args.output, args.format, inputs=[args.map],
+                     resolution=args.resolution)
     if not args.quiet and fmt == 'yaml':
         print(f'wrote {args.output} and {os.path.splitext(args.output)[0]}.pgm: the map_server '
               'pair (' + ('the stored planner map' if data.grid is not None else
@@ -820,6 +824,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument('--trajectory', action='store_true', help="write the map's trajectory "
                    '(one pose per scan, from replay) instead of its segments: CSV t,x,y,yaw or '
                    'TUM (timestamp tx ty tz qx qy qz qw)')
+    e.add_argument('--resolution', type=POSITIVE, default=None, metavar='M',
+                   help='YAML + PGM of a map without a stored planner grid (fit): cell size in '
+                   'metres (default 0.05)')
     e.add_argument('-q', '--quiet', action='store_true', help='no summary')
     e.set_defaults(func=cmd_export)
 

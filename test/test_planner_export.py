@@ -163,3 +163,18 @@ def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_pa
     assert main(['export', str(far), '-o', str(tmp_path / 'far.yaml')]) == 2
     assert 'too large for a grid export' in capsys.readouterr().err
     assert not (tmp_path / 'far.yaml').exists() and not (tmp_path / 'far.pgm').exists()
+    # the message names the option that makes it fit: 2 m cells, both segments occupied
+    assert main(['export', str(far), '-o', str(tmp_path / 'far.yaml'), '--resolution', '2',
+                 '-q']) == 0
+    meta = yaml.safe_load((tmp_path / 'far.yaml').read_text())
+    pgm = read_pgm(tmp_path / 'far.pgm')
+    assert meta['resolution'] == 2.0 and pgm.shape[0] * 2.0 > 9000
+    assert (pgm == 0).sum() >= 2                          # occupied, map_saver's black
+    # a stored grid keeps its own cell size; other formats have none
+    _, src = replayed
+    for argv, needle in ((['-o', str(tmp_path / 'r.yaml'), '--resolution', '0.2'],
+                          'stores its planner grid at'),
+                         (['-o', str(tmp_path / 'r.csv'), '--resolution', '0.2'],
+                          'map_server YAML + PGM export only')):
+        assert main(['export', str(src), *argv, '-q']) == 2
+        assert needle in capsys.readouterr().err

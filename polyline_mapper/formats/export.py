@@ -175,15 +175,26 @@ def export_trajectory(data: dict, path: str, fmt: str = None, inputs=()) -> str:
     return fmt
 
 
-def planner_grid(data: dict) -> GridMap:
-    """Return the planner map of a map dict: its stored ``grid``, else its segments rasterised."""
+def planner_grid(data: dict, resolution: float = None) -> GridMap:
+    """
+    Return the planner map of a map dict: its stored ``grid``, else its segments rasterised.
+
+    ``resolution`` (m): the cell size of the rasterised segments (default ``GRID_RESOLUTION``);
+    a map that stores its grid has its own (ValueError when another is asked for).
+    """
     if data.get('grid') is not None:
-        return grid_from_dict(data['grid'])
+        grid = grid_from_dict(data['grid'])
+        if resolution is not None and resolution != grid.resolution:
+            raise ValueError(f'the map stores its planner grid at {grid.resolution:g} m; a '
+                             'resolution applies to a map without one (as fit writes)')
+        return grid
+    res = GRID_RESOLUTION if resolution is None else float(resolution)
     segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
     try:
-        return rasterise(segs, GRID_RESOLUTION)
+        return rasterise(segs, res)
     except ValueError as exc:
-        raise ValueError(f'the map is too large for a grid export: {exc}') from None
+        raise ValueError(f'the map is too large for a grid export: {exc} (export '
+                         '--resolution M)') from None
 
 
 def to_pgm(grid: GridMap) -> bytes:
@@ -207,7 +218,8 @@ def to_map_yaml(grid: GridMap, image: str) -> str:
             f'free_thresh: {FREE_THRESH}\n')
 
 
-def export_map(data: dict, path: str, fmt: str = None, inputs=()) -> str:
+def export_map(data: dict, path: str, fmt: str = None, inputs=(),
+               resolution: float = None) -> str:
     """
     Write a map to ``path`` as GeoJSON, SVG, CSV or a map_server YAML + PGM pair.
 
@@ -215,8 +227,9 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=()) -> str:
 
     ``data``: a map checked by ``read_map`` (finite coordinates). Written through
     ``formats.output`` (never over one of ``inputs``, a device or a folder; a failure leaves
-    nothing behind). Returns the format. Raises ValueError on an unknown format or a refused
-    output.
+    nothing behind). ``resolution``: the YAML + PGM pair's cell size (m) for a map without a
+    stored grid (``planner_grid``). Returns the format. Raises ValueError on an unknown format
+    or a refused output.
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
     fmt = 'yaml' if fmt == 'yml' else fmt
@@ -232,10 +245,12 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=()) -> str:
         with OutputSet(inputs) as out:
             out.add(path)
             out.add(pgm)
-            grid = planner_grid(data)
+            grid = planner_grid(data, resolution)
             out.put(pgm, to_pgm(grid))
             out.put(path, to_map_yaml(grid, os.path.basename(pgm)))
         return fmt
+    if resolution is not None:
+        raise ValueError('a resolution applies to the map_server YAML + PGM export only')
     text = {'geojson': lambda d: json.dumps(to_geojson(d), separators=(',', ':'),
                                             allow_nan=False) + '\n',
             'svg': to_svg, 'csv': to_csv}[fmt](data)
