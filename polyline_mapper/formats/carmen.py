@@ -140,7 +140,7 @@ def _parse_flaser(tok: list) -> LaserRecord:
 
 def _parse_robotlaser(tok: list) -> LaserRecord:
     if len(tok) < 10:
-        raise IndexError('short')           # (skipped as shorter than its counts say)
+        raise ValueError('ROBOTLASER1 record is shorter than its counts say')
     start, _, res, rmax = (float(v) for v in tok[2:6])
     n = int(tok[8])
     m = int(tok[9 + n])
