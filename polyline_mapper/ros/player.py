@@ -344,11 +344,9 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
         for w in rec.warnings:
             log(f'warning: {w}')
         context = rclpy.Context()
-        try:        # bad --ros-args or ROS_DOMAIN_ID: one line, as the node says it
-            startup.init(ros_args, context=context,
-                         signal_handler_options=SignalHandlerOptions.NO)  # ours: stop_on_signals
-        except startup.StartupError as exc:
-            raise ValueError(str(exc)) from None
+        # bad --ros-args or ROS_DOMAIN_ID: a StartupError (a ValueError), one line
+        startup.init(ros_args, context=context,
+                     signal_handler_options=SignalHandlerOptions.NO)  # ours: stop_on_signals
         node = rclpy.create_node('polyline_mapper_player', context=context)
         bar = None
         try:

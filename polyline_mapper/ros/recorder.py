@@ -79,10 +79,8 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise ValueError(f'--{name} must be a number of seconds >= 0, got {value!r}')
     context = rclpy.Context()
-    try:        # bad --ros-args or ROS_DOMAIN_ID: one line, as the node says it
-        startup.init(ros_args, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    except startup.StartupError as exc:
-        raise ValueError(str(exc)) from None
+    # bad --ros-args or ROS_DOMAIN_ID: a StartupError (a ValueError), one line
+    startup.init(ros_args, context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = rclpy.create_node('polyline_mapper_map_recorder', context=context)
         executor = SingleThreadedExecutor(context=context)

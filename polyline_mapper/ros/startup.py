@@ -23,8 +23,8 @@ MAX_PARAMS_FILE = 16 << 20
 """Largest parameter file read for checking (bytes); rcl reads larger ones itself."""
 
 
-class StartupError(Exception):
-    """A reason the node cannot start, in one line."""
+class StartupError(ValueError):
+    """A reason the node (or a command-line tool's rclpy context) cannot start, in one line."""
 
 
 def ros_arg_sections(argv: Sequence[str]) -> list:
