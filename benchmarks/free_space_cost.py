@@ -4,13 +4,15 @@ Free-space evidence (issue 18): its cost on fr079 in the incremental.py harness.
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/free_space_cost.py [--datasets DIR] [--window 10] [--repeat 3] \
-        [--ghosts N] [--hit-margin M]
+        [--ghosts N] [--hit-margin M] [--memory CELL]
 
 The fr079 log (361 beams, 4791 scans, corrected poses) is fed to ``IncrementalMapper`` scan by
 scan exactly as ``incremental.py`` does (``run_mapper``, ``log_scans``), with
-``free_space_window`` 0 (the default: clearing of short segments) and ``--window`` (the
-evidence per LSS square; with ``--ghosts`` and ``--hit-margin``: ``free_space_ghosts`` and
-``free_space_hit_margin``, default 0), alternately ``--repeat`` times in one process so a drift
+``free_space_window`` 0 (the evidence off: clearing of short segments, the default before
+2026-11-27) and ``--window`` (the evidence per LSS square; with ``--ghosts``, ``--hit-margin``
+and ``--memory``: ``free_space_ghosts``, ``free_space_hit_margin`` and ``free_space_memory``,
+default 0; the mapper's default since 2026-11-27 is ``--ghosts 20000 --hit-margin 0.03
+--memory 0.1``), alternately ``--repeat`` times in one process so a drift
 of this machine's speed hits both alike. Reported per setting: the update median of each run, the
 final map's segments, mean distance and coverage of all the log's points (``map_metrics``),
 its contradicted share of length (``freespace.judge``, every scan's beams), and, each
@@ -42,20 +44,18 @@ LOG = 'freiburg-079-corrected'
 
 def mapper_for(setting: tuple) -> IncrementalMapper:
     """
-    Return a default mapper with (``free_space_window``, ``_ghosts``, ``_hit_margin``).
-
-    Without the beams' memory (``free_space_memory`` 0, the default since 2026-11-27 is 0.1):
-    this measures the evidence per square, as before; ``free_space_memory.py`` times the memory.
+    Return a default mapper with (``free_space_window``, ``_ghosts``, ``_hit_margin``,
+    ``_memory``): memory 0 (no beams' memory) measures the evidence per square alone.
     """
-    window, ghosts, margin = setting
+    window, ghosts, margin, cell = setting
     return IncrementalMapper(dataclasses.replace(
         IncrementalConfig(), free_space_window=window, free_space_ghosts=ghosts,
-        free_space_hit_margin=margin, free_space_memory=0.0))
+        free_space_hit_margin=margin, free_space_memory=cell))
 
 
 def memory_child(path: str, setting: tuple) -> None:
     """Map the log in this (fresh) process; print RSS and map bytes after 500 and all scans."""
-    scans, _ = log_scans(pathlib.Path(path))
+    scans = log_scans(pathlib.Path(path))[0]
     marks = {}
 
     def on_scan(i, mapper):
@@ -84,22 +84,24 @@ def main() -> int:
     ap.add_argument('--ghosts', type=int, default=0, help='free_space_ghosts when on')
     ap.add_argument('--hit-margin', type=float, default=0.0,
                     help='free_space_hit_margin when on')
+    ap.add_argument('--memory', type=float, default=0.0,
+                    help='free_space_memory (cell, m) when on; 0: none')
     ap.add_argument('--repeat', type=int, default=3)
-    ap.add_argument('--memory-child', nargs=4, metavar=('LOG', 'WINDOW', 'GHOSTS', 'MARGIN'),
-                    help=argparse.SUPPRESS)
+    ap.add_argument('--memory-child', nargs=5,
+                    metavar=('LOG', 'WINDOW', 'GHOSTS', 'MARGIN', 'CELL'), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.memory_child:
-        log, window, ghosts, margin = args.memory_child
-        memory_child(log, (int(window), int(ghosts), float(margin)))
+        log, window, ghosts, margin, cell = args.memory_child
+        memory_child(log, (int(window), int(ghosts), float(margin), float(cell)))
         return 0
     path = pathlib.Path(args.datasets) / 'radish' / f'{LOG}.log.gz'
     if not path.is_file():
         print(f'free_space_cost.py: error: {path} not found', file=sys.stderr)
         return 2
     meta = stamp('.venv/bin/python benchmarks/free_space_cost.py ' + ' '.join(sys.argv[1:]))
-    scans, points = log_scans(path)
+    scans, points, _ = log_scans(path)
     beam_points, origins = read_carmen(str(path)).beams()
-    windows = ((0, 0, 0.0), (args.window, args.ghosts, args.hit_margin))
+    windows = ((0, 0, 0.0, 0.0), (args.window, args.ghosts, args.hit_margin, args.memory))
     medians = {w: [] for w in windows}
     maps = {}
     for k in range(max(1, args.repeat)):
@@ -107,13 +109,14 @@ def main() -> int:
             mapper, times = run_mapper(scans, mapper_for(w))
             medians[w].append(float(np.median(times)))
             maps[w] = mapper.polylines().segments
-            print(f'run {k + 1}: window, ghosts, hit margin {w}: update median '
+            print(f'run {k + 1}: window, ghosts, hit margin, memory {w}: update median '
                   f'{medians[w][-1]:.2f} ms', file=sys.stderr, flush=True)
     rows = []
     for w in windows:
         m = map_metrics(points, maps[w])
         share = judge(maps[w], beam_points, origins).share
-        row = {'window': w[0], 'ghosts': w[1], 'hit_margin': w[2], 'run_medians_ms': medians[w],
+        row = {'window': w[0], 'ghosts': w[1], 'hit_margin': w[2], 'memory': w[3],
+               'run_medians_ms': medians[w],
                'median_ms': float(np.median(medians[w])), 'segments': int(len(maps[w])),
                'mean_cm': 100 * m['mean_distance'], 'coverage': 100 * m['coverage_0_10m'],
                'contradicted_share': share, **memory(path, w)}
@@ -125,13 +128,15 @@ def main() -> int:
                                                          indent=1) + '\n')
     lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
              f"`{meta['command']}`.", '',
-             '| free_space_window / _ghosts / _hit_margin | update median (ms), runs | segments '
+             '| free_space_window / _ghosts / _hit_margin / _memory | update median (ms), runs '
+             '| segments '
              '| mean (cm) | coverage (%) | contradicted (% of length) | RSS after 500 / all '
              'scans (MiB) | map after 500 / all (kB) |', '|---|---|---|---|---|---|---|---|']
     for r in rows:
         share = f"{100 * r['contradicted_share']:.1f}"
         lines.append(
-            f"| {r['window'] or '0 (default)'} / {r['ghosts']} / {r['hit_margin']:g} "
+            f"| {r['window'] or '0 (off)'} / {r['ghosts']} / {r['hit_margin']:g} / "
+            f"{r['memory']:g} "
             f"| {r['median_ms']:.2f} "
             f"({', '.join(f'{v:.2f}' for v in r['run_medians_ms'])}) | {r['segments']} | "
             f"{r['mean_cm']:.2f} | {r['coverage']:.1f} | {share} | "
