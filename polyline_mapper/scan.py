@@ -11,6 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+FULL_TURN = 2.0 * np.pi
+"""A scan's beams span at most this (radians), within half an increment; more is malformed."""
+
 
 def beam_angles(angle_min: float, angle_increment: float, count: int) -> np.ndarray:
     """Beam angles (rad) of a LaserScan-like description, shape (count,)."""
@@ -118,8 +121,9 @@ def check_scan(ranges, angle_min: float, angle_increment: float, range_min: floa
     Check a LaserScan's content and return it as arrays.
 
     ``intensities`` is the length of the intensities array (0 or the number of ranges).
-    Raises ScanError with cause ``empty_scan``, ``angle_increment``, ``intensities``,
-    ``range_limits`` or ``no_valid_ranges`` (every reading NaN, inf or out of range).
+    Raises ScanError with cause ``empty_scan``, ``angle_increment`` (not finite, zero, or
+    beams spanning more than a full turn), ``intensities``, ``range_limits`` or
+    ``no_valid_ranges`` (every reading NaN, inf or out of range).
     """
     r = np.asarray(ranges, dtype=np.float64).ravel()
     n = r.size
@@ -129,6 +133,12 @@ def check_scan(ranges, angle_min: float, angle_increment: float, range_min: floa
             angle_increment == 0 and n > 1):
         raise ScanError('angle_increment', f'scan of {n} beams has angle_min {angle_min} and '
                         f'angle_increment {angle_increment} (must be finite and non-zero)')
+    if abs(angle_increment) * (n - 1) > FULL_TURN + 0.5 * abs(angle_increment):
+        # (a full-circle laser spans 2 pi less one increment, or 2 pi with both ends kept;
+        # half an increment more is float32 rounding)
+        raise ScanError('angle_increment', f'scan of {n} beams at angle_increment '
+                        f'{angle_increment} spans {abs(angle_increment) * (n - 1):.3f} rad, '
+                        f'more than a full turn (the ranges do not fit the angles)')
     if intensities not in (0, n):
         raise ScanError('intensities', f'scan has {n} ranges but {intensities} intensities')
     if not (np.isfinite(range_min) and range_min >= 0 and not np.isnan(range_max)

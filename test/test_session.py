@@ -50,6 +50,10 @@ def causes(warned):
     ({'ranges': [np.inf, -np.inf, np.nan, 0.01, 50.0]}, 'no_valid_ranges'),
     ({'angle_increment': 0.0}, 'angle_increment'),
     ({'angle_min': np.nan}, 'angle_increment'),
+    # more beams than the angles hold: 5 beams of 2 rad span 8 rad, and so does a driver's
+    # ranges array longer than its angles (all of it drawn as circles around the robot before)
+    ({'angle_increment': 2.0}, 'angle_increment'),
+    ({'ranges': [3.0] * 2000, 'angle_increment': np.deg2rad(0.25)}, 'angle_increment'),
     ({'intensities': 4}, 'intensities'),
     ({'range_min': 5.0, 'range_max': 1.0}, 'range_limits'),
     ({'range_max': np.nan}, 'range_limits'),
@@ -68,6 +72,12 @@ def test_check_scan_gives_arrays():
     assert np.allclose(scan.angles, [-0.1, 0.0, 0.1]) and scan.ranges.dtype == np.float64
     assert scan.stamp == 12.5 and scan.frame_id == 'laser'
     assert check_scan([2.0], 0.3, 0.0, 0.1, 30.0).angles.tolist() == [0.3]   # one beam
+    # full circles: 2 pi less one increment (most 360-degree lasers), or 2 pi with both ends
+    for n in (1440, 1441):
+        full = check_scan(np.full(n, 2.0), -np.pi, 2 * np.pi / 1440, 0.1, 30.0)
+        assert np.isclose(full.angles[-1] - full.angles[0], 2 * np.pi * (n - 1) / 1440)
+    ccw = check_scan(np.full(1441, 2.0), np.pi, -2 * np.pi / 1440, 0.1, 30.0)   # clockwise
+    assert np.isclose(ccw.angles[-1], -np.pi)
 
 
 def test_warning_throttle_logs_each_cause_once_per_period_and_counts():
