@@ -11,6 +11,7 @@ TIMEOUT = 60.0
 BROKEN_YAML = 'polyline_mapper_node:\n  ros__parameters:\n    foo: [1, 2\n'
 NOT_ROS_LAYOUT = 'foo: 1\n'
 EMPTY_FRAME = 'polyline_mapper_node:\n  ros__parameters:\n    fixed_frame: ""\n'
+EMPTY_FRAME_ANY = '/**:\n  ros__parameters:\n    fixed_frame: ""\n'    # as the shipped files
 
 # argv after --ros-args ('{dir}' is a scratch folder) -> what the one line must say.
 CASES = [
@@ -21,6 +22,10 @@ CASES = [
     (['--params-file', '{dir}/layout.yaml'],
      ['layout.yaml: Cannot have a value before ros__parameters']),
     (['--params-file', '{dir}/empty_frame.yaml'],
+     ['fixed_frame must not be empty: it must be a frame name']),
+    # A file keyed /** reaches the node under a namespace too (one keyed by the node's name is
+    # ignored there): its empty fixed_frame is read, and refused.
+    (['-r', '__ns:=/robot1', '--params-file', '{dir}/empty_frame_any.yaml'],
      ['fixed_frame must not be empty: it must be a frame name']),
     (['-p', 'pose_source:='], ['pose_source must be one of tf, odom, scan, got an empty value']),
     (['-p', 'fixed_frame:='], ['fixed_frame must be a frame name']),
@@ -49,6 +54,7 @@ def outcomes(tmp_path_factory):
     (folder / 'binary.yaml').write_bytes(bytes(range(256)) * 4)
     (folder / 'layout.yaml').write_text(NOT_ROS_LAYOUT)
     (folder / 'empty_frame.yaml').write_text(EMPTY_FRAME)
+    (folder / 'empty_frame_any.yaml').write_text(EMPTY_FRAME_ANY)
     argvs = [[a.format(dir=folder) for a in argv] for argv, _ in CASES]
     return start_refusals(argvs, TIMEOUT)
 

@@ -47,9 +47,16 @@ def test_setup_installs_marker_package_xml_config_and_scripts_for_ros2_run():
     assert (REPO / 'resource' / 'polyline_mapper').is_file()
 
 
+def test_every_shipped_parameter_file_applies_under_any_namespace():
+    # Keyed /**: a file keyed by the node's name is silently ignored when the node runs under a
+    # namespace (-r __ns:=/robot1, a launch file's PushRosNamespace) or another name.
+    for path in sorted((REPO / 'config').glob('*.yaml')):
+        assert list(yaml.safe_load(path.read_text())) == ['/**'], path.name
+
+
 def test_config_yaml_lists_every_parameter_with_its_default():
     data = yaml.safe_load((REPO / 'config' / 'polyline_mapper.yaml').read_text())
-    params = data['polyline_mapper_node']['ros__parameters']['smemsf']
+    params = data['/**']['ros__parameters']['smemsf']
     defaults = SMEMSFConfig().to_dict()
     assert set(params) == set(defaults)
     for key, value in defaults.items():
@@ -70,7 +77,7 @@ def flatten(tree: dict, prefix: str = '') -> dict:
 
 def test_config_yaml_holds_every_node_parameter_with_its_default_and_type():
     data = yaml.safe_load((REPO / 'config' / 'polyline_mapper.yaml').read_text())
-    params = flatten(data['polyline_mapper_node']['ros__parameters'])
+    params = flatten(data['/**']['ros__parameters'])
     want = defaults()
     assert set(params) == set(want), set(params) ^ set(want)
     for key, value in want.items():
@@ -204,7 +211,7 @@ def test_the_no_free_space_preset_turns_only_the_evidence_off_and_loads_everywhe
     # node parameters of the declared types, the mapper's evidence off, every other value default.
     from polyline_mapper.config import load_fit_options, load_mapper_config
     path = REPO / 'config' / 'no_free_space.yaml'
-    params = flatten(yaml.safe_load(path.read_text())['polyline_mapper_node']['ros__parameters'])
+    params = flatten(yaml.safe_load(path.read_text())['/**']['ros__parameters'])
     want = defaults()
     assert set(params) <= set(want), set(params) - set(want)
     for key, value in params.items():
@@ -228,7 +235,7 @@ def test_the_free_space_preset_is_the_default_with_scan_matching_too():
     # preset sets it to 10 and every other evidence value as the defaults do.
     from polyline_mapper.config import load_mapper_config
     path = REPO / 'config' / 'free_space.yaml'
-    params = flatten(yaml.safe_load(path.read_text())['polyline_mapper_node']['ros__parameters'])
+    params = flatten(yaml.safe_load(path.read_text())['/**']['ros__parameters'])
     want = defaults()
     assert want['incremental.free_space_window'] == -1
     assert params.pop('incremental.free_space_window') == 10
