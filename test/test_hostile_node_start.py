@@ -32,6 +32,10 @@ CASES = [
     (['-p', 'smemsf.init:='], ['smemsf.init must be one of diagonals, single, random']),
     (['-p', 'map_output_path:='], ['map_output_path must not be empty']),
     (['-p', 'laser_x:='], ['laser_x:=: no value', 'float']),
+    # A double written without a point is an integer to ROS 2: rclpy's refusal, with the remedy.
+    (['-p', 'map_publish_period:=0'],
+     ["'map_publish_period'", "expecting type 'DOUBLE'", 'write 0.0, not 0']),
+    (['-p', 'initial_pose:=[1, 2, 0]'], ["expecting type 'DOUBLE_ARRAY'", 'write 0.0, not 0']),
     (['-p'], ['trailing -p flag']),
     (['--bogus'], ['unknown ROS argument(s): --bogus']),
     (['--log-level', 'nonsense'], ['log level']),

@@ -113,7 +113,10 @@ class PolylineMapperNode(Node):
                 self.declare_parameter(spec.name, spec.default, descriptor(spec))
             self.settings, self.config = settings_from(self._values())
         except (ParameterException, ValueError, TypeError) as exc:
-            raise ConfigError(' '.join(str(exc).split())) from None
+            text = ' '.join(str(exc).split())
+            if "type 'INTEGER" in text and "expecting type 'DOUBLE" in text:
+                text += ' (ROS 2 reads a number without a point as an integer: write 0.0, not 0)'
+            raise ConfigError(text) from None
         log = self.get_logger()
         self.warnings = WarningThrottle(log.warning, self.settings.warning_period)
         self.session = MappingSession(self.config, session_options(self.settings),
