@@ -2,11 +2,12 @@
 
 import os
 import sqlite3
+import sys
 
 from bag_helpers import drive_messages, room_drive, write_bag, write_ros1_bag
 import numpy as np
 from polyline_mapper.cli import main
-from polyline_mapper.formats.bag import BagError, BagReader
+from polyline_mapper.formats.bag import BagError, BagReader, BagWriter
 from polyline_mapper.formats.records import Odometry, Scan, Skipped, Transform
 import pytest
 
@@ -105,6 +106,21 @@ def assert_one_line_error(rc, err, *fragments):
     assert 'Traceback' not in err
     for f in fragments:
         assert f in lines[0], lines[0]
+
+
+def test_without_rosbags_a_bag_ends_with_one_line_saying_what_to_install(tmp_path, drive,
+                                                                         capsys, monkeypatch):
+    # rosbags has no rosdep key: a real ROS install may lack it (README). Reading or writing a
+    # bag then says so in one line, not an ImportError traceback.
+    bag = write_bag(tmp_path / 'good', drive_messages(drive), 'mcap')
+    for name in ('rosbags', 'rosbags.highlevel', 'rosbags.rosbag2'):
+        monkeypatch.setitem(sys.modules, name, None)        # import raises ImportError
+    out = tmp_path / 'm.json'
+    rc, err = run_cli(capsys, ['replay', bag, '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'needs the Python package rosbags', 'pip install rosbags')
+    assert not out.exists()
+    with pytest.raises(BagError, match='pip install rosbags'):     # convert's writer
+        BagWriter(str(tmp_path / 'new'))
 
 
 def test_damaged_and_empty_bags_end_with_one_line(tmp_path, drive, capsys):

@@ -42,6 +42,20 @@ class BagError(ValueError):
     """A bag that cannot be used, with a one-line reason."""
 
 
+ROSBAGS_MISSING = ('reading and writing bags needs the Python package rosbags, which is not '
+                   'installed (it has no rosdep key): pip install rosbags')
+"""The one line when ``rosbags`` does not import (a ROS install without it, see the README)."""
+
+
+def _need_rosbags() -> None:
+    """Raise BagError with ``ROSBAGS_MISSING`` when ``rosbags`` does not import."""
+    try:
+        import rosbags.highlevel  # noqa: F401
+        import rosbags.rosbag2  # noqa: F401
+    except ImportError:
+        raise BagError(ROSBAGS_MISSING) from None
+
+
 def is_bag(path) -> bool:
     """Return whether ``path`` looks like a bag: a rosbag2 folder or a .db3/.mcap/.bag file."""
     p = pathlib.Path(path)
@@ -130,6 +144,7 @@ class BagReader:
 
     def open_bag(self) -> None:
         """Open the bag and choose the topics; BagError when that fails."""
+        _need_rosbags()
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import get_typestore, Stores
         p = pathlib.Path(self.path)
@@ -335,6 +350,7 @@ class BagWriter:
     """
 
     def __init__(self, path: str, storage: str = 'sqlite3'):
+        _need_rosbags()
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import get_typestore, Stores
         plugins = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
