@@ -6,8 +6,9 @@ Launch polyline_mapper_node with the installed parameter file.
         scan_topic:=/base_scan use_sim_time:=true
     ros2 launch polyline_mapper polyline_mapper.launch.py pose_source:=odom scan_matching:=true
 
-The parameter file is keyed by node name (polyline_mapper_node); copy the installed one
+The parameter file is keyed /** (it applies under any namespace); copy the installed one
 (share/polyline_mapper/config/polyline_mapper.yaml) to change the frames, the mount or the fit.
+``use_sim_time`` is the launch argument's (default false), over any value in the file.
 ``pose_source`` and ``scan_matching`` left empty (the default) keep the parameter file's values;
 given, they override it: ``scan_matching:=true`` for a robot with only odometry (the node then
 broadcasts map -> odom), ``pose_source:=scan`` for scans alone.
