@@ -107,6 +107,61 @@ def test_export_and_plot_errors_are_one_line(fitted, tmp_path, capsys):
     assert not list(tmp_path.glob('x.*'))
 
 
+def _edited(src, tmp_path, edit):
+    """Write the map at ``src`` changed by ``edit`` (a function of its JSON dict); its path."""
+    data = json.loads(src.read_text())
+    edit(data)
+    path = tmp_path / 'edited.json'
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _move_vertex(data):
+    data['polylines'][0][1][0] += 0.05              # a vertex 5 cm off its segments' ends
+
+
+def _drop_polyline(data):
+    del data['polylines'][-1], data['closed'][-1]
+
+
+@pytest.mark.parametrize('edit, words', [
+    (_move_vertex, r'"polylines" disagree with "segments": segment \d+ \(.*\) is no polyline '
+                   r'edge \(within 1 mm\)'),
+    (_drop_polyline, r'"polylines" disagree with "segments": \d+ polyline edges for \d+ '
+                     r'segments'),
+])
+def test_a_map_whose_polylines_disagree_with_its_segments_is_refused(fitted, tmp_path, capsys,
+                                                                     edit, words):
+    # GeoJSON and SVG draw the polylines, CSV and the planner grid the segments: a hand-edited
+    # map exported to GeoJSON and to CSV showed two different maps, with exit 0.
+    _, src, _ = fitted
+    bad = _edited(src, tmp_path, edit)
+    with pytest.raises(ValueError, match=f'^{re.escape(str(bad))}: {words}'):
+        read_map(str(bad))
+    for fmt in ('geojson', 'svg', 'csv', 'yaml'):
+        assert main(['export', str(bad), '-o', str(tmp_path / f'x.{fmt}')]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and re.match(f'polyline-mapper: error: {re.escape(str(bad))}: '
+                                          f'{words}', err[0]), err
+    assert not list(tmp_path.glob('x.*'))
+
+
+def test_polylines_in_another_order_direction_and_rounding_still_read(fitted, tmp_path):
+    # Only the geometry must agree: polylines listed backwards, each walked the other way
+    # (a closed one from another vertex) and rounded to the millimetre read as the same map.
+    _, src, data = fitted
+
+    def shuffle(d):
+        polys = [np.round(np.array(p)[::-1], 3) for p in d['polylines']]
+        polys = [np.roll(p, 1, axis=0) if c else p for p, c in zip(polys, d['closed'])]
+        d['polylines'] = [p.tolist() for p in polys[::-1]]
+        d['closed'] = d['closed'][::-1]
+
+    back = read_map(str(_edited(src, tmp_path, shuffle)))
+    np.testing.assert_array_equal(back.value.segments, data.value.segments)
+    assert back['closed'] == data['closed'][::-1]
+
+
 def test_plot_map_alone_and_over_points(fitted, tmp_path, capsys):
     folder, src, data = fitted
     alone, over = tmp_path / 'alone.png', tmp_path / 'over.png'

@@ -225,18 +225,21 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
 
     The format comes from ``fmt`` or the file suffix; the PGM goes beside the YAML, same name.
 
-    ``data``: a map checked by ``read_map`` (finite coordinates). Written through
-    ``formats.output`` (never over one of ``inputs``, a device or a folder; a failure leaves
-    nothing behind). ``resolution``: the YAML + PGM pair's cell size (m) for a map without a
-    stored grid (``planner_grid``). Returns the format. Raises ValueError on an unknown format
-    or a refused output.
+    ``data``: a map checked by ``read_map`` (finite coordinates, polylines that agree with the
+    segments; checked again here). Written through ``formats.output`` (never over one of
+    ``inputs``, a device or a folder; a failure leaves nothing behind). ``resolution``: the
+    YAML + PGM pair's cell size (m) for a map without a stored grid (``planner_grid``). Returns
+    the format. Raises ValueError on an unknown format, a map that fails the checks or a
+    refused output.
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
     fmt = 'yaml' if fmt == 'yml' else fmt
     if fmt not in FORMATS:
         raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg, '
                          '.csv or .yaml, or --format)')
-    map_value_from_dict(data)          # finite, sane coordinates: no NaN / Infinity written
+    # finite, sane coordinates (no NaN / Infinity written); polylines whose edges are the
+    # segments (GeoJSON and SVG draw the one, CSV and the grid the other: the same map)
+    map_value_from_dict(data)
     if fmt == 'yaml':
         pgm = os.path.splitext(path)[0] + '.pgm'
         if os.path.splitext(path)[1].lower() == '.pgm':

@@ -16,8 +16,9 @@ ignore it; ``read_map`` checks it and returns it as ``MapFile.grid``.
 
 ``write_map`` writes a ``core.mapvalue.MapValue`` through ``formats.output`` (never over an
 input, a device or a folder; all or nothing). ``read_map`` checks a file completely (size,
-nesting, types, shapes, finite and sane coordinates, segments and support of equal length) and
-raises ValueError with one line naming what is wrong.
+nesting, types, shapes, finite and sane coordinates, segments and support of equal length,
+polylines whose edges are the segments) and raises ValueError with one line naming what is
+wrong.
 """
 
 import json
@@ -26,6 +27,7 @@ import os
 from typing import Iterable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .output import OutputError, OutputSet, write_text_atomic
 from .points import MAX_COORDINATE
@@ -39,10 +41,15 @@ MAX_GRID_RUNS = 3 * 2 ** 20
 """Largest run-length grid stored in a map file (about 30 MB of text; fr079 at 5 cm has 19k
 runs, the Freiburg campus 2M). A larger grid is left out (``stats['grid_omitted']`` says so),
 so the file stays readable."""
+EDGE_TOLERANCE = 1e-3
+"""How far (m, per coordinate) a polyline edge's ends may lie from its segment's ends. The
+writer rounds both from the same numbers, so a map it wrote agrees exactly; 1 mm lets a file
+rounded by another tool pass, far below what a drawing or a planner grid could show."""
 
 __all__ = ['SCHEMA_VERSION', 'MapFile', 'map_value_to_dict', 'map_to_dict', 'dumps_map',
            'write_map', 'write_json_atomic', 'write_text_atomic', 'read_map', 'OutputError',
-           'OutputSet', 'json_safe', 'map_value_from_dict', 'grid_to_dict', 'grid_from_dict']
+           'OutputSet', 'json_safe', 'map_value_from_dict', 'grid_to_dict', 'grid_from_dict',
+           'check_edges', 'EDGE_TOLERANCE']
 
 
 def json_safe(value):
@@ -265,7 +272,8 @@ def read_map(path) -> MapFile:
     too deeply nested, NaN / Infinity, a missing key, a field of the wrong type or shape, a bad
     ``grid`` entry (resolution, size, origin, run-length cells that do not add up),
     non-finite or absurd coordinates (beyond +-1e8 m), segments and support of different
-    lengths, polylines and closed flags of different lengths.
+    lengths, polylines and closed flags of different lengths, polylines that disagree with the
+    segments (``check_edges``).
     """
     path = os.fspath(path)
     data = _parse(path)
@@ -350,8 +358,66 @@ def map_value_from_dict(data) -> MapValue:
         trajectory = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
         if not np.isfinite(trajectory).all():
             raise ValueError('"trajectory" has non-finite numbers')
+    check_edges(segs, polylines, closed)
     return MapValue(segs.reshape(-1, 2, 2), sup, polylines, list(closed), data['frame_id'],
                     stamp, stats, trajectory)
+
+
+def _edges(polylines: list, closed: list) -> np.ndarray:
+    """Return the edges of polylines as (E, 4) rows x1, y1, x2, y2, closing edges included."""
+    rows = [np.hstack([v[:-1], v[1:]]) for v in polylines]
+    rows += [np.hstack([v[-1], v[0]])[None] for v, shut in zip(polylines, closed) if shut]
+    return np.concatenate(rows) if rows else np.zeros((0, 4))
+
+
+def check_edges(segments, polylines: list, closed: list) -> None:
+    """
+    Check that the polylines' edges are the segments, one edge each, in any order or direction.
+
+    The mapper chains its segments into the polylines (``core.polylines``): an open polyline of
+    M vertices holds M - 1 of them, a closed one M (its last vertex joined to its first). A file
+    whose two disagree would show one map in the GeoJSON and SVG exports (polylines) and another
+    in the CSV and planner exports (segments). Ends may differ by ``EDGE_TOLERANCE`` per
+    coordinate. Raises ValueError (one line) naming the first segment that is no edge.
+
+    >>> check_edges([[1, 0, 0, 0], [1, 0, 1, 1]], [np.array([[0, 0], [1, 0], [1, 1]])], [False])
+    >>> check_edges([[0, 0, 1, 0]], [np.array([[0, 0], [1, 0], [1, 1]])], [False])
+    Traceback (most recent call last):
+    ValueError: "polylines" disagree with "segments": 2 polyline edges for 1 segments ...
+    """
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    polylines = [np.asarray(v, dtype=np.float64).reshape(-1, 2) for v in polylines]
+    edges = _edges(polylines, closed)
+    if len(edges) != len(segs):
+        raise ValueError(f'"polylines" disagree with "segments": {len(edges)} polyline edges '
+                         f'for {len(segs)} segments (each segment must be one polyline edge)')
+    if not len(segs):
+        return
+    n = len(edges)
+    both = np.vstack([edges, edges[:, [2, 3, 0, 1]]])     # either direction
+    tree = cKDTree(both)
+    dist, idx = tree.query(segs, p=np.inf, distance_upper_bound=EDGE_TOLERANCE)
+    found = np.isfinite(dist)
+    edge = np.where(found, idx % n, -1)
+    owner = np.full(n, -1, dtype=np.intp)                # the segment each edge is
+    ks = np.flatnonzero(found)
+    nearest, first = np.unique(edge[ks], return_index=True)
+    owner[nearest] = ks[first]
+    # An edge nearest to several segments (a segment repeated in the file) is the first one's;
+    # the others take the nearest edge left within reach, if any.
+    for k in ks[owner[edge[ks]] != ks]:
+        near = np.asarray(tree.query_ball_point(segs[k], EDGE_TOLERANCE, p=np.inf), np.intp)
+        near = near[owner[near % n] < 0]
+        if len(near):
+            owner[near[np.argmin(np.abs(both[near] - segs[k]).max(axis=1))] % n] = k
+        else:
+            found[k] = False
+    if not found.all():
+        k = int(np.argmin(found))
+        x1, y1, x2, y2 = segs[k]
+        raise ValueError(f'"polylines" disagree with "segments": segment {k} '
+                         f'({x1:g}, {y1:g})-({x2:g}, {y2:g}) is no polyline edge (within '
+                         f'{EDGE_TOLERANCE * 1000:g} mm)')
 
 
 def config_dict(config) -> dict:
