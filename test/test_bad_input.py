@@ -128,6 +128,31 @@ def test_a_csv_with_a_byte_order_mark_keeps_its_first_point(tmp_path):
         assert np.array_equal(read_points(path), [[0, 0], [1, 0], [2, 0.01], [3, 0]]), path
 
 
+@pytest.mark.parametrize('name, content, words', [
+    # the bad value on line 5 of the file: after a header, a comment and an empty line
+    ('header.csv', b'x,y\n0,0\n# a comment\n\n1,abc\n2,0\n',
+     "line 5, column 2: 'abc' is not a number"),
+    ('bom_crlf.csv', b'\xef\xbb\xbfx,y\r\n0,0\r\n1,1\r\n2,1_0\r\n',
+     "line 4, column 2: '1_0' is not a number"),
+    ('plain.csv', b'0,0\n1,1\nthree,3\n', "line 3, column 1: 'three' is not a number"),
+    ('comment.txt', b'# x y\n0 0\n1 1 # fine\n\n2 oops\n',
+     "line 5, column 2: 'oops' is not a number"),
+    ('columns.csv', b'x,y\n0,0\n1,1\n2,2,2\n', 'line 4 has 3 column(s) where line 2 has 2'),
+    ('short.csv', b'# scan 1\n0,0\n1\n', 'line 3 has 1 column(s) where line 2 has 2'),
+])
+def test_a_bad_point_file_line_is_named_as_an_editor_counts(tmp_path, capsys, name, content,
+                                                            words):
+    # np.loadtxt names the row among the rows it read, from 0 (from 1 for a changed number
+    # of columns), blind to the header and comments: 'abc' on line 5 was "row 1".
+    from polyline_mapper.formats.points import read_points
+    path = write(tmp_path, name, content, mode='wb')
+    with pytest.raises(ValueError) as exc:
+        read_points(path)
+    assert str(exc.value) == f'{path}: unreadable point file ({words})'
+    code, err, out, _ = run_cli([path], tmp_path, capsys)
+    assert code == 2 and err == f'polyline-mapper: error: {exc.value}' and not out.exists()
+
+
 def test_an_output_named_as_another_format_is_refused(tmp_path, capsys):
     # fit -o map.png wrote JSON into map.png, plot -o map.svg a PNG; a name that says no
     # format (map.out, map) is taken as given.

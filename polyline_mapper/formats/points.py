@@ -57,19 +57,72 @@ def _npy_header(path: str) -> None:
                          f'{dtype}) but the file holds {size - offset:,} bytes of data')
 
 
+def _is_number(text: str) -> bool:
+    """Return whether ``np.loadtxt`` reads ``text`` as a float (Python's float() takes more)."""
+    text = text.strip()
+    if not text.isascii() or '_' in text:        # '1_000', Arabic-Indic digits: loadtxt refuses
+        return False
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _rows(path: str, skip: int, delim):
+    """
+    Yield ``(line number, fields)`` for each row ``np.loadtxt`` reads from a text point file.
+
+    Line numbers count from 1 as a text editor shows them, the skipped header and comment or
+    empty lines included. A row is a line after its ``#`` comment is cut off, unless nothing is
+    left (with ``delim`` None: nothing but whitespace); fields are split as loadtxt does.
+    """
+    with open(path, 'r', encoding='utf-8-sig') as fh:
+        for number, line in enumerate(fh, start=1):
+            if number <= skip:
+                continue
+            text = line.split('#', 1)[0].rstrip('\r\n')
+            fields = text.split(delim) if delim else text.split()
+            if (text if delim else fields):
+                yield number, fields
+
+
+def _bad_line(path: str, skip: int, delim):
+    """
+    Return ``'line N...: what is wrong'`` for the first row ``np.loadtxt`` refuses, or None.
+
+    loadtxt names the row among the rows it read, counting from 0 for a value that is no
+    number and from 1 for a changed number of columns, blind to the header and comment
+    lines; a user counts the file's lines from 1.
+    """
+    first = None
+    for number, fields in _rows(path, skip, delim):
+        if first is None:
+            first = number, len(fields)
+        elif len(fields) != first[1]:
+            return (f'line {number} has {len(fields)} column(s) where line {first[0]} has '
+                    f'{first[1]}')
+        for column, text in enumerate(fields, start=1):
+            if not _is_number(text):
+                return f'line {number}, column {column}: {text.strip()[:40]!r} is not a number'
+    return None
+
+
 def read_points(path: str) -> np.ndarray:
     """
     Read an (N, 2) point file; raise ValueError with the reason when it cannot be used.
 
     .npy: a float array of shape (N, 2). .csv: comma-separated, an optional header line.
     .txt / other: whitespace-separated. Lines starting with # are comments. Coordinates must be
-    finite and within +-MAX_COORDINATE metres.
+    finite and within +-MAX_COORDINATE metres. A value that is no number, or a line with another
+    number of columns, is named by its line in the file (from 1, as an editor counts).
     """
     if not os.path.isfile(path):
         raise ValueError(f'{path}: no such file')
     ext = os.path.splitext(path)[1].lower()
     if os.path.getsize(path) == 0:
         raise ValueError(f'{path}: empty file, no points')
+    skip, delim = 0, None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')        # "input contained no data": handled below
@@ -82,7 +135,6 @@ def read_points(path: str) -> np.ndarray:
                 # first value, which would make the first line a "header" and drop its point
                 with open(path, 'r', encoding='utf-8-sig') as fh:
                     first = fh.readline(4096)
-                skip = 0
                 if first.strip() and not first.lstrip().startswith('#'):
                     try:
                         [float(v) for v in first.replace(',', ' ').split()]
@@ -92,6 +144,11 @@ def read_points(path: str) -> np.ndarray:
                                  encoding='utf-8-sig')
     except (OSError, ValueError, EOFError, UnicodeDecodeError, MemoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
+        if ext != '.npy' and isinstance(exc, ValueError):
+            try:
+                msg = _bad_line(path, skip, delim) or msg
+            except (OSError, ValueError):
+                pass                                # loadtxt's own words, then
         raise ValueError(f'{path}: unreadable point file ({msg})') from None
     if arr.size == 0:
         raise ValueError(f'{path}: no points (only a header or comments)')
