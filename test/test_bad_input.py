@@ -153,6 +153,21 @@ def test_a_bad_point_file_line_is_named_as_an_editor_counts(tmp_path, capsys, na
     assert code == 2 and err == f'polyline-mapper: error: {exc.value}' and not out.exists()
 
 
+@pytest.mark.parametrize('name, content, words', [
+    ('nan.csv', b'x,y\n0,0\n# a comment\n\n1,nan\n2,inf\n',
+     '2 point(s) NaN, inf or beyond +-1e+08 m; the first on line 5: (1, nan) is NaN or inf'),
+    ('far.txt', b'0 0\n1 1\n2 3e9\n', 'the first on line 3: (2, 3e+09) is beyond +-1e+08 m'),
+])
+def test_a_point_not_finite_or_too_far_is_named_by_its_file_line(tmp_path, name, content,
+                                                                  words):
+    # (it was "first at row 1": the row among those numpy read, counted from 0)
+    from polyline_mapper.formats.points import read_points
+    path = write(tmp_path, name, content, mode='wb')
+    with pytest.raises(ValueError) as exc:
+        read_points(path)
+    assert str(exc.value).startswith(f'{path}: ') and words in str(exc.value), exc.value
+
+
 def test_an_output_named_as_another_format_is_refused(tmp_path, capsys):
     # fit -o map.png wrote JSON into map.png, plot -o map.svg a PNG; a name that says no
     # format (map.out, map) is taken as given.

@@ -423,7 +423,7 @@ BAD_POINT_FILES = {
     'csv of +-1e308': ('big.csv', 'x,y\n1e308,1e308\n-1e308,-1e308\n1e308,-1e308\n',
                        'beyond +-1e+08 m'),
     'header-only csv': ('head.csv', 'x,y\n', 'no points'),
-    'csv of 1e9 m': ('far.csv', '0,0\n1,0\n2,0\n1e9,0\n', 'row 3: (1e+09, 0)'),
+    'csv of 1e9 m': ('far.csv', '0,0\n1,0\n2,0\n1e9,0\n', 'the first on line 4: (1e+09, 0)'),
     'npy header cut in a string': (   # tokenize.TokenError escaped as a 55-line traceback
         'cut.npy', b"\x93NUMPY\x01\x00\x2a\x00{'descr': '<f8', 'shape': (2, 2), '''}" + b' ' * 3
         + b'\n' + bytes(32), "not a valid .npy file (('EOF in multi-line string'"),

@@ -152,4 +152,27 @@ def read_points(path: str) -> np.ndarray:
         raise ValueError(f'{path}: unreadable point file ({msg})') from None
     if arr.size == 0:
         raise ValueError(f'{path}: no points (only a header or comments)')
+    if ext != '.npy' and arr.ndim == 2 and arr.shape[1] == 2:
+        _check_lines(path, arr, skip, delim)
     return check_coordinates(as_points(arr, name=f'{path}: points'), path)
+
+
+def _check_lines(path: str, arr: np.ndarray, skip: int, delim) -> None:
+    """
+    Raise ValueError naming the file line of the first point not finite or beyond the limit.
+
+    ``arr``: the (N, 2) rows ``np.loadtxt`` read from a text point file (``_rows``' order);
+    the row index alone would not be the line a user finds in an editor.
+    """
+    with np.errstate(invalid='ignore'):
+        bad = ~np.isfinite(arr).all(axis=1) | (np.abs(arr) > MAX_COORDINATE).any(axis=1)
+    if not bad.any():
+        return
+    i = int(np.argmax(bad))
+    line = next((n for k, (n, _) in enumerate(_rows(path, skip, delim)) if k == i), None)
+    where = f'line {line}' if line is not None else f'row {i}'
+    what = ('NaN or inf' if not np.isfinite(arr[i]).all()
+            else f'beyond +-{MAX_COORDINATE:g} m (coordinates must be metres)')
+    raise ValueError(f'{path}: {int(bad.sum())} point(s) NaN, inf or beyond '
+                     f'+-{MAX_COORDINATE:g} m; the first on {where}: '
+                     f'({arr[i, 0]:g}, {arr[i, 1]:g}) is {what}')
