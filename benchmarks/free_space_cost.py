@@ -44,8 +44,10 @@ LOG = 'freiburg-079-corrected'
 
 def mapper_for(setting: tuple) -> IncrementalMapper:
     """
-    Return a default mapper with (``free_space_window``, ``_ghosts``, ``_hit_margin``,
-    ``_memory``): memory 0 (no beams' memory) measures the evidence per square alone.
+    Return a default mapper with the evidence set as ``setting`` says.
+
+    ``setting``: (``free_space_window``, ``_ghosts``, ``_hit_margin``, ``_memory``); memory 0
+    (no beams' memory) measures the evidence per square alone.
     """
     window, ghosts, margin, cell = setting
     return IncrementalMapper(dataclasses.replace(

@@ -159,7 +159,7 @@ def test_a_bad_point_file_line_is_named_as_an_editor_counts(tmp_path, capsys, na
     ('far.txt', b'0 0\n1 1\n2 3e9\n', 'the first on line 3: (2, 3e+09) is beyond +-1e+08 m'),
 ])
 def test_a_point_not_finite_or_too_far_is_named_by_its_file_line(tmp_path, name, content,
-                                                                  words):
+                                                                 words):
     # (it was "first at row 1": the row among those numpy read, counted from 0)
     from polyline_mapper.formats.points import read_points
     path = write(tmp_path, name, content, mode='wb')
