@@ -85,6 +85,11 @@ class BeamMemory:
             self._decayed = (np.arange(1 << 16, dtype=np.uint16).view(np.float16)
                              * (1.0 - 1.0 / self.window)).astype(np.float64)
         self.cap = float(cap)
+        # ... and the float16 each becomes when a look adds nothing to it (``_store``), as a
+        # bit pattern: the same arithmetic (+ 0.0, cap, cast) done once for all patterns.
+        with np.errstate(invalid='ignore'):
+            self._decayed16 = np.minimum(self._decayed + 0.0, self.cap).astype(
+                np.float16).view(np.uint16)
         self.max_cells = int(max_cells)
         self._keys = np.zeros(0, dtype=np.int64)      # chunk keys, sorted
         self._slot = np.zeros(0, dtype=np.intp)       # the pool row of each sorted key
@@ -261,6 +266,11 @@ class BeamMemory:
         Beam i is sampled ``n[i]`` times, every cell length from its origin (at half-cells);
         a block holds about ``SAMPLES`` samples (whole beams).
         """
+        for col, row, beam in self._sample_axes(origin, rel, rng, n):
+            yield np.stack([col, row], axis=1), beam
+
+    def _sample_axes(self, origin, rel, rng, n):
+        """Yield ``_samples``' blocks with the cell columns and rows apart: (col, row, beam)."""
         step = self.cell
         cut = np.searchsorted(np.cumsum(n), np.arange(1, int(n.sum()) // SAMPLES + 1) * SAMPLES)
         for a, b in zip(np.r_[0, cut], np.r_[cut, len(n)]):
@@ -269,8 +279,11 @@ class BeamMemory:
                 continue
             beam = a + np.repeat(np.arange(b - a), n[a:b])
             k = np.arange(total) - np.repeat(np.cumsum(n[a:b]) - n[a:b], n[a:b])
-            t = (k + 0.5) * step / np.maximum(rng[beam], 1e-12)
-            yield np.floor((origin + t[:, None] * rel[beam]) / step).astype(np.int64), beam
+            t = (k + 0.5) * step / np.maximum(rng.take(beam), 1e-12)
+            # floor((origin + t x rel) / step) per axis: the same arithmetic as on (S, 2) rows
+            yield (np.floor((origin[0] + t * rel[:, 0].take(beam)) / step).astype(np.int64),
+                   np.floor((origin[1] + t * rel[:, 1].take(beam)) / step).astype(np.int64),
+                   beam)
 
     def _add_dense(self, origin, rel, rng, n, bins, end_cells, lo, size):
         """``add`` for a scan whose cells fit a small box: counted there, then stored once."""
@@ -279,9 +292,9 @@ class BeamMemory:
         # the cells touched from the samples' cells, not from a pass over the whole box.
         local = [(end_cells[:, 0] - lo[0]) * size[1] + (end_cells[:, 1] - lo[1])]
         keys = [local[0] * chans]
-        for cells, beam in self._samples(origin, rel, rng, n):
-            local.append((cells[:, 0] - lo[0]) * size[1] + (cells[:, 1] - lo[1]))
-            keys.append(local[-1] * chans + 1 + bins[beam])
+        for col, row, beam in self._sample_axes(origin, rel, rng, n):
+            local.append((col - lo[0]) * size[1] + (row - lo[1]))
+            keys.append(local[-1] * chans + 1 + bins.take(beam))
         n_cells = int(size[0]) * int(size[1])
         box = np.bincount(np.concatenate(keys), minlength=n_cells * chans).reshape(-1, chans)
         hit = np.flatnonzero(np.bincount(np.concatenate(local), minlength=n_cells))
@@ -296,5 +309,10 @@ class BeamMemory:
 
     def _store(self, rows: np.ndarray, add: np.ndarray) -> None:
         """Decay the counts of pool ``rows`` (distinct) by one look, add ``add``, cap, store."""
-        counts = self._decayed.take(self._pool[rows].view(np.uint16)) + add
-        self._pool[rows] = np.minimum(counts, self.cap)
+        old = self._pool[rows].view(np.uint16)
+        new = self._decayed16.take(old)               # what adds nothing: looked up
+        hot = np.flatnonzero(add.ravel())
+        if hot.size:
+            counts = self._decayed.take(old.ravel().take(hot)) + add.ravel().take(hot)
+            new.ravel()[hot] = np.minimum(counts, self.cap).astype(np.float16).view(np.uint16)
+        self._pool[rows] = new.view(np.float16)
