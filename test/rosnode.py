@@ -11,7 +11,26 @@ import time
 from conftest import ALONE
 import numpy as np
 
-NODE_EXE = pathlib.Path(sys.executable).parent / 'polyline_mapper_node'
+
+def node_executable() -> pathlib.Path:
+    """
+    Return the node's executable: beside this Python (the venv), else where ``ros2 run`` looks.
+
+    In a colcon workspace (``colcon test`` on a ROS install) the node is installed as
+    ``<prefix>/lib/polyline_mapper/polyline_mapper_node`` of a prefix on AMENT_PREFIX_PATH, and
+    Python is the system's.
+    """
+    venv = pathlib.Path(sys.executable).parent / 'polyline_mapper_node'
+    if venv.is_file():
+        return venv
+    for prefix in filter(None, os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)):
+        exe = pathlib.Path(prefix) / 'lib' / 'polyline_mapper' / 'polyline_mapper_node'
+        if exe.is_file():
+            return exe
+    return venv                          # (missing: starting it names the path)
+
+
+NODE_EXE = node_executable()
 NODE = '/polyline_mapper_node'
 
 

@@ -1,5 +1,6 @@
 """Packaging: package.xml dependencies, install layout, config file in step with the code."""
 
+import os
 import re
 import xml.etree.ElementTree as ET
 
@@ -245,3 +246,16 @@ def test_the_free_space_preset_is_the_default_with_scan_matching_too():
     assert preset == IncrementalConfig(free_space_window=10)
     assert preset == IncrementalConfig().resolved() == preset.resolved(scan_matching=True)
     assert IncrementalConfig().resolved(scan_matching=True).free_space_window == 0
+
+
+def test_the_node_tests_find_the_node_in_a_colcon_install(tmp_path, monkeypatch):
+    # `colcon test` on a ROS install runs the system Python; the node is then under a prefix on
+    # AMENT_PREFIX_PATH, where `ros2 run` finds it, not beside Python.
+    import rosnode
+    exe = tmp_path / 'install' / 'polyline_mapper' / 'lib' / 'polyline_mapper'
+    exe.mkdir(parents=True)
+    (exe / 'polyline_mapper_node').write_text('#!/bin/sh\n')
+    monkeypatch.setattr(rosnode.sys, 'executable', str(tmp_path / 'usr' / 'bin' / 'python3'))
+    monkeypatch.setenv('AMENT_PREFIX_PATH', os.pathsep.join(
+        [str(tmp_path / 'install' / 'polyline_mapper_msgs'), str(exe.parents[1])]))
+    assert rosnode.node_executable() == exe / 'polyline_mapper_node'
