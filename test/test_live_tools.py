@@ -279,3 +279,33 @@ def test_live_demo_maps_the_office_and_reports_node_update_times(tmp_path, capsy
     assert f"{st['segments']} segments from 355 of 355 scans" in line, line
     assert 'node update median' in line and png.stat().st_size > 10_000
     assert took < 60, took      # 355 scans at 2x: about 18 s of drive
+
+
+def test_record_map_refuses_a_map_that_disagrees_with_itself():
+    # A publisher other than the node may send polylines of another map than its segments:
+    # saved, read_map (and so export, plot, replay --map) would refuse the file later.
+    from builtin_interfaces.msg import Time
+    from polyline_mapper.core.mapvalue import MapValue
+    from polyline_mapper.ros.messages import map_to_msg
+    from polyline_mapper.ros.recorder import MapRecorder
+
+    class Node:                              # what MapRecorder asks of an rclpy node
+        def resolve_topic_name(self, topic):
+            return '/' + topic
+
+        def create_subscription(self, *args):
+            return None
+
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0]])
+    good = MapValue(np.stack([square[:-1], square[1:]], axis=1), np.array([10.0, 12.0]),
+                    [square], [False], 'map', 5.0, {})
+    recorder = MapRecorder(Node())
+    recorder._on_map(map_to_msg(good, 'map', Time(sec=5)))
+    saved = recorder.to_value()
+    assert np.allclose(saved.segments, good.segments) and saved.stats['segments'] == 2
+    other = MapValue(good.segments, good.support, [square + [0.0, 0.5]], [False], 'map', 6.0,
+                     {})
+    recorder._on_map(map_to_msg(other, 'map', Time(sec=6)))
+    with pytest.raises(ValueError, match='the map on /polyline_map: "polylines" disagree with '
+                                         '"segments": segment 0 .* not saved'):
+        recorder.to_value()

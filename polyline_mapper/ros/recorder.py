@@ -6,7 +6,8 @@ local), so the current map arrives at once, and keeps the newest. It stops after
 (``once``), after ``idle`` seconds without a new map, when ``should_stop()`` says so (the
 command line sets that from SIGINT / SIGTERM, see ``ros.player.stop_on_signals``) or on
 KeyboardInterrupt, and returns the newest as a ``MapValue``. No map within ``timeout`` seconds,
-or a stop before any map, is an error (ValueError, one line).
+a stop before any map, or a map whose polylines disagree with its segments (``read_map`` would
+refuse the file) is an error (ValueError, one line).
 """
 
 import math
@@ -19,7 +20,7 @@ from . import startup
 from .messages import map_from_msg
 from .qos import MAP_QOS
 from ..core.mapvalue import MapValue
-from ..formats.mapjson import map_value_to_dict
+from ..formats.mapjson import check_edges, map_value_to_dict
 
 
 class MapRecorder:
@@ -51,6 +52,11 @@ class MapRecorder:
         if self.latest is None:
             raise ValueError(f'no map received on {self.topic}')
         m = map_from_msg(self.latest)
+        try:            # (a publisher other than the node may send polylines of another map)
+            check_edges(m['segments'], m['polylines'], m['closed'])
+        except ValueError as exc:
+            raise ValueError(f'the map on {self.topic}: {exc}; not saved (a map file must '
+                             'agree with itself)') from None
         stats = {'segments': int(len(m['segments'])), 'polylines': len(m['polylines']),
                  'stamp': round(m['stamp'], 6), 'topic': self.topic,
                  'maps_received': self.count}
