@@ -1073,6 +1073,15 @@ class MappingSession:
             self.options.scan_matching = True
             self._loaded = (value, grid, pose)
             self._restart(pose)
+        self._seed_grid()
+
+    def _seed_grid(self) -> None:
+        """Start the traced free space from a loaded map's planner map (mapping into it)."""
+        if self.grid is None or self._loaded is None or self._loaded[1] is None:
+            return
+        with self._map_lock:
+            self.grid.reset()
+            self.grid.seed(self._loaded[1])
 
     def set_pose(self, pose, spread=(0.0, 0.0)) -> None:
         """
@@ -2011,4 +2020,5 @@ class MappingSession:
                 self.grid.reset()
                 self.grid_seconds.clear()
             self.stamp = None
+        self._seed_grid()
         return dropped

@@ -190,6 +190,50 @@ def test_mapping_on_a_saved_map_adds_the_walls_it_lacks(office):
     assert np.array_equal(runs[False].support, partial.support)
 
 
+def cells_at(grid, xy: np.ndarray) -> np.ndarray:
+    """Return the values of ``grid`` (a GridMap) at points ``xy`` (N, 2); -2 outside it."""
+    ij = np.floor((xy - np.asarray(grid.origin)) / grid.resolution).astype(np.int64)
+    inside = ((ij[:, 0] >= 0) & (ij[:, 0] < grid.width) & (ij[:, 1] >= 0)
+              & (ij[:, 1] < grid.height))
+    out = np.full(len(xy), -2, dtype=np.int64)
+    out[inside] = grid.data[ij[inside, 1], ij[inside, 0]]
+    return out
+
+
+def test_mapping_on_a_saved_map_keeps_its_planner_map(saved, office):
+    # Mapping into a saved map (map_input_path with mapping true; replay --map): the planner
+    # map starts from the saved one's free space and marks every wall of the map, also where
+    # the new scans have not traced yet (it had no free cell and lost most walls before).
+    _, path, _ = saved
+    loaded = read_map(path)
+    old = loaded.grid
+    rows, cols = np.indices(old.data.shape)
+    centres = np.asarray(old.origin) + (np.stack([cols.ravel(), rows.ravel()], axis=1) + 0.5) \
+        * old.resolution
+    was = old.data.ravel()
+    for scans in (0, 3, 20):
+        session = MappingSession(options=SessionOptions())
+        session.load_map(loaded.value, None, old)
+        for record in records_of(drifted_messages(office, 1), scans):
+            session.add(record)
+            session.step()
+        session.flush()
+        grid = session.occupancy()
+        now = cells_at(grid, centres)
+        if scans == 0:      # nothing mapped yet: the saved planner map, but for the cells
+            # where the mapper's chaining of the loaded segments moved a wall by a cell (36 of
+            # 163840: 18 walls, 12 free and 6 unknown cells)
+            assert (now[was == 0] == 0).mean() > 0.998 and (now[was == 100] == 100).mean() > 0.95
+            assert (now != was).mean() < 0.001, scans
+        # every saved free cell is known still (free, or a wall the new scans drew there) ...
+        assert np.isin(now[was == 0], (0, 100)).all(), scans
+        # ... and every wall of the current map is in the grid, occupied
+        ends = session.map_value().segments.reshape(-1, 2)
+        assert (cells_at(grid, ends) == 100).mean() > 0.95, scans
+    session.reset()                                      # back to the loaded map's planner map
+    assert (cells_at(session.occupancy(), centres) != was).mean() < 0.001
+
+
 def test_the_mapper_starts_from_a_loaded_map_at_its_noise_scale(office):
     seg = np.array([[[0.0, 0.0], [4.0, 0.0]], [[4.0, 0.0], [4.0, 3.0]]])
     mapper = IncrementalMapper()

@@ -269,19 +269,54 @@ class FreeSpaceGrid:
         return bool(self._free.size and (cells.min(axis=0) >= lo).all()
                     and (cells.max(axis=0) <= hi).all())
 
+    def seed(self, grid: GridMap) -> None:
+        """
+        Mark the free cells of a saved planner map free: the free space a loaded map was made with.
+
+        Each free cell's centre marks the cell it lies in (the same cell when the resolutions and
+        lattices agree; a resampling otherwise). Counts what does not fit in ``clipped``.
+        """
+        rows, cols = np.nonzero(np.asarray(grid.data) == FREE)
+        if not len(rows):
+            return
+        res = float(grid.resolution)
+        centres = np.asarray(grid.origin, dtype=np.float64) + (
+            np.stack([cols, rows], axis=1) + 0.5) * res
+        cells = np.floor(centres / self.resolution).astype(np.int64)
+        self._grow(cells.min(axis=0), cells.max(axis=0))
+        rel = cells - self._lo
+        h, w = self._free.shape
+        inside = (rel[:, 0] >= 0) & (rel[:, 0] < w) & (rel[:, 1] >= 0) & (rel[:, 1] < h)
+        self.clipped += int((~inside).sum())
+        self._free[rel[inside, 1], rel[inside, 0]] = 1
+
     def occupancy(self, segments) -> GridMap:
         """
         Return the trinary grid (a GridMap) of the traced free space and ``segments``.
 
         Occupied: the cells ``segments`` ((K, 2, 2) metres) cross, over the free cells traced;
-        unknown elsewhere. Covers the traced area (the segments' box while nothing is traced).
+        unknown elsewhere. Covers the traced area and the segments (a wall beyond what the beams
+        traced, as a loaded map's, is marked too), within ``max_cells``; the segments' box alone
+        while nothing is traced.
         """
         segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
         res = self.resolution
         if not self._free.size:
             return rasterise(segs, res)
-        data = np.where(self._free > 0, FREE, UNKNOWN).astype(np.int8)
-        grid = GridMap(data, res, tuple(float(v) for v in self._lo * res))
+        h, w = self._free.shape
+        lo, hi = self._lo, self._lo + np.array([w, h]) - 1
+        if len(segs):
+            ends = np.floor(segs.reshape(-1, 2) / res).astype(np.int64)
+            wide_lo = np.minimum(lo, ends.min(axis=0))
+            wide_hi = np.maximum(hi, ends.max(axis=0))
+            size = wide_hi - wide_lo + 1
+            if int(size[0]) * int(size[1]) <= self.max_cells:
+                lo, hi = wide_lo, wide_hi
+        size = hi - lo + 1
+        data = np.full((int(size[1]), int(size[0])), UNKNOWN, dtype=np.int8)
+        off = self._lo - lo
+        data[off[1]:off[1] + h, off[0]:off[0] + w][self._free > 0] = FREE
+        grid = GridMap(data, res, tuple(float(v) for v in lo * res))
         mark_segments(grid, segs)
         return grid
 
