@@ -44,7 +44,7 @@ def read_pgm(path) -> np.ndarray:
 
 def load_like_map_server(yaml_path):
     """Load the pair as nav2_map_server does (trinary); return (cells row 0 = lowest y, meta)."""
-    meta = yaml.safe_load(open(yaml_path))
+    meta = yaml.safe_load(open(yaml_path, encoding='utf-8'))
     image = meta['image']
     if not os.path.isabs(image):
         image = os.path.join(os.path.dirname(yaml_path), image)
@@ -178,3 +178,24 @@ def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_pa
                           'map_server YAML + PGM export only')):
         assert main(['export', str(src), *argv, '-q']) == 2
         assert needle in capsys.readouterr().err
+
+
+def test_a_file_name_beyond_the_basic_plane_loads_in_map_server(replayed, tmp_path, capsys):
+    # json.dumps escaped an emoji as a surrogate pair ("\ud83d\ude00"), which yaml-cpp (nav2's
+    # YAML reader) refuses as invalid Unicode: the name is now written as it is, in UTF-8.
+    _, out = replayed
+    target = tmp_path / 'maps' / 'floor 2 \U0001F600.yaml'
+    target.parent.mkdir()
+    assert main(['export', str(out), '-o', str(target), '-q']) == 0
+    text = target.read_text(encoding='utf-8')
+    assert '\\u' not in text and 'image: "floor 2 \U0001F600.pgm"' in text
+    cells, meta = load_like_map_server(target)
+    assert np.array_equal(cells, read_map(out).grid.data)
+    # A name that is no UTF-8 at all (bytes the file system allows) cannot be written in the
+    # YAML: one line, nothing written.
+    bad = os.fsdecode(bytes(tmp_path / 'maps') + b'/m\xff.yaml')
+    assert main(['export', str(out), '-o', bad, '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'the image name is not valid UTF-8' in err[0], err
+    assert sorted(p.name for p in target.parent.iterdir()) == sorted(
+        [target.name, target.with_suffix('.pgm').name])

@@ -208,8 +208,14 @@ def to_pgm(grid: GridMap) -> bytes:
 
 
 def to_map_yaml(grid: GridMap, image: str) -> str:
-    """Return the map_server YAML of ``grid`` whose image file is ``image`` (relative name)."""
-    return (f'image: {json.dumps(image)}\n'
+    """
+    Return the map_server YAML of ``grid`` whose image file is ``image`` (relative name).
+
+    The name is a double-quoted YAML string, its characters as they are (UTF-8; only control
+    characters escaped): a character beyond U+FFFF escaped as JSON does, as a surrogate pair,
+    is refused by yaml-cpp (nav2_map_server) as invalid Unicode.
+    """
+    return (f'image: {json.dumps(image, ensure_ascii=False)}\n'
             'mode: trinary\n'
             f'resolution: {grid.resolution!r}\n'
             f'origin: [{float(grid.origin[0])!r}, {float(grid.origin[1])!r}, 0.0]\n'
@@ -245,6 +251,12 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
         if os.path.splitext(path)[1].lower() == '.pgm':
             raise ValueError(f'{path}: name the map_server YAML (OUT.yaml); its image OUT.pgm '
                              'is written beside it')
+        try:
+            os.path.basename(pgm).encode('utf-8')
+        except UnicodeEncodeError:
+            raise ValueError(f'{os.fsencode(path)!r}: the image name is not valid UTF-8, so '
+                             "map_server's YAML cannot name it: choose another file name") \
+                from None
         with OutputSet(inputs) as out:
             out.add(path)
             out.add(pgm)
