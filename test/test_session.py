@@ -110,6 +110,33 @@ def test_transforms_pose_scans_through_the_tree_and_bad_ones_are_counted():
     assert np.allclose(pose.xyz, [7.2, 0.0, 0.0])
 
 
+def test_a_bag_restarted_within_the_cache_is_a_time_jump_and_its_scans_are_mapped(
+        office_drive):
+    # A simulation or bag restarted 4 s in, well within the 30 s transform cache: its
+    # transforms stepped back and were skipped as out of order, and its scans were placed on
+    # the first run's transforms (244 segments instead of 27 on the node's office drive), and
+    # the first scan at the first run's newest stamp was dropped as a duplicate.
+    from polyline_mapper.core.geometry import sample_segments
+    session, warned = live(FakeClock(), fixed_frame='map', cache_seconds=30.0)
+
+    def run(first):
+        for k in range(40):
+            stamp = 100.0 + 0.1 * k
+            session.add(tf(stamp, 'map', 'laser', office_drive.poses[first + k]))
+            session.add(scan_of(office_drive, first + k, stamp))
+            session.step()
+
+    run(0)
+    run(120)                        # another stretch of the drive, on the same clock again
+    session.flush()
+    assert causes(warned).count('time_jump') == 1 and 'stamp_order' not in causes(warned), \
+        warned
+    assert session.used == 80
+    segments = session.map_value().segments
+    off = office_drive.world.distance(sample_segments(segments, 0.05)[0])
+    assert len(segments) and off.max() < 0.1, off.max()
+
+
 def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():
     session, warned = live(FakeClock(), pose_source='odom', fixed_frame='odom',
                            mount=(0.3, -0.1, 0.5), mount_upside_down=True)
