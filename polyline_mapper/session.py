@@ -1010,6 +1010,9 @@ class MappingSession:
         row (``CONFIRM_JUMP``)."""
         self._trajectory = (deque() if self.options.keep_points
                             else deque(maxlen=TRAJECTORY_ROWS))
+        self._first_base = None
+        """The robot base's pose at the first scan mapped (x, y, yaw): scan mode searches there
+        when its scans' clock jumps back (a recording played again from its start)."""
         self.matched_scans = None
         """Scan matching, offline: None, or a list the session appends (stamp, laser pose,
         laser-frame points, correction map -> odom) to for every matched scan (loop closure,
@@ -1224,6 +1227,11 @@ class MappingSession:
             except ScanError as exc:
                 return self._skip('bad scan', exc.cause, str(exc))
             last = self._scan_stamps.get(record.frame_id)
+            jump = None
+            if (self.options.pose_source == 'scan' and last is not None
+                    and record.stamp < last - TIME_JUMP_BACK):
+                jump = self._scan_time_jump(record, last)
+                last = None
             if last is not None and record.stamp == last:
                 # Another scan of this laser at its newest stamp (a stuck clock, a duplicated
                 # message): its pose would be the other scan's. Skipped, as pose data of that
@@ -1239,7 +1247,7 @@ class MappingSession:
             now = self._now()
             self._last_add = now
             self._waiting.append((record, record.stamp if self.clock is None else now))
-            return None
+            return jump
         if isinstance(record, Skipped):
             return self._skip(f'undecodable message on {record.topic}', None, record.reason,
                               'undecodable')
@@ -1255,6 +1263,26 @@ class MappingSession:
         if note is not None and note[0] == 'time_jump':
             self._scan_stamps.clear()       # the new time line's scans are not duplicates
         return note
+
+    def _scan_time_jump(self, scan: Scan, newest: float) -> tuple:
+        """
+        Scan mode: ``scan`` is stamped ``TIME_JUMP_BACK`` or more before its laser's newest.
+
+        The clock jumped back (a recording played again): the motion since the last scan means
+        nothing and the robot is anywhere. Taken as a pose estimate at the first scan's place,
+        searched for within ``GAP_REACH`` and a full turn (``set_pose``): a recording played
+        again from its start is found there; from elsewhere its scans are not mapped (no
+        place explains them) until a pose estimate places them. Returns the warning.
+        """
+        self._scan_stamps.clear()
+        where = ('no scan mapped yet: mapped as the first' if self._first_base is None else
+                 'searching for its scans where the first scan was')
+        if self._first_base is not None:
+            var = (np.array([GAP_REACH, GAP_REACH, math.pi]) / POSE_ESTIMATE_SIGMAS) ** 2
+            self._waiting.append((PoseEstimate(scan.stamp, self.map_frame,
+                                               self._first_base.copy(), np.diag(var)), None))
+        return ('time_jump', f'scan of frame {scan.frame_id!r} stamped {scan.stamp:.3f}, '
+                f'{newest - scan.stamp:.1f} s before its newest: the clock jumped back; {where}')
 
     def skip(self, category: str, cause: str, text: str) -> None:
         """Count a record that is not used (e.g. a message the node could not convert)."""
@@ -1450,6 +1478,8 @@ class MappingSession:
             mount_to_base = _compose(_inverse(pose.xyz), base)
             row = _compose(xyz, mount_to_base)
             self._trajectory.append((scan.stamp, row[0], row[1], float(wrap_angle(row[2]))))
+            if self._first_base is None:
+                self._first_base = np.array([row[0], row[1], float(wrap_angle(row[2]))])
         if self._loaded is not None and len(self._start_check) < START_CHECK[0]:
             notes += self._check_start(pts, xyz[:2])
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
@@ -2028,6 +2058,7 @@ class MappingSession:
             self._ready.clear()
             self._points.clear()
             self._trajectory.clear()
+            self._first_base = None
             self._restart(None if self._loaded is None else self._loaded[2])
             self._origins.clear()
         with self._map_lock:

@@ -400,6 +400,30 @@ def test_scan_only_office_drive_maps_every_wall_within_10cm():
     assert s['rms'] < 0.05 and s['err'].max() < 0.1, (s['rms'], s['err'].max())
 
 
+@pytest.mark.parametrize('start, found', [(0, True), (150, False)])
+def test_scans_alone_played_again_are_searched_for_where_the_first_scan_was(start, found):
+    # A scan-only recording played again (its clock jumps back): the first pass's motion
+    # placed the second pass's scans, and the map took 21 segments off the walls (precision
+    # 0.49). Now the scans are searched for where the first scan was: a pass from the start
+    # is found and mapped, one from 5 m away is not mapped, and the map stays right.
+    drive = make_drive('sim:office,step=0.1,turn=0.1', 1)
+    scans = records(drive, scans_only=True)
+    again = [dataclasses.replace(r, stamp=scans[k].stamp)
+             for k, r in enumerate(scans[start:start + 100])]
+    warned = []
+    session = MappingSession(options=SessionOptions(pose_source='scan', keep_points=True),
+                             warn=lambda cause, text: warned.append(cause))
+    for record in scans[:300] + again:
+        session.add(record)
+        session.step()
+    session.flush()
+    s = score(drive, session, drive.poses[0])
+    assert warned.count('time_jump') == 1 and s['walls']['precision'] == 1.0, (warned, s['walls'])
+    assert session.used == (400 if found else 300)
+    assert session.matches['found near the estimate' if found else
+                           'not found near the estimate'] >= 1
+
+
 def test_scan_only_needs_no_pose_data_and_starts_at_the_origin():
     drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
     session = MappingSession(options=SessionOptions(pose_source='scan', keep_points=True))
