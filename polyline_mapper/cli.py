@@ -630,9 +630,12 @@ def cmd_export(args) -> int:
     fmt = export_map(data, args.output, args.format, inputs=[args.map],
                      resolution=args.resolution)
     if not args.quiet and fmt == 'yaml':
+        omitted = (data.value.stats or {}).get('grid_omitted')
         print(f'wrote {args.output} and {os.path.splitext(args.output)[0]}.pgm: the map_server '
               'pair (' + ('the stored planner map' if data.grid is not None else
-                          'no planner map stored: segments occupied, the rest unknown') + ')')
+                          'no planner map stored'
+                          + (f' (it was too large for the map file: {omitted})' if omitted
+                             else '') + ': segments occupied, the rest unknown') + ')')
     elif not args.quiet:
         print(f'wrote {args.output}: {fmt}, {len(data.value.polylines)} polylines, '
               f'{len(data.value)} segments')

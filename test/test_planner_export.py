@@ -154,6 +154,11 @@ def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_pa
     monkeypatch.setattr(mapjson, 'MAX_GRID_RUNS', 10)
     out = mapjson.map_value_to_dict(data.value, None, data.grid)
     assert 'grid' not in out and 'more than 10' in out['stats']['grid_omitted']
+    # its export says the stored grid was dropped, not only that there is none
+    (tmp_path / 'omitted.json').write_text(json.dumps(out))
+    assert main(['export', str(tmp_path / 'omitted.json'), '-o', str(tmp_path / 'o.yaml')]) == 0
+    said = capsys.readouterr().out
+    assert 'no planner map stored (it was too large for the map file: ' in said, said
     # a map without a grid spanning more cells than a grid may hold: one line, nothing written
     far = tmp_path / 'far.json'
     far.write_text(json.dumps({'schema_version': 1, 'frame_id': 'map',
