@@ -32,6 +32,14 @@ def test_package_xml_format3_with_real_dependencies():
                 imported.add('tf2_ros_py' if name == 'tf2_ros' else name)
     assert {'rclpy', 'sensor_msgs', 'tf2_msgs', 'launch_ros'} <= imported
     assert imported <= deps, sorted(imported - deps)
+    # ... and so is every Python library with a rosdep key; none is declared that is not used
+    keys = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
+            'matplotlib': 'python3-matplotlib', 'tqdm': 'python3-tqdm'}
+    libs = {keys[m.group(1)] for path in (REPO / 'polyline_mapper').rglob('*.py')
+            for m in re.finditer(r'^\s*(?:from|import) (\w+)', path.read_text(), re.M)
+            if m.group(1) in keys}
+    assert libs == {d for d in deps if d in keys.values()}, (libs, deps)
+    assert 'tf2_ros_py' not in deps or 'tf2_ros_py' in imported
     msgs = ET.parse(REPO / 'polyline_mapper_msgs' / 'package.xml').getroot()
     assert msgs.find('export/build_type').text == 'ament_cmake'
     assert msgs.findtext('member_of_group') == 'rosidl_interface_packages'
