@@ -152,9 +152,12 @@ def read_points(path: str) -> np.ndarray:
         raise ValueError(f'{path}: unreadable point file ({msg})') from None
     if arr.size == 0:
         raise ValueError(f'{path}: no points (only a header or comments)')
-    if ext != '.npy' and arr.ndim == 2 and arr.shape[1] == 2:
-        _check_lines(path, arr, skip, delim)
-    return check_coordinates(as_points(arr, name=f'{path}: points'), path)
+    try:
+        return check_coordinates(as_points(arr, name=f'{path}: points'), path)
+    except ValueError:
+        if ext != '.npy' and arr.ndim == 2 and arr.shape[1] == 2:
+            _check_lines(path, arr, skip, delim)        # the same refusal, named by file line
+        raise
 
 
 def _check_lines(path: str, arr: np.ndarray, skip: int, delim) -> None:
