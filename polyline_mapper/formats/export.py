@@ -33,7 +33,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .mapjson import grid_from_dict, map_value_from_dict
+from .mapjson import grid_from_dict, map_value_from_dict, MapFile
 from .output import OutputSet, write_text_atomic
 from ..core.grid import FREE, GridMap, OCCUPIED, rasterise
 
@@ -232,11 +232,11 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
     The format comes from ``fmt`` or the file suffix; the PGM goes beside the YAML, same name.
 
     ``data``: a map checked by ``read_map`` (finite coordinates, polylines that agree with the
-    segments; checked again here). Written through ``formats.output`` (never over one of
-    ``inputs``, a device or a folder; a failure leaves nothing behind). ``resolution``: the
-    YAML + PGM pair's cell size (m) for a map without a stored grid (``planner_grid``). Returns
-    the format. Raises ValueError on an unknown format, a map that fails the checks or a
-    refused output.
+    segments), or a map dict, checked here the same way. Written through ``formats.output``
+    (never over one of ``inputs``, a device or a folder; a failure leaves nothing behind).
+    ``resolution``: the YAML + PGM pair's cell size (m) for a map without a stored grid
+    (``planner_grid``). Returns the format. Raises ValueError on an unknown format, a map that
+    fails the checks or a refused output.
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
     fmt = 'yaml' if fmt == 'yml' else fmt
@@ -244,8 +244,10 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
         raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg, '
                          '.csv or .yaml, or --format)')
     # finite, sane coordinates (no NaN / Infinity written); polylines whose edges are the
-    # segments (GeoJSON and SVG draw the one, CSV and the grid the other: the same map)
-    map_value_from_dict(data)
+    # segments (GeoJSON and SVG draw the one, CSV and the grid the other: the same map).
+    # A MapFile is what read_map returned, checked so already.
+    if not isinstance(data, MapFile):
+        map_value_from_dict(data)
     if fmt == 'yaml':
         pgm = os.path.splitext(path)[0] + '.pgm'
         if os.path.splitext(path)[1].lower() == '.pgm':
