@@ -22,7 +22,12 @@ the scan's points to the lines of their nearest segments:
   eigenvalue is below ``degenerate`` x the largest (a featureless corridor along its axis) keep
   the prediction, and only the others are corrected;
 - a covariance of the result: sigma^2 (J^T W J)^-1 over the constrained directions, and
-  ``prior_std`` (the prediction's uncertainty) along the degenerate ones.
+  ``prior_std`` (the prediction's uncertainty) along the degenerate ones;
+- or, with ``prediction_prior`` (the covariance of a constant-velocity prediction), a Gaussian
+  prior on the pose instead of the hard guard: each step minimises the weighted squared
+  distances plus sigma^2 times the prior's Mahalanobis term, so a weakly constrained direction
+  moves as far as the scan's information there outweighs the prior's, and no direction flips
+  between held and corrected on a threshold.
 
 A result that explains fewer of the scan's points (within the final gate) than the prediction
 does is not taken: the prediction is returned as the match. With ``relocalize``, a result that
@@ -292,7 +297,8 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
                turns=np.linspace(-0.2, 0.2, 9), max_points: int = 240,
                spacing: float = 0.05, relocalize: float = 0.0,
                relocalize_share: float = RELOCALIZE_SHARE,
-               prediction_cov=None, established=None, starts=None) -> ScanMatch:
+               prediction_cov=None, established=None, starts=None,
+               prediction_prior=None, relocalize_near: bool = False) -> ScanMatch:
     """
     Refine a scan's pose against map segments.
 
@@ -354,6 +360,18 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         than ``prediction`` (``_best_start``: within ``START_GATE``), the match starts from it
         and is judged against it (``max_shift``, ``max_turn``, ``relocalize``) as from the
         prediction.
+    prediction_prior : (3, 3) float array, optional
+        Covariance (m^2, rad^2) of the prediction's error, taken as a Gaussian prior on the
+        pose, centred where Gauss-Newton starts (the prediction or the start taken, turned by
+        the heading search): every step minimises sum w d^2 + sigma^2 (x - x0)^T P^-1 (x - x0).
+        Pass ``degenerate=0`` with it: the prior, not a threshold, then keeps a direction the
+        scan hardly constrains near the start. None: no prior.
+    relocalize_near : bool
+        Take a relocalized pose within ``gate`` of the prediction too. From odometry the first
+        result stands there (a loop's return onto older ground, below); from a
+        constant-velocity prediction a turn that starts or speeds up between two scans can
+        leave the first result in a wrong basin within the gate, and the search's pose puts
+        ``RELOCALIZE_GAIN`` times more points on the map.
 
     Returns
     -------
@@ -385,8 +403,14 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         pred = _best_start(near, pts, pred, np.asarray(starts, dtype=np.float64),
                            min(gate, START_GATE))
     lines = np.concatenate([normal, segs[:, 0]], axis=1)
+    anchor = None
+    if prediction_prior is not None:      # sigma^2 P^-1 in the scaled coordinates (yaw x scale)
+        scaled = np.array([1.0, 1.0, scale])
+        anchor = float(sigma) ** 2 * np.linalg.inv(
+            np.asarray(prediction_prior, dtype=np.float64).reshape(3, 3)
+            * scaled[:, None] * scaled)
     problem = _Problem(pts, lines, near, float(sigma), gate, gate_min, kernel, need,
-                       scale, prior, int(iterations), float(degenerate), est)
+                       scale, prior, int(iterations), float(degenerate), est, anchor)
     m = _refine(problem, pred, turns, max_shift, max_turn, prediction_cov)
     if not relocalize or m.share >= relocalize_share:
         return m
@@ -402,7 +426,8 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     start = _search(near, pts, pred, float(relocalize), turns)
     again = _refine(problem, start, (0.0,), np.inf, np.inf)
     shift = np.hypot(*(again.pose[:2] - pred[:2]))
-    if (again.ok and gate < shift <= relocalize + max_shift and again.share >= relocalize_share
+    if (again.ok and (gate < shift or relocalize_near) and shift <= relocalize + max_shift
+            and again.share >= relocalize_share
             and again.share >= RELOCALIZE_GAIN * m.share):
         return again._replace(relocalized=True)
     return m
@@ -426,6 +451,8 @@ class _Problem(NamedTuple):
     degenerate: float
     established: Optional[np.ndarray] = None
     """(K,) bool per segment, or None (see ``match_scan``)."""
+    anchor: Optional[np.ndarray] = None
+    """(3, 3) sigma^2 times the prior's information (scaled coordinates), or None."""
 
 
 def _search(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, radius: float,
@@ -499,6 +526,7 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
     pt = np.zeros(0)
     last = ()
     stage, at_stage = 0, 0
+    origin = pose.copy()                # where the prior (``p.anchor``) is centred
     for it in range(int(p.iterations)):
         g = max(gate * 0.6 ** stage, gate_min)
         # transform(pts, pose) and its derivative along yaw, from the same four products
@@ -534,6 +562,11 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
         if free is not None:            # the problem restricted to the free directions
             top = np.linalg.eigvalsh(info)[-1]
             info, grad = free.T @ info @ free, free.T @ grad
+        if p.anchor is not None and free is None:
+            toward = origin - pose
+            toward[2] = wrap_angle(toward[2]) * scale
+            info = info + p.anchor
+            grad = grad + p.anchor @ toward
         vals, vecs = np.linalg.eigh(info)
         good = vals > p.degenerate * max(vals[-1] if top is None else top, 1e-12)
         if free is None:
