@@ -3,7 +3,7 @@ Scans alone: mapping a recording with no odometry and no TF (``replay --pose-sou
 
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
-    .venv/bin/python benchmarks/scan_only.py [--datasets DIR] [--json FILE]
+    .venv/bin/python benchmarks/scan_only.py [--datasets DIR] [--json FILE] [--drop-first N]
 
 Each input is replayed as ``polyline-mapper replay INPUT --pose-source scan`` does
 (``run_replay``): every scan is predicted at constant velocity from the last two matched poses
@@ -20,6 +20,10 @@ Intel, CSAIL and the MIT corridor are left out: their corrected logs keep a scan
 and 20 deg (median) and have no usable stamps (made up 1 s apart), which no constant-velocity
 prediction follows; with odometry they are in ``drift.py``.
 
+``--drop-first N`` replays fr079 without its first N scans (a copy of the log, written to a
+temporary folder; the drives are left out): a change of input as small as another CPU's
+rounding, to see how much one run's result is luck (the replay is chaotic).
+
 Scores, over the scans the session mapped: the trajectory against the reference (ATE after a
 rigid alignment, ``core.metrics.trajectory_error``), the map against its own points and, laid
 onto the reference frame by that alignment, against the true points (fr079: the log's points at
@@ -30,9 +34,11 @@ markers) and the raw numbers to benchmarks/results/scan-only.json.
 
 import argparse
 import dataclasses
+import gzip
 import json
 import pathlib
 import sys
+import tempfile
 
 from common import datasets_argument, stamp, table_header, write_readme, write_results
 import numpy as np
@@ -47,17 +53,35 @@ DRIVES = ('sim:hall,step=0.1,turn=0.1', 'sim:office,step=0.1,turn=0.1')
 """The drives of test_imperfect_poses.py's scan-only tests (here both with seed 1)."""
 
 
-def reference(name: str, datasets: str) -> tuple:
+def drop_first(path: pathlib.Path, n: int, folder: str) -> pathlib.Path:
+    """Write the CARMEN log ``path`` into ``folder`` without its first ``n`` FLASER and NEFF."""
+    seen = {'FLASER': 0, 'NEFF': 0}
+    out = pathlib.Path(folder) / path.name
+    with gzip.open(path, 'rt') as src, gzip.open(out, 'wt') as dst:
+        for line in src:
+            kind = line.split(' ', 1)[0]
+            if kind in seen:
+                seen[kind] += 1
+                if seen[kind] <= n:
+                    continue
+            dst.write(line)
+    return out
+
+
+def reference(name: str, datasets: str, drop: int = 0, folder: str = None) -> tuple:
     """
     Return (input path, stamps (S,), reference laser poses (S, 3), true points of).
 
-    ``true points of``(scans): the true points of those scans (indices), (N, 2).
+    ``true points of``(scans): the true points of those scans (indices), (N, 2). ``drop``:
+    the log without its first scans, written into ``folder`` (``drop_first``).
     """
     if name.startswith('sim:'):
         drive = make_drive(name)          # the drive ``replay`` plays (seed 1, 1 cm noise)
         # (every scan of a drive is mapped; were one not, its points would count too)
         return name, 1000.0 + drive.stamps, drive.poses, lambda scans: drive.points()
     path = pathlib.Path(datasets) / 'radish' / f'{name}.log.gz'
+    if drop:
+        path = drop_first(path, drop, folder)
     log = read_carmen(str(path))
     stamps, _ = log.stamps(1.0)
 
@@ -66,9 +90,9 @@ def reference(name: str, datasets: str) -> tuple:
     return str(path), stamps, np.array([r.pose for r in log.records]), points_of
 
 
-def one(name: str, datasets: str) -> dict:
-    """Replay ``name`` from its scans alone; return its row."""
-    path, stamps, truth, points_of = reference(name, datasets)
+def one(name: str, datasets: str, drop: int = 0, folder: str = None) -> dict:
+    """Replay ``name`` from its scans alone (without its first ``drop``); return its row."""
+    path, stamps, truth, points_of = reference(name, datasets, drop, folder)
     res = run_replay(path, options=SessionOptions(pose_source='scan', keep_points=True),
                      progress=True)
     value = res.map_value
@@ -83,7 +107,8 @@ def one(name: str, datasets: str) -> dict:
     own = map_metrics(res.points, segs)
     st = value.stats
     lost = np.setdiff1d(np.arange(len(stamps)), i)
-    return {'input': name, 'scans': len(stamps), 'mapped': len(traj),
+    label = name + (f' without its first {drop} scans' if drop else '')
+    return {'input': label, 'scans': len(stamps), 'mapped': len(traj),
             'first_unmapped_s': float(stamps[lost[0]]) if len(lost) else None,
             'ate_m': err['ate'], 'segments': len(segs),
             'own_mean_cm': 100 * own['mean_distance'], 'own_coverage': 100 * own['coverage_0_10m'],
@@ -101,13 +126,19 @@ def main() -> int:
     datasets_argument(ap)
     ap.add_argument('--json', help='write the raw rows here only (README and results/ '
                     'untouched)')
+    ap.add_argument('--drop-first', type=int, default=0, metavar='N',
+                    help='fr079 only, without its first N scans (with --json)')
     args = ap.parse_args()
+    if args.drop_first and not args.json:
+        ap.error('--drop-first needs --json (its rows are not the table\'s)')
     meta = stamp('.venv/bin/python benchmarks/scan_only.py ' + ' '.join(sys.argv[1:]))
     rows = []
-    for name in ('freiburg-079-corrected',) + DRIVES:
-        print(f'{name}', file=sys.stderr, flush=True)
-        rows.append(one(name, args.datasets))
-        print(json.dumps(rows[-1]), flush=True)
+    names = ('freiburg-079-corrected',) + (() if args.drop_first else DRIVES)
+    with tempfile.TemporaryDirectory() as folder:
+        for name in names:
+            print(f'{name}', file=sys.stderr, flush=True)
+            rows.append(one(name, args.datasets, args.drop_first, folder))
+            print(json.dumps(rows[-1]), flush=True)
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1)
                                            + '\n')
