@@ -91,7 +91,7 @@ def reference(name: str, datasets: str, drop: int = 0, folder: str = None) -> tu
 
 
 def one(name: str, datasets: str, drop: int = 0, folder: str = None) -> dict:
-    """Replay ``name`` from its scans alone (without its first ``drop``); return its row."""
+    """Replay ``name`` from its scans alone, ``drop`` first scans left out; return its row."""
     path, stamps, truth, points_of = reference(name, datasets, drop, folder)
     res = run_replay(path, options=SessionOptions(pose_source='scan', keep_points=True),
                      progress=True)
@@ -130,7 +130,7 @@ def main() -> int:
                     help='fr079 only, without its first N scans (with --json)')
     args = ap.parse_args()
     if args.drop_first and not args.json:
-        ap.error('--drop-first needs --json (its rows are not the table\'s)')
+        ap.error('--drop-first needs --json (its rows do not belong in the table)')
     meta = stamp('.venv/bin/python benchmarks/scan_only.py ' + ' '.join(sys.argv[1:]))
     rows = []
     names = ('freiburg-079-corrected',) + (() if args.drop_first else DRIVES)
