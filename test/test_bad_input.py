@@ -139,6 +139,11 @@ def test_a_csv_with_a_byte_order_mark_keeps_its_first_point(tmp_path):
      "line 5, column 2: 'oops' is not a number"),
     ('columns.csv', b'x,y\n0,0\n1,1\n2,2,2\n', 'line 4 has 3 column(s) where line 2 has 2'),
     ('short.csv', b'# scan 1\n0,0\n1\n', 'line 3 has 1 column(s) where line 2 has 2'),
+    # lines of nothing but whitespace are blank lines, and counted
+    ('spaces.csv', b'x,y\n0,0\n   \n\t\n  # note\n1,abc\n',
+     "line 6, column 2: 'abc' is not a number"),
+    ('spaces_columns.csv', b'  \n0,0\n \t \n1,1,1\n', 'line 4 has 3 column(s) where line 2 has 2'),
+    ('spaces.txt', b'0 0\n   \n\t\n2 oops\n', "line 4, column 2: 'oops' is not a number"),
 ])
 def test_a_bad_point_file_line_is_named_as_an_editor_counts(tmp_path, capsys, name, content,
                                                             words):
@@ -157,6 +162,8 @@ def test_a_bad_point_file_line_is_named_as_an_editor_counts(tmp_path, capsys, na
     ('nan.csv', b'x,y\n0,0\n# a comment\n\n1,nan\n2,inf\n',
      '2 point(s) NaN, inf or beyond +-1e+08 m; the first on line 5: (1, nan) is NaN or inf'),
     ('far.txt', b'0 0\n1 1\n2 3e9\n', 'the first on line 3: (2, 3e+09) is beyond +-1e+08 m'),
+    ('spaces_nan.csv', b'x,y\n   \n0,0\n  # a comment\n\t\n1,nan\n',
+     '1 point(s) NaN, inf or beyond +-1e+08 m; the first on line 6: (1, nan) is NaN or inf'),
 ])
 def test_a_point_not_finite_or_too_far_is_named_by_its_file_line(tmp_path, name, content,
                                                                  words):
@@ -166,6 +173,23 @@ def test_a_point_not_finite_or_too_far_is_named_by_its_file_line(tmp_path, name,
     with pytest.raises(ValueError) as exc:
         read_points(path)
     assert str(exc.value).startswith(f'{path}: ') and words in str(exc.value), exc.value
+
+
+@pytest.mark.parametrize('name, content', [
+    ('trailing.csv', b'x,y\n0,0\n1,0\n2,0.01\n3,0\n   '),
+    ('inside.csv', b'0,0\n   \n1,0\n\t\n2,0.01\n \t \n3,0\n'),
+    ('comment.csv', b'x,y\n  # first scan\n0,0\n1,0\n\t# second\n2,0.01\n3,0\n'),
+    ('crlf.csv', b'\xef\xbb\xbfx,y\r\n0,0\r\n  \r\n1,0\r\n2,0.01\r\n3,0\r\n  \r\n'),
+    ('trailing.txt', b'0 0\n1 0\n   \n2 0.01\n3 0\n \t '),
+])
+def test_a_line_of_nothing_but_whitespace_is_a_blank_line(tmp_path, capsys, name, content):
+    # An empty line was skipped, a line of spaces (an editor's trailing "   ") refused: "line 6
+    # has 1 column(s) where line 2 has 2".
+    from polyline_mapper.formats.points import read_points
+    path = write(tmp_path, name, content, mode='wb')
+    assert np.array_equal(read_points(path), [[0, 0], [1, 0], [2, 0.01], [3, 0]])
+    code, err, out, _ = run_cli([path], tmp_path, capsys)
+    assert code == 0 and out.exists(), err
 
 
 def test_an_output_named_as_another_format_is_refused(tmp_path, capsys):

