@@ -613,7 +613,7 @@ def _plot_free_space(args, value: MapValue, inputs: list) -> int:
 
 
 def cmd_export(args) -> int:
-    from .formats.export import export_map, export_trajectory
+    from .formats.export import export_map, export_trajectory, map_yaml_image
     from .formats.mapjson import read_map
     check_outputs([args.output], [args.map])
     data = read_map(args.map)
@@ -631,7 +631,9 @@ def cmd_export(args) -> int:
                      resolution=args.resolution)
     if not args.quiet and fmt == 'yaml':
         omitted = (data.value.stats or {}).get('grid_omitted')
-        print(f'wrote {args.output} and {os.path.splitext(args.output)[0]}.pgm: the map_server '
+        link = (f' (a link to {os.path.realpath(args.output)})'
+                if os.path.islink(args.output) else '')
+        print(f'wrote {args.output}{link} and {map_yaml_image(args.output)[0]}: the map_server '
               'pair (' + ('the stored planner map' if data.grid is not None else
                           'no planner map stored'
                           + (f' (it was too large for the map file: {omitted})' if omitted

@@ -204,3 +204,46 @@ def test_a_file_name_beyond_the_basic_plane_loads_in_map_server(replayed, tmp_pa
     assert len(err) == 1 and 'the image name is not valid UTF-8' in err[0], err
     assert sorted(p.name for p in target.parent.iterdir()) == sorted(
         [target.name, target.with_suffix('.pgm').name])
+
+
+def test_a_yaml_that_is_a_symlink_gets_its_pair_beside_the_target(replayed, tmp_path, capsys):
+    # -o here/map.yaml -> ../there/real.yaml wrote the YAML through the link, but here/map.pgm
+    # beside the link, named "map.pgm" in the YAML: loading there/real.yaml found no image.
+    # map_server takes a relative image relative to the YAML path it is given, unresolved.
+    _, src = replayed
+    grid = read_map(src).grid.data
+    here, there = tmp_path / 'here', tmp_path / 'there'
+    here.mkdir()
+    there.mkdir()
+    (there / 'real.yaml').write_text('image: "old.pgm"\n')
+    link = here / 'map.yaml'
+    link.symlink_to(os.path.join('..', 'there', 'real.yaml'))
+    assert main(['export', str(src), '-o', str(link)]) == 0
+    for opened in (link, there / 'real.yaml'):
+        cells, _ = load_like_map_server(str(opened))
+        assert np.array_equal(cells, grid), opened
+    real = os.path.realpath(there)
+    assert link.is_symlink() and os.listdir(here) == ['map.yaml']
+    assert sorted(os.listdir(there)) == ['real.pgm', 'real.yaml']
+    assert yaml.safe_load(link.read_text())['image'] == f'{real}/real.pgm'
+    out = capsys.readouterr().out
+    assert out.startswith(f'wrote {link} (a link to {real}/real.yaml) and {real}/real.pgm: '
+                          'the map_server pair'), out
+    # a link beside its target: the bare name, which both find
+    current = there / 'current.yaml'
+    current.symlink_to('real.yaml')
+    assert main(['export', str(src), '-o', str(current), '-q']) == 0
+    assert current.is_symlink() and sorted(os.listdir(there)) == [
+        'current.yaml', 'real.pgm', 'real.yaml']
+    assert yaml.safe_load(current.read_text())['image'] == 'real.pgm'
+    for opened in (current, there / 'real.yaml'):
+        cells, _ = load_like_map_server(str(opened))
+        assert np.array_equal(cells, grid), opened
+    # a link to the input is refused, and nothing is written
+    to_input = here / 'input.yaml'
+    to_input.symlink_to(src)
+    before = src.read_bytes()
+    assert main(['export', str(src), '-o', str(to_input)]) == 2
+    assert 'is an input of this run' in capsys.readouterr().err
+    assert src.read_bytes() == before and not src.with_suffix('.pgm').exists()
+    assert sorted(os.listdir(here)) == ['input.yaml', 'map.yaml']

@@ -10,7 +10,8 @@ Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
 - CSV: one row per segment, ``x1,y1,x2,y2,support`` (support empty when the map has none).
 - YAML + PGM: the map_server pair a planner loads (``nav2_map_server``, ``map_server``):
   ``NAME.pgm`` (binary P5, 8 bit, first row at the top, i.e. the highest y) beside
-  ``NAME.yaml`` (``image`` relative to the YAML, ``mode: trinary``, ``resolution``,
+  ``NAME.yaml`` (``image`` relative to the YAML; a YAML that is a symlink gets its pair beside
+  the link's target, ``map_yaml_image``; ``mode: trinary``, ``resolution``,
   ``origin: [x, y, 0.0]`` of the lower-left pixel, ``negate: 0``, ``occupied_thresh: 0.65``,
   ``free_thresh: 0.196``). Pixels follow map_saver's trinary convention: occupied 0 (black),
   free 254, unknown 205. map_server reads a pixel as occupancy p = (255 - value) / 255:
@@ -224,12 +225,33 @@ def to_map_yaml(grid: GridMap, image: str) -> str:
             f'free_thresh: {FREE_THRESH}\n')
 
 
+def map_yaml_image(path: str) -> tuple:
+    """
+    Return ``(PGM file, image)``: where the image of the map_server YAML ``path`` goes, its name.
+
+    ``NAME.pgm`` beside ``NAME.yaml``, ``image`` (the YAML's entry) its bare name. A YAML that
+    is a symlink is written through the link (``formats.output``), so the PGM goes beside the
+    link's target, named after it: loading the target finds it. map_server takes a relative
+    ``image`` relative to the YAML path it was given, unresolved: when the link lies in another
+    folder than its target, ``image`` is the PGM's absolute path, so that loading the link
+    finds it too.
+    """
+    if not os.path.islink(path):
+        pgm = os.path.splitext(path)[0] + '.pgm'
+        return pgm, os.path.basename(pgm)
+    target = os.path.realpath(path)
+    pgm = os.path.splitext(target)[0] + '.pgm'
+    same = os.path.realpath(os.path.dirname(os.path.abspath(path))) == os.path.dirname(target)
+    return pgm, (os.path.basename(pgm) if same else pgm)
+
+
 def export_map(data: dict, path: str, fmt: str = None, inputs=(),
                resolution: float = None) -> str:
     """
     Write a map to ``path`` as GeoJSON, SVG, CSV or a map_server YAML + PGM pair.
 
-    The format comes from ``fmt`` or the file suffix; the PGM goes beside the YAML, same name.
+    The format comes from ``fmt`` or the file suffix; the PGM goes beside the YAML, same name
+    (beside a symlink's target, ``map_yaml_image``).
 
     ``data``: a map checked by ``read_map`` (finite coordinates, polylines that agree with the
     segments), or a map dict, checked here the same way. Written through ``formats.output``
@@ -249,12 +271,13 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
     if not isinstance(data, MapFile):
         map_value_from_dict(data)
     if fmt == 'yaml':
-        pgm = os.path.splitext(path)[0] + '.pgm'
-        if os.path.splitext(path)[1].lower() == '.pgm':
+        pgm, image = map_yaml_image(path)
+        if '.pgm' in (os.path.splitext(path)[1].lower(),
+                      os.path.splitext(os.path.realpath(path))[1].lower()):
             raise ValueError(f'{path}: name the map_server YAML (OUT.yaml); its image OUT.pgm '
                              'is written beside it')
         try:
-            os.path.basename(pgm).encode('utf-8')
+            image.encode('utf-8')
         except UnicodeEncodeError:
             raise ValueError(f'{os.fsencode(path)!r}: the image name is not valid UTF-8, so '
                              "map_server's YAML cannot name it: choose another file name") \
@@ -264,7 +287,7 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
             out.add(pgm)
             grid = planner_grid(data, resolution)
             out.put(pgm, to_pgm(grid))
-            out.put(path, to_map_yaml(grid, os.path.basename(pgm)))
+            out.put(path, to_map_yaml(grid, image))
         return fmt
     if resolution is not None:
         raise ValueError('a resolution applies to the map_server YAML + PGM export only')
