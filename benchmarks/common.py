@@ -9,6 +9,7 @@ import subprocess
 
 import numpy as np
 from polyline_mapper.core.freespace import judge
+from polyline_mapper.recordings import SIM_START
 
 HERE = pathlib.Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -114,6 +115,17 @@ def table_header(meta: dict, columns: list) -> list:
     return [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
             f"`{meta['command']}`.", '', '| ' + ' | '.join(columns) + ' |',
             '|' + '---|' * len(columns)]
+
+
+def drive_truth(drive, trajectory) -> np.ndarray:
+    """
+    Return a simulated drive's true poses (R, 3) at the rows of a replay's ``trajectory``.
+
+    The rows are stamped as ``drive_messages`` stamps the scans (``SIM_START`` + the drive's
+    stamps); each takes the pose of the scan it is.
+    """
+    stamps = np.asarray(trajectory)[:, 0]
+    return drive.poses[np.searchsorted(SIM_START + np.asarray(drive.stamps), stamps - 1e-6)]
 
 
 def contradicted(segments, points, origins) -> dict:

@@ -39,12 +39,13 @@ from multiprocessing import Pool
 import sys
 
 from baselines.walls import wall_scores
-from common import contradicted, stamp, table_header, write_readme, write_results
+from common import (contradicted, drive_truth, stamp, table_header, write_readme,
+                    write_results)
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import sample_segments, wrap_angle
 from polyline_mapper.formats.records import Odometry, Transform
-from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
+from polyline_mapper.recordings import drive_messages, make_drive
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -75,9 +76,9 @@ def one(drive, records: list, loss: float, seed: int, matching: bool = False,
                                                          odom_gap_factor=gap_factor))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
-    k = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
-    err = np.hypot(*(traj[:, 1:3] - drive.poses[k, :2]).T)
-    turn = np.abs(wrap_angle(traj[:, 3] - drive.poses[k, 2]))
+    truth = drive_truth(drive, traj)
+    err = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
+    turn = np.abs(wrap_angle(traj[:, 3] - truth[:, 2]))
     world = drive.world
     samples, _ = sample_segments(value.segments, 0.02)
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())

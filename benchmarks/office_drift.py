@@ -29,11 +29,11 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import stamp, table_header, write_readme, write_results
+from common import drive_truth, stamp, table_header, write_readme, write_results
 from matching import flat
 import numpy as np
 from polyline_mapper.core.metrics import trajectory_error
-from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
+from polyline_mapper.recordings import drive_messages, make_drive
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -48,18 +48,18 @@ def one(drive, drift) -> dict:
                                                              keep_points=True))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
-    i = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
-    truth = drive.poses[i]
+    truth = drive_truth(drive, traj)
     err = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
+    rms = float(np.sqrt(np.mean(err ** 2)))
     yaw = np.abs(np.angle(np.exp(1j * (traj[:, 3] - truth[:, 2]))))
     world = drive.world
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
     return {'drift_seed': drift, 'scans': int(len(traj)),
-            'rms_m': round(float(np.sqrt(np.mean(err ** 2))), 4),
+            'rms_m': round(rms, 4),
             'ate_m': round(float(trajectory_error(traj[:, 1:], truth)['ate']), 4),
             'yaw_1_rad': round(float(yaw[1]), 4), 'yaw_10_rad': round(float(yaw[10]), 4),
             'f1': round(walls['f1'], 3),
-            'meets_bar': bool(np.sqrt(np.mean(err ** 2)) <= 0.05 and walls['f1'] == 1.0)}
+            'meets_bar': bool(rms <= 0.05 and walls['f1'] == 1.0)}
 
 
 def main() -> int:

@@ -32,11 +32,12 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import contradicted, stamp, table_header, write_readme, write_results
+from common import (contradicted, drive_truth, stamp, table_header, write_readme,
+                    write_results)
 from matching import flat
 import numpy as np
 from polyline_mapper.core.incremental import IncrementalConfig
-from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
+from polyline_mapper.recordings import drive_messages, make_drive
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -62,8 +63,7 @@ def one(drive, fields: dict) -> dict:
                              SessionOptions(scan_matching=True, keep_points=True))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
-    i = np.searchsorted(SIM_START + np.asarray(drive.stamps), traj[:, 0] - 1e-6)
-    err = np.hypot(*(traj[:, 1:3] - drive.poses[i, :2]).T)
+    err = np.hypot(*(traj[:, 1:3] - drive_truth(drive, traj)[:, :2]).T)
     world = drive.world
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
     free = contradicted(value.segments, session.points(), session.origins())
