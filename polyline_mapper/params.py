@@ -112,6 +112,10 @@ NODE_PARAMS = (
               'go into one update. At most scan_buffer_size.', 1, 1000, True),
     ParamSpec('map_output_path', '~/.ros/polyline_map.json',
               'Where ~/save_map writes the map JSON (~ is expanded).', runtime=True),
+    ParamSpec('save_map_on_shutdown', False,
+              'Write the map to map_output_path when the node shuts down (SIGINT, SIGTERM), '
+              'as ~/save_map does, after mapping the scans still queued; a file there is '
+              'replaced.', runtime=True),
     ParamSpec('map_publish_period', 0.2,
               'Least seconds between two publications of polyline_map and its markers; 0 '
               'publishes after every update. A pending change is always published.',
@@ -266,6 +270,7 @@ class NodeSettings:
     max_scan_latency: float
     update_every_n_scans: int
     map_output_path: str
+    save_map_on_shutdown: bool
     map_publish_period: float
     publish_markers: bool
     grid_resolution: float

@@ -4,6 +4,7 @@ from dataclasses import replace
 import json
 
 import numpy as np
+from polyline_mapper.formats.mapjson import read_map
 from polyline_mapper.recordings import drive_messages
 from polyline_mapper.ros.messages import scan_msg
 import pytest
@@ -231,6 +232,33 @@ def test_reset_empties_the_map_and_its_markers(tf_run):
                            and len(peer.markers[-1].markers) == 1, 10.0)
     assert peer.maps[-1].polylines == [] and peer.maps[-1].header.frame_id == 'map'
     assert peer.markers[-1].markers[0].action == Marker.DELETEALL
+
+
+def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive, tmp_path):
+    # A group of 8 scans: the drive's last scans wait for theirs when SIGINT comes; they are
+    # mapped before the map is written (the map then holds the last scan's points).
+    out = tmp_path / 'saved' / 'map.json'
+    node = NodeProcess(tmp_path, {'map_output_path': str(out), 'save_map_on_shutdown': True,
+                                  'update_every_n_scans': 8, 'scan_buffer_size': 400,
+                                  'max_scan_latency': 0.0})
+    peer = Peer('test_peer_save')
+    try:
+        assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
+        msgs = list(drive_messages(office_drive, mount=(0.2, -0.05, 0.3),
+                                   map_to_odom=(1.0, -2.0, 0.4)))
+        scans = sum(topic == '/scan' for _, topic, _ in msgs)
+        assert scans % 8 != 0
+        last = peer.play(msgs, RATE)
+        assert peer.spin_until(lambda: peer.maps and len(peer.maps[-1].segments) > 0, TIMEOUT)
+        assert not out.exists()
+    finally:
+        peer.close()
+        assert node.stop() == 0, node.stderr()[-3000:]
+    saved = read_map(out)
+    assert len(saved.value.segments) > 10 and saved.value.stamp == pytest.approx(last, abs=1e-6)
+    assert node.lines(f'summary: {scans} scans received, {scans} used')
+    assert node.lines(f'wrote {out}: {len(saved.value.segments)} segments')
+    assert max(wall_errors(saved.value.segments, office_drive)) <= 0.15
 
 
 @pytest.mark.parametrize('params, reason', [

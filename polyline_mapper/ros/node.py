@@ -284,22 +284,25 @@ class PolylineMapperNode(Node):
         return response
 
     def _on_save_map(self, request, response):
+        response.success, response.message = self._save_map()
+        return response
+
+    def _save_map(self) -> tuple:
+        """Write the map JSON to ``map_output_path``; log and return (success, message)."""
         path = self.settings.output_path
         value = self.session.map_value(trajectory=True)
         try:
             write_map(path, value, config_dict(self.config),
                       grid=self.session.occupancy(value.segments))
         except (OSError, ValueError) as exc:       # ValueError: formats.output refused it
-            response.success = False
             reason = getattr(exc, 'strerror', None) or exc
-            response.message = f'cannot write {path}: {reason}'
-            self.get_logger().error(response.message)
-            return response
-        response.success = True
-        response.message = (f'wrote {path}: {len(value.segments)} segments in '
-                            f'{len(value.polylines)} polylines')
-        self.get_logger().info(response.message)
-        return response
+            message = f'cannot write {path}: {reason}'
+            self.get_logger().error(message)
+            return False, message
+        message = (f'wrote {path}: {len(value.segments)} segments in {len(value.polylines)} '
+                   'polylines')
+        self.get_logger().info(message)
+        return True, message
 
     # -- worker --------------------------------------------------------------------------------
     def _work(self) -> None:
@@ -422,9 +425,21 @@ class PolylineMapperNode(Node):
                                               values, self.get_clock().now().to_msg()))
 
     def close(self) -> None:
-        """Stop the worker thread and log a summary of the run."""
+        """
+        Stop the worker thread and log a summary of the run.
+
+        With ``save_map_on_shutdown`` the scans still queued are mapped first (as at the end of
+        a replay) and the map is written as ``~/save_map`` writes it.
+        """
         self._stop.set()
         self._worker.join(timeout=5.0)
+        if self.settings.save_map_on_shutdown:
+            try:
+                if not self._worker.is_alive():     # (else: the map as it stands)
+                    self.session.flush(final=True)
+            except Exception as exc:        # the map so far is still written
+                self.get_logger().error(f'mapping the queued scans at shutdown failed: {exc!r}')
+            self._save_map()
         st = self.session.stats()
         warned = ', '.join(f'{k} {v}' for k, v in sorted(self.warnings.counts.items())) or 'none'
         line = (f"summary: {st['scans']} scans received, {st['scans_used']} used in "
