@@ -92,6 +92,18 @@ def test_a_prior_keeps_a_featureless_axis_and_weighs_a_weak_cue_along_it():
             assert m.ok and abs(m.pose[0]) < 0.01 and abs(m.pose[1]) < 0.01, (rng, m.pose)
 
 
+@pytest.mark.parametrize('kwargs, reason', [
+    ({'prediction_prior': PRIOR}, 'pass degenerate=0'),       # the guard's default 0.02
+    ({'prediction_prior': np.diag([0.01, 0.0, 0.01]), 'degenerate': 0.0}, 'positive definite'),
+    ({'prediction_prior': np.full((3, 3), np.nan), 'degenerate': 0.0}, 'positive definite'),
+    ({'prediction_prior': [[1e-2, 1e-3, 0], [0, 1e-2, 0], [0, 0, 1e-2]], 'degenerate': 0.0},
+     'symmetric')])
+def test_a_prior_that_cannot_be_one_is_refused_in_one_line(kwargs, reason):
+    corridor = np.array([[[-50, -1], [50, -1]], [[-50, 1], [50, 1]]], dtype=float)
+    with pytest.raises(ValueError, match=reason):
+        match_scan(cast(corridor, np.zeros(3)), np.zeros(3), corridor, sigma=0.01, **kwargs)
+
+
 def circle(centre, radius=0.25, sides=16):
     """Return a circle as ``sides`` segments (a person, seen from above)."""
     a = np.linspace(0, 2 * np.pi, sides + 1)

@@ -364,8 +364,11 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         Covariance (m^2, rad^2) of the prediction's error, taken as a Gaussian prior on the
         pose, centred where Gauss-Newton starts (the prediction or the start taken, turned by
         the heading search): every step minimises sum w d^2 + sigma^2 (x - x0)^T P^-1 (x - x0).
-        Pass ``degenerate=0`` with it: the prior, not a threshold, then keeps a direction the
-        scan hardly constrains near the start. None: no prior.
+        It replaces the degeneracy guard: ``degenerate`` must be 0 with it (ValueError
+        otherwise; the guard would be read off the information with the prior in it, where
+        no direction is degenerate), and the prior, not a threshold, keeps a direction the
+        scan hardly constrains near the start. It must be finite and positive definite. None:
+        no prior.
     relocalize_near : bool
         Take a relocalized pose within ``gate`` of the prediction too. From odometry the first
         result stands there (a loop's return onto older ground, below); from a
@@ -385,6 +388,16 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     prior = np.diag(np.square(np.asarray(prior_std, dtype=np.float64)))
     if not (np.isfinite(sigma) and sigma > 0):
         raise ValueError(f'sigma must be a finite number > 0, got {sigma!r}')
+    if prediction_prior is not None:
+        prediction_prior = np.asarray(prediction_prior, dtype=np.float64).reshape(3, 3)
+        if degenerate != 0:
+            raise ValueError(f'prediction_prior replaces the degeneracy guard: pass '
+                             f'degenerate=0 with it, got {degenerate!r}')
+        if not (np.isfinite(prediction_prior).all()
+                and np.allclose(prediction_prior, prediction_prior.T)
+                and np.all(np.linalg.eigvalsh(prediction_prior) > 0)):
+            raise ValueError('prediction_prior must be a finite, symmetric, positive definite '
+                             '(3, 3) covariance')
     if len(segs) == 0 or len(pts) == 0:
         return ScanMatch(pred, prior, False, 'no map', 0, np.nan, 3)
     gate_min = 4.0 * sigma if gate_min is None else float(gate_min)
@@ -406,9 +419,7 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     anchor = None
     if prediction_prior is not None:      # sigma^2 P^-1 in the scaled coordinates (yaw x scale)
         scaled = np.array([1.0, 1.0, scale])
-        anchor = float(sigma) ** 2 * np.linalg.inv(
-            np.asarray(prediction_prior, dtype=np.float64).reshape(3, 3)
-            * scaled[:, None] * scaled)
+        anchor = float(sigma) ** 2 * np.linalg.inv(prediction_prior * scaled[:, None] * scaled)
     problem = _Problem(pts, lines, near, float(sigma), gate, gate_min, kernel, need,
                        scale, prior, int(iterations), float(degenerate), est, anchor)
     m = _refine(problem, pred, turns, max_shift, max_turn, prediction_cov)
