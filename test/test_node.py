@@ -257,12 +257,12 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
         assert node.stop() == 0, node.stderr()[-3000:]
     saved = read_map(out)
     assert len(saved.value.segments) > 10 and saved.value.stamp == pytest.approx(last, abs=1e-6)
-    # the scans were mapped (the last group by the flush at shutdown: the stamp above); under
-    # load sensor-data QoS may lose a scan in transport, or one may wait too long for its /tf
+    # every scan that came was mapped, the last group by the flush at shutdown (the stamp
+    # above); under load sensor-data QoS loses scans in transport (221 of 230 came in a CI run)
     summary = node.lines('summary: ')
     assert summary, node.stderr()[-3000:]
-    used = re.search(r'summary: (\d+) scans received, (\d+) used', summary[-1])
-    assert int(used[2]) >= scans - 5, summary
+    counts = re.search(r'summary: (\d+) scans received, (\d+) used', summary[-1])
+    assert int(counts[2]) == int(counts[1]) >= scans // 2, summary
     assert node.lines(f'wrote {out}: {len(saved.value.segments)} segments')
     assert max(wall_errors(saved.value.segments, office_drive)) <= 0.15
 
