@@ -18,7 +18,9 @@ and reports per run:
   ``core.metrics.trajectory_error``);
 - the heading error at scans 1 and 10 (a map frame turned early turns the whole map: a wall
   15 m out moves 15 cm for 0.01 rad);
-- the walls' F1 (``baselines.walls.wall_scores``, the map as it stands in the true frame).
+- the walls' F1 (``baselines.walls.wall_scores``), of the map as it stands in the true frame
+  and of the map moved by the trajectory's alignment (the reading of the bar that matches
+  the ATE: a map frame turned in the first scans turns every wall with it).
 
 Writes the table into benchmarks/README.md (between the ``office-drift`` markers) and the rows
 to results/office_drift.json.
@@ -54,12 +56,18 @@ def one(drive, drift) -> dict:
     yaw = np.abs(np.angle(np.exp(1j * (traj[:, 3] - truth[:, 2]))))
     world = drive.world
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
+    te = trajectory_error(traj[:, 1:], truth)
+    x, y, a = te['alignment']
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    moved = np.asarray(value.segments, dtype=np.float64) @ rot.T + [x, y]
+    aligned = wall_scores(moved, world.walls, world.distance, points=drive.points())
     return {'drift_seed': drift, 'scans': int(len(traj)),
             'rms_m': round(rms, 4),
-            'ate_m': round(float(trajectory_error(traj[:, 1:], truth)['ate']), 4),
+            'ate_m': round(float(te['ate']), 4),
             'yaw_1_rad': round(float(yaw[1]), 4), 'yaw_10_rad': round(float(yaw[10]), 4),
-            'f1': round(walls['f1'], 3),
-            'meets_bar': bool(rms <= 0.05 and walls['f1'] == 1.0)}
+            'f1': round(walls['f1'], 3), 'f1_aligned': round(aligned['f1'], 3),
+            'meets_bar': bool(rms <= 0.05 and walls['f1'] == 1.0),
+            'meets_bar_aligned': bool(te['ate'] <= 0.05 and aligned['f1'] == 1.0)}
 
 
 def main() -> int:
@@ -77,16 +85,20 @@ def main() -> int:
     write_results('office_drift', meta, rows)
     lines = table_header(meta, ['odometry', 'RMS as the poses stand (m)', 'ATE (m)',
                                 'heading error at scan 1 / 10 (rad)', 'walls F1',
-                                '<= 5 cm and F1 1.0'])
+                                '<= 5 cm and F1 1.0', 'walls F1, aligned',
+                                'ATE <= 5 cm and aligned F1 1.0'])
     for r in rows:
         name = 'true' if r['drift_seed'] is None else f"drift seed {r['drift_seed']}"
         lines.append(f"| {name} | {r['rms_m']:.3f} | {r['ate_m']:.3f} | "
                      f"{r['yaw_1_rad']:.4f} / {r['yaw_10_rad']:.4f} | {r['f1']:.2f} | "
-                     f"{'yes' if r['meets_bar'] else 'no'} |")
+                     f"{'yes' if r['meets_bar'] else 'no'} | {r['f1_aligned']:.2f} | "
+                     f"{'yes' if r['meets_bar_aligned'] else 'no'} |")
     drifted = [r for r in rows if r['drift_seed'] is not None]
     lines.append('')
     lines.append(f"Drift seeds meeting the bar: {sum(r['meets_bar'] for r in drifted)} of "
-                 f"{len(drifted)}; ATE at most {max(r['ate_m'] for r in drifted):.3f} m.")
+                 f'{len(drifted)} as the poses stand, '
+                 f"{sum(r['meets_bar_aligned'] for r in drifted)} of {len(drifted)} after the "
+                 f"trajectory's alignment; ATE at most {max(r['ate_m'] for r in drifted):.3f} m.")
     write_readme('office-drift', '\n'.join(lines) + '\n')
     return 0
 
