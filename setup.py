@@ -22,7 +22,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'polyline-mapper = polyline_mapper.cli:main',
+            'polyline-mapper = polyline_mapper.console:main',
             'polyline_mapper_node = polyline_mapper.ros.node:main',
         ],
     },

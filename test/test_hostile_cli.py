@@ -311,6 +311,28 @@ def test_a_failed_write_names_the_target_and_leaves_nothing(ws, capsys, monkeypa
         assert snapshot(ws['dir']) == before
 
 
+def test_a_ctrl_c_while_the_program_loads_is_one_line():
+    # The console script (polyline_mapper.console:main) imports the command line inside its
+    # handler: a Ctrl-C during the imports of numpy, scipy and the core (the first half
+    # second) showed a traceback from inside an import. Here the interrupt arrives at the
+    # import of scipy, every time.
+    code = (
+        'import sys\n'
+        'class Interrupt:\n'
+        '    def find_spec(self, name, path=None, target=None):\n'
+        "        if name == 'scipy':\n"
+        '            raise KeyboardInterrupt\n'
+        'sys.meta_path.insert(0, Interrupt())\n'
+        'from polyline_mapper.console import main\n'
+        "sys.exit(main(['fit', 'nothing.log', '-o', 'nothing.json']))\n")
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 130, done
+    assert done.stderr == 'polyline-mapper: interrupted\n', done.stderr
+    setup = open(os.path.join(os.path.dirname(__file__), '..', 'setup.py')).read()
+    assert "'polyline-mapper = polyline_mapper.console:main'" in setup
+
+
 def test_record_map_checks_its_output_before_waiting(ws, capsys):
     t0 = time.monotonic()
     code, err, _ = run(['record-map', '/nobody/publishes', '-o', ws['fifo'], '--timeout', '5'],
