@@ -53,8 +53,11 @@ def carmen_to_bag(log_path: str, out_path: str, storage: str = 'sqlite3', period
     log = read_carmen(log_path)
     stamps, made_up = log.stamps(period)
     parent = os.path.dirname(os.path.abspath(out_path))
-    os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix='.tmp-bag-', dir=parent)
+    try:
+        os.makedirs(parent, exist_ok=True)
+        tmp = tempfile.mkdtemp(prefix='.tmp-bag-', dir=parent)
+    except OSError as exc:              # named as the user named it, not the temporary folder
+        raise OSError(exc.errno, exc.strerror, os.fspath(out_path)) from None
     try:
         bag = os.path.join(tmp, os.path.basename(os.path.abspath(out_path)))
         drift = (None if drift_seed is None

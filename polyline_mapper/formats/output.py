@@ -11,7 +11,9 @@ target as the user gave it):
 - A symlink is followed: its target is written and the link stays a link (as a shell's ``>``
   does); a symlink loop is refused.
 - A read-only file (no write permission for this user, or its owner's write bit clear, which
-  root would otherwise ignore) is refused rather than silently replaced.
+  root would otherwise ignore) is refused rather than silently replaced; so is a target whose
+  folder (or, for a folder still to be made, its first existing ancestor) this user cannot
+  write into.
 - An existing file that is overwritten keeps its permission bits (0600 stays 0600) and, where
   the system allows, its owner; a new file gets 0666 minus the umask, as ``open()`` gives.
 - Content goes to a temporary file in the target's folder (``.NAME.tmp-XXXX``), is flushed to
@@ -107,6 +109,9 @@ def _check_place(name, target: str, inputs: Iterable) -> None:
         folder = os.path.dirname(folder)
     if not os.path.isdir(folder):
         raise OutputError(f'{name}: {folder} is not a folder')
+    if not os.access(folder, os.W_OK | os.X_OK):
+        # Checked here, before the work: the write itself would fail only at the end of it.
+        raise OutputError(f'{name}: cannot write into {folder} (Permission denied)')
 
 
 def check_outputs(paths: Iterable, inputs: Iterable = ()) -> list:
