@@ -135,6 +135,11 @@ def read_values(path: str = None, overrides: Iterable[str] = (),
                 data = yaml.safe_load(fh) or {}
         except FileNotFoundError:
             raise ConfigError(f'{path}: no such config file') from None
+        except yaml.MarkedYAMLError as exc:     # where and what, as the YAML parser says it
+            mark = exc.problem_mark
+            where = '' if mark is None else f' at line {mark.line + 1}, column {mark.column + 1}'
+            what = ' '.join(str(exc.problem or exc.__class__.__name__).split())
+            raise ConfigError(f'{path}: not valid YAML{where}: {what}') from None
         except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
             raise ConfigError(f'{path}: unreadable config ({exc.__class__.__name__})') from None
         if not isinstance(data, dict):

@@ -911,6 +911,26 @@ R_OVER_SIGMA = CORE_RANGES['smemsf.r_over_sigma'][1]
 """A saved map's noise scale (m) is taken up to smemsf.sigma's largest value, its r up to
 r_over_sigma's largest times that; beyond, it is not a noise scale (1e300 overflowed the
 match covariance)."""
+
+
+def saved_noise_scale(stats) -> tuple:
+    """
+    Return a saved map's (sigma, r) from its stats, metres; None for either that is unusable.
+
+    Unusable: missing, not a number, not finite, <= 0 or beyond ``MAX_MAP_SIGMA`` (r: beyond
+    ``R_OVER_SIGMA`` times that, or without a usable sigma).
+    """
+    stats = stats or {}
+    sigma, r = stats.get('sigma'), stats.get('r')
+    if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
+            and math.isfinite(sigma) and 0 < sigma <= MAX_MAP_SIGMA):
+        sigma = None
+    if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
+                             and math.isfinite(r) and 0 < r <= MAX_MAP_SIGMA * R_OVER_SIGMA):
+        r = None
+    return sigma, r
+
+
 MAX_SCAN_FRAMES = 64
 """Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
 cannot grow it)."""
@@ -1125,18 +1145,12 @@ class MappingSession:
             if pose.shape != (3,) or not np.isfinite(pose).all():
                 raise ValueError(f'initial pose must be 3 finite numbers (x, y, yaw), got '
                                  f'{list(np.ravel(initial_pose))}')
-        stats = value.stats or {}
-        sigma, r = stats.get('sigma'), stats.get('r')
-        if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
-                and math.isfinite(sigma) and 0 < sigma <= MAX_MAP_SIGMA):
-            sigma = None
-        if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
-                                 and math.isfinite(r) and 0 < r <= MAX_MAP_SIGMA * R_OVER_SIGMA):
-            r = None
+        sigma, r = saved_noise_scale(value.stats)
         if len(value.segments) and sigma is None and self.mapper.config.smemsf.sigma is None:
             raise ValueError(f'the map has no noise scale (stats.sigma, in (0, {MAX_MAP_SIGMA:g}] '
-                             f'm; got {stats.get("sigma")!r}): scans cannot be matched against '
-                             'it; set smemsf.sigma')
+                             f'm; got {(value.stats or {}).get("sigma")!r}): scans cannot be '
+                             'matched against it; give one (the parameter smemsf.sigma; '
+                             'replay --set sigma=M)')
         with self._map_lock:
             mapper = self.mapper
             config = self._config.resolved(True)

@@ -378,6 +378,32 @@ def test_a_ctrl_c_while_the_program_loads_is_one_line():
     assert "'polyline-mapper = polyline_mapper.console:main'" in setup
 
 
+@pytest.mark.parametrize('text, needle', [
+    ('smemsf:\n\tsigma: 0.01\n', "at line 2, column 1: found character '\\t' that cannot start"),
+    ('smemsf:\n  sigma 0.01\n  kappa: [1, 2\n', 'at line 3, column 8: mapping values are '
+     'not allowed here'),
+    ('smemsf: {sigma: 0.01\n', 'at line 2, column 1: expected'),
+], ids=['tab', 'missing colon', 'unclosed brace'])
+def test_a_config_file_that_is_not_yaml_says_where(ws, capsys, text, needle):
+    # The error named only the parser's exception class (ScannerError, ParserError).
+    bad = os.path.join(ws['dir'], 'bad.yaml')
+    with open(bad, 'w') as fh:
+        fh.write(text)
+    for argv in (['fit', ws['pts'], '-o', ws['out']], ['replay', ws['room'], '-o', ws['out']]):
+        code, err, _ = run(argv + ['--config', bad, '-q'], capsys)
+        assert code == 2
+        assert_one_line(err, f'{bad}: not valid YAML {needle}')
+        assert not os.path.exists(ws['out'])
+
+
+def test_a_folder_given_as_a_log_is_said_to_be_a_folder(ws, capsys):
+    # "unreadable or truncated log (IsADirectoryError: [Errno 21] Is a directory: ...)"
+    code, err, _ = run(['convert', ws['folder'], '-o', os.path.join(ws['dir'], 'b'), '-q'],
+                       capsys)
+    assert code == 2
+    assert_one_line(err, f"{ws['folder']}: is a folder, not a CARMEN log")
+
+
 def test_record_map_checks_its_output_before_waiting(ws, capsys):
     t0 = time.monotonic()
     code, err, _ = run(['record-map', '/nobody/publishes', '-o', ws['fifo'], '--timeout', '5'],
@@ -543,6 +569,12 @@ OPTION_CASES = [
      'step must be a number of metres in [0.01, 10]'),
     ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
      'turn must be a number of radians >= 0.01'),
+    # a cell size out of range is said as such, not as "the map is too large"
+    ('export --resolution 500', ['export', '{map}', '-o', '{dir}/m.yaml', '--resolution', '500'],
+     'error: grid resolution must be in [0.001, 100] m, got 500.0 (export --resolution M)'),
+    ('export --resolution 0.0005',
+     ['export', '{map}', '-o', '{dir}/m.yaml', '--resolution', '0.0005'],
+     'error: grid resolution must be in [0.001, 100] m, got 0.0005'),
 ]
 
 

@@ -300,7 +300,7 @@ def test_load_map_maps_as_a_session_started_with_scan_matching(saved, office):
     assert session.mapper.config.free_space_window == 10
 
 
-def test_a_map_without_noise_scale_is_refused_unless_sigma_is_set(saved, tmp_path):
+def test_a_map_without_noise_scale_is_refused_unless_sigma_is_set(saved, tmp_path, capsys):
     _, path, _ = saved
     data = json.loads(path.read_text())
     del data['stats']['sigma']
@@ -308,9 +308,15 @@ def test_a_map_without_noise_scale_is_refused_unless_sigma_is_set(saved, tmp_pat
     bare.write_text(json.dumps(data))
     with pytest.raises(ValueError, match='no noise scale'):
         MappingSession().load_map(read_map(bare).value)
-    rc = main(['replay', 'sim:office', '--every', '20', '--map', str(bare), '-o',
-               str(tmp_path / 'o.json'), '-q', '--set', 'sigma=0.01'])
-    assert rc == 0
+    # replay names the map and the option its advice takes (it said "set smemsf.sigma", a key
+    # --set refuses), and the advice works
+    argv = ['replay', 'sim:office', '--every', '20', '--map', str(bare), '-o',
+            str(tmp_path / 'o.json'), '-q']
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f'polyline-mapper: error: {bare}: ') and \
+        err[0].endswith('give one with --set sigma=M'), err
+    assert main(argv + ['--set', 'sigma=0.01']) == 0
 
 
 def _not_a_map(tmp_path):

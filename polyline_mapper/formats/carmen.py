@@ -245,6 +245,8 @@ def read_carmen(path: str) -> CarmenLog:
                     robotlaser = rec
     except FileNotFoundError:
         raise ValueError(f'{path}: no such file') from None
+    except IsADirectoryError:
+        raise ValueError(f'{path}: is a folder, not a CARMEN log') from None
     except UnicodeDecodeError as exc:
         raise ValueError(f'{path}: unreadable log (not UTF-8 text at line {lineno + 1}: '
                          f'{exc.reason})') from None

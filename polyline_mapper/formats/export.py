@@ -36,7 +36,7 @@ import numpy as np
 
 from .mapjson import grid_from_dict, map_value_from_dict, MapFile
 from .output import OutputSet, write_text_atomic
-from ..core.grid import FREE, GridMap, OCCUPIED, rasterise
+from ..core.grid import check_resolution, FREE, GridMap, OCCUPIED, rasterise
 
 FORMATS = ('geojson', 'svg', 'csv', 'yaml')
 TRAJECTORY_FORMATS = ('csv', 'tum')
@@ -189,7 +189,10 @@ def planner_grid(data: dict, resolution: float = None) -> GridMap:
             raise ValueError(f'the map stores its planner grid at {grid.resolution:g} m; a '
                              'resolution applies to a map without one (as fit writes)')
         return grid
-    res = GRID_RESOLUTION if resolution is None else float(resolution)
+    try:                                # a cell size out of range is said as such
+        res = check_resolution(GRID_RESOLUTION if resolution is None else float(resolution))
+    except ValueError as exc:
+        raise ValueError(f'{exc} (export --resolution M)') from None
     segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
     try:
         return rasterise(segs, res)
