@@ -387,6 +387,13 @@ def _mount(text: str) -> tuple:
 
 def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False):
     from .session import SessionOptions
+    given = [flag for flag, value in (('--odom-topic', args.odom_topic),
+                                      ('--laser-mount', args.laser_mount)) if value is not None]
+    if given and args.pose_source != 'odom':
+        # Only the odometry pose source reads them: with tf the laser's mount comes from
+        # /tf_static and odometry is not read, in scan mode no pose data at all.
+        raise CliError(f'{" and ".join(given)} {"applies" if len(given) == 1 else "apply"} '
+                       f'with --pose-source odom only (given: {args.pose_source})')
     mount, flip = _mount(args.laser_mount)
     return SessionOptions(pose_source=args.pose_source, fixed_frame=args.fixed_frame,
                           every=every, update_every_n_scans=group, mount=mount,

@@ -569,6 +569,15 @@ OPTION_CASES = [
      'step must be a number of metres in [0.01, 10]'),
     ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
      'turn must be a number of radians >= 0.01'),
+    # read with the odometry pose source only: given with another, they changed nothing
+    ('replay --laser-mount, tf', ['replay', '{bag}', '-o', '{out}', '--laser-mount', '5,5,90'],
+     '--laser-mount applies with --pose-source odom only (given: tf)'),
+    ('replay --laser-mount, scan', ['replay', '{bag}', '-o', '{out}', '--laser-mount', '5,5,90',
+                                    '--pose-source', 'scan'],
+     '--laser-mount applies with --pose-source odom only (given: scan)'),
+    ('fit bag --odom-topic', ['fit', '{bag}', '-o', '{out}', '--odom-topic', '/odom',
+                              '--laser-mount', '0,0,0'],
+     '--odom-topic and --laser-mount apply with --pose-source odom only (given: tf)'),
     # a cell size out of range is said as such, not as "the map is too large"
     ('export --resolution 500', ['export', '{map}', '-o', '{dir}/m.yaml', '--resolution', '500'],
      'error: grid resolution must be in [0.001, 100] m, got 500.0 (export --resolution M)'),
