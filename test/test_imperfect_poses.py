@@ -411,7 +411,8 @@ def test_a_person_walking_ahead_maps_as_true_poses_do(seed):
                    'corridor loop no cross wall is within the 12 m range: the odometry error '
                    'of 5 % a step adds up (about 9 cm a side): 14 cm RMS (11 along, 9 across), '
                    'walls F1 0.56 (2026-11-28). Localized on the map made with true poses '
-                   '(mapping off), the same drift seed still gives 7.1 cm RMS (2026-11-29)')
+                   '(mapping off), the same drive and drift seed still give 6.4 cm RMS '
+                   '(2026-11-29)')
 def test_drifting_odometry_and_a_moving_sensor_in_the_corridors_map_as_true_poses_do():
     drive, s = replay('sim:corridors,moving_sensor=1,turn=0.2', 1, drift=1)
     assert s['rms'] <= 0.05 and s['walls']['f1'] == 1.0, (s['rms'], s['walls'])
