@@ -23,7 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'polyline-mapper = polyline_mapper.console:main',
-            'polyline_mapper_node = polyline_mapper.ros.node:main',
+            'polyline_mapper_node = polyline_mapper.console:node_main',
         ],
     },
 )

@@ -374,8 +374,14 @@ def test_a_ctrl_c_while_the_program_loads_is_one_line():
                           timeout=60)
     assert done.returncode == 130, done
     assert done.stderr == 'polyline-mapper: interrupted\n', done.stderr
+    # ... and the node's (polyline_mapper_node): it ends quietly, as after its start-up
+    node = code.replace("main(['fit', 'nothing.log', '-o', 'nothing.json'])", 'node_main([])')
+    done = subprocess.run([sys.executable, '-c', node.replace('import main', 'import node_main')],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stderr == '', done
     setup = open(os.path.join(os.path.dirname(__file__), '..', 'setup.py')).read()
     assert "'polyline-mapper = polyline_mapper.console:main'" in setup
+    assert "'polyline_mapper_node = polyline_mapper.console:node_main'" in setup
 
 
 @pytest.mark.parametrize('text, needle', [

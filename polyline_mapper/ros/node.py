@@ -497,7 +497,18 @@ def _cm(sigma) -> str:
 
 
 def _interrupt(signum, frame):
+    """Stop the spin loop at the first SIGINT or SIGTERM; later ones must not end the close."""
+    signal.signal(signal.SIGINT, _while_closing)
+    signal.signal(signal.SIGTERM, _while_closing)
     raise KeyboardInterrupt
+
+
+def _while_closing(signum, frame):
+    """Say once that a signal during shutdown is ignored: the map is still being finished."""
+    if not getattr(_while_closing, 'said', False):
+        _while_closing.said = True
+        get_logger(NODE_NAME).warn(f'{signal.Signals(signum).name} while shutting down: ignored '
+                                   '(finishing the map; SIGKILL stops the node at once)')
 
 
 def main(args=None) -> int:
@@ -535,6 +546,12 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # A second Ctrl-C, or the SIGTERM ros2 launch sends after a SIGINT, must not break off
+        # the shutdown: it raised KeyboardInterrupt inside the flush, with a traceback, and
+        # save_map_on_shutdown wrote nothing. (_interrupt swaps the handlers already; this
+        # covers a shutdown from outside, ExternalShutdownException.)
+        signal.signal(signal.SIGINT, _while_closing)
+        signal.signal(signal.SIGTERM, _while_closing)
         node.close()
         executor.remove_node(node)
         node.destroy_node()
