@@ -588,6 +588,9 @@ class PoseSource:
         self._mounted = False
         self._newest = {}
         """Child frame -> (stamp, translation, rotation) of its newest dynamic edge sample."""
+        self._odom_refused = None
+        """(frame, count) of the odometry refused for its frame, while none was taken."""
+        self._odom_taken = False
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -622,14 +625,17 @@ class PoseSource:
                 if self.odom_frame is None:
                     self.odom_frame = record.frame_id
                 elif record.frame_id != self.odom_frame:
+                    self._refuse_odometry(record.frame_id)
                     raise RecordSkipped('odom_frame', f'odometry in frame {record.frame_id!r}, '
                                         f'expected {self.odom_frame!r} as the first odometry')
             elif self.fixed_frame is None:
                 self.fixed_frame = record.frame_id
             elif record.frame_id != self.fixed_frame:
+                self._refuse_odometry(record.frame_id)
                 raise RecordSkipped('odom_frame', f'odometry in frame {record.frame_id!r}, '
                                     f'expected {self.fixed_frame!r} (with pose source odom the '
                                     'map is in the odometry frame)')
+            self._odom_taken = True
             self.base_frame = record.child_frame_id
             if not self._in_order(record.frame_id, record.child_frame_id, record.stamp,
                                   record.translation, record.rotation):
@@ -720,12 +726,10 @@ class PoseSource:
             raise TransformLookupError('unknown_frame', 'the scan has an empty frame_id')
         if self.options.pose_source == 'odom':
             target = self.odom_frame if self.localizer else self.fixed_frame
-            if target is None or not self._parents:
-                raise TransformLookupError('no_tf', 'no odometry received yet')
+            if target is None or not self._parents or not self._odom_taken or (
+                    self.options.mount is not None and not self._mounted):
+                raise TransformLookupError('no_tf', self._no_odometry(target))
             if self.options.mount is not None:
-                if not self._mounted:
-                    raise TransformLookupError('no_tf', 'no odometry received yet in frame '
-                                               f'{target!r}')
                 frame = MOUNT_FRAME
         elif self.localizer:
             chain = self._chain(frame)
@@ -748,6 +752,21 @@ class PoseSource:
         else:
             self.fixed_frame = self.odom_frame = target
         return pose
+
+    def _refuse_odometry(self, frame: str) -> None:
+        """Count an odometry message refused for its frame while none has been taken."""
+        if not self._odom_taken:
+            seen, n = self._odom_refused or (frame, 0)
+            self._odom_refused = (frame, n + 1) if seen == frame else (frame, 1)
+
+    def _no_odometry(self, target: Optional[str]) -> str:
+        """Say why odometry mode has no pose yet: none came, or what came was refused."""
+        where = '' if target is None else f' in frame {target!r}'
+        if self._odom_refused is not None and not self._odom_taken:
+            frame, n = self._odom_refused
+            return (f'no usable odometry yet: {n} message(s) in frame {frame!r}, none{where} '
+                    '(see the odom_frame warning)')
+        return f'no odometry received yet{where}'
 
     def _odometry_edge(self, frame: str, target: Optional[str]) -> Optional[str]:
         """
@@ -1229,7 +1248,7 @@ class MappingSession:
         if record.frame_id != frame:
             why = f'in frame {record.frame_id!r}: it must be in {frame!r}, the map frame'
         elif pose.shape != (3,) or not np.isfinite(pose).all():
-            why = (f'pose {list(pose)} is not 3 finite numbers (x, y, yaw; no yaw from a '
+            why = (f'pose {pose.tolist()} is not 3 finite numbers (x, y, yaw; no yaw from a '
                    'quaternion that is not normalised)')
         elif not (np.isfinite(var).all() and (var >= 0).all()):
             why = 'its covariance has no finite variances >= 0 for x, y and yaw'
@@ -2120,6 +2139,11 @@ class MappingSession:
                 if values:
                     out[key] = _percentiles(values)
         return out
+
+    @property
+    def loaded(self) -> Optional[MapValue]:
+        """Return the saved map the session started from (``load_map``), or None."""
+        return None if self._loaded is None else self._loaded[0]
 
     def reset(self) -> int:
         """

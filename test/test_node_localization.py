@@ -60,6 +60,12 @@ def test_the_node_localizes_on_a_saved_map_and_publishes_it_unchanged(saved_map,
         assert np.array_equal(map_segments(msg), loaded.segments)
         response = peer.call('/polyline_mapper_node/save_map', Trigger)
         assert response is not None and response.success, node.stderr()[-3000:]
+        # ~/reset goes back to the saved map, and says so (it said "map cleared")
+        response = peer.call('/polyline_mapper_node/reset', Trigger)
+        assert response is not None and response.success, node.stderr()[-3000:]
+        assert response.message.startswith(
+            f'map reset to the saved map {saved_map} ({len(loaded.segments)} segments; '), \
+            response.message
     finally:
         peer.close()
         assert node.stop() == 0

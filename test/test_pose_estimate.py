@@ -269,7 +269,9 @@ def _estimate_msg(frame='map', q=(0.0, 0.0, 0.0, 1.0), cov=RVIZ):
 
 @pytest.mark.parametrize('msg, words', [
     ({'frame': 'odom'}, "in frame 'odom': it must be in 'map'"),
-    ({'q': (0.0, 0.0, 0.0, 0.0)}, 'not normalised'),
+    ({'q': (0.0, 0.0, 0.0, 0.0)},         # the numbers as numbers, not np.float64(nan)
+     'pose [1.0, 2.0, nan] is not 3 finite numbers (x, y, yaw; no yaw from a quaternion that '
+     'is not normalised)'),
     ({'q': (0.0, 0.0, float('nan'), 1.0)}, 'not normalised'),
     ({'cov': np.diag([0.25, float('nan'), 0.07])}, 'no finite variances'),
     ({'cov': np.diag([0.25, 0.25, -0.07])}, 'no finite variances'),

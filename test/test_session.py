@@ -1,6 +1,7 @@
 """The mapping session: checks, poses from records, queue and give-up, grouping, shedding."""
 
 import math
+import re
 
 import numpy as np
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
@@ -148,6 +149,32 @@ def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():
     pose = session.poses.pose(Scan(1.5, 'whatever_frame', 0.0, 0.1, 0.0, 10.0, np.ones(3)))
     want = se2_compose(np.array([2.5, 0.0, 1.0]), np.array([0.3, -0.1, 0.5]))
     assert np.allclose(pose.xyz, want) and pose.flip
+
+
+def test_odometry_refused_for_its_frame_is_named_when_a_scan_has_no_pose():
+    # The node said "no odometry received yet" while odometry in another frame kept coming
+    # (and was refused, with its own warning): the scan's reason now says what came.
+    from polyline_mapper.poses import TransformLookupError
+    session, warned = live(FakeClock(), pose_source='odom', fixed_frame='odom',
+                           mount=(0.3, -0.1, 0.5))
+    for stamp in (1.0, 2.0, 3.0):
+        session.add(Odometry(stamp, 'wheel_odom', 'base_link', np.zeros(3),
+                             quaternion_from_yaw(0.0)))
+    assert causes(warned) == ['odom_frame'] * 3
+    scan = Scan(1.5, 'laser', 0.0, 0.1, 0.0, 10.0, np.ones(3))
+    with pytest.raises(TransformLookupError, match=re.escape(
+            "no usable odometry yet: 3 message(s) in frame 'wheel_odom', none in frame "
+            "'odom' (see the odom_frame warning)")):
+        session.poses.pose(scan)
+    # once odometry in the frame comes, the scan has its pose
+    session.add(Odometry(1.0, 'odom', 'base_link', np.zeros(3), quaternion_from_yaw(0.0)))
+    session.add(Odometry(2.0, 'odom', 'base_link', np.array([1.0, 0.0, 0.0]),
+                         quaternion_from_yaw(0.0)))
+    assert np.allclose(session.poses.pose(scan).xyz[:2], [0.5 + 0.3, -0.1])
+    # with none at all, as before
+    session, _ = live(FakeClock(), pose_source='odom', fixed_frame='odom')
+    with pytest.raises(TransformLookupError, match="^no odometry received yet in frame 'odom'$"):
+        session.poses.pose(scan)
 
 
 def test_a_live_session_equals_an_offline_replay_of_the_same_records(office_drive):

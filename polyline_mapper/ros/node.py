@@ -280,6 +280,10 @@ class PolylineMapperNode(Node):
             self._publish_grid()
         response.success = True
         response.message = f'map cleared ({dropped} segments dropped)'
+        if self.session.loaded is not None:     # reset goes back to the saved map
+            response.message = (f'map reset to the saved map {self.settings.input_path} '
+                                f'({len(self.session.loaded.segments)} segments; '
+                                f'{dropped} dropped)')
         self.get_logger().info(response.message)
         return response
 
@@ -395,7 +399,7 @@ class PolylineMapperNode(Node):
         timing = (f', update median {1e3 * sorted(times)[len(times) // 2]:.1f} ms, max '
                   f'{1e3 * max(times):.1f} ms' if times else '')
         self.get_logger().info(
-            f'map {len(p.mapper.segments)} segments (sigma {_cm(p.mapper.sigma)}); last '
+            f'map {self._published_count()} segments (sigma {_cm(p.mapper.sigma)}); last '
             f'{self.settings.stats_period:g} s: {received} scans in, {used} used, {updates} '
             f'updates{timing}')
 
@@ -409,7 +413,7 @@ class PolylineMapperNode(Node):
         self._last_diag = now
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'))
-        values = {'segments': len(p.mapper.segments), 'sigma_m': p.mapper.sigma or 0.0,
+        values = {'segments': self._published_count(), 'sigma_m': p.mapper.sigma or 0.0,
                   'lost': int(p.lost),
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}
@@ -451,8 +455,18 @@ class PolylineMapperNode(Node):
                 v = st[key]
                 line += (f"; {key} p50 {v['p50']:.1f} p95 {v['p95']:.1f} p99 {v['p99']:.1f} "
                          f"max {v['max']:.1f}")
-        line += f'; map {len(self.session.mapper.segments)} segments'
+        line += f'; map {len(self.session.map_value().segments)} segments'
         self.get_logger().info(line)
+
+    def _published_count(self) -> int:
+        """
+        Return the segments of the map as last published (as /polyline_map and save_map count).
+
+        The mapper's own segments are counted before ``polylines()`` joins them into the map
+        it publishes (25 against 24 on the office drive).
+        """
+        segments = self._published[2]
+        return 0 if segments is None else len(segments)
 
 
 def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
