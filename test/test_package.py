@@ -142,7 +142,10 @@ def test_launch_file_starts_the_installed_executable_with_the_installed_config()
         assert needle in text, needle
     assert {'Node', 'DeclareLaunchArgument', 'LaunchConfiguration'} <= names
     setup = (REPO / 'setup.py').read_text()
-    assert "'polyline_mapper_node = polyline_mapper.ros.node:main'" in setup
+    # (the node's main behind an import-time Ctrl-C handler: console.node_main)
+    assert "'polyline_mapper_node = polyline_mapper.console:node_main'" in setup
+    from polyline_mapper.console import node_main
+    assert callable(node_main)
 
 
 def launch_node(monkeypatch, **given) -> tuple:
