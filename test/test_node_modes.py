@@ -104,3 +104,7 @@ def test_the_diagnostics_status_says_lost_first():
     assert mapping_status(10, 8, 2, 50, False, '/scan')[0] == 1
     assert mapping_status(0, 0, 0, 0, False, '/scan') == (0, 'waiting for scans on /scan')
     assert mapping_status(10, 10, 0, 50, False, '/scan') == (0, 'mapping')
+    # the scans stopped: a node that never used one said OK 'mapping' (node audit)
+    assert mapping_status(0, 0, 0, 90, False, '/scan', 0) == (
+        1, '90 scans received, none used yet (see the warnings)')
+    assert mapping_status(0, 0, 0, 90, False, '/scan', 90) == (0, 'mapping')

@@ -412,7 +412,7 @@ class PolylineMapperNode(Node):
         self._diag_mark = (st['scans'], st['scans_used'], st['dropped'])
         self._last_diag = now
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
-                                        self.resolve_topic_name('scan'))
+                                        self.resolve_topic_name('scan'), st['scans_used'])
         values = {'segments': self._published_count(), 'sigma_m': p.mapper.sigma or 0.0,
                   'lost': int(p.lost),
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
@@ -470,13 +470,13 @@ class PolylineMapperNode(Node):
 
 
 def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
-                   topic: str) -> tuple:
+                   topic: str, total_used: int = None) -> tuple:
     """
     Return the /diagnostics (level, message) of one period: 0 OK, 1 WARN.
 
     ``received`` / ``used`` / ``dropped``: scans in the period; ``total``: scans ever
     received; ``lost``: scan matching does not know where the scans are
-    (``MappingSession.lost``).
+    (``MappingSession.lost``); ``total_used``: scans ever used (None: not known).
     """
     if lost:
         return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
@@ -488,6 +488,8 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
         return 1, f'{dropped} scans dropped: updates fall behind'
     if not total:
         return 0, f'waiting for scans on {topic}'
+    if total_used == 0:         # the scans stopped, and not one of them was ever used
+        return 1, f'{total} scans received, none used yet (see the warnings)'
     return 0, 'mapping'
 
 
