@@ -456,13 +456,13 @@ def cmd_replay(args) -> int:
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
     _suffixes(args.output, args.plot)
     start, pose = _start_map(args)
-    if start is not None and len(start.value) and config.smemsf.sigma is None:
-        from .session import MAX_MAP_SIGMA, saved_noise_scale
-        if saved_noise_scale(start.value.stats)[0] is None:
-            raise CliError(f'{args.map}: the saved map has no noise scale (stats.sigma, in '
-                           f'(0, {MAX_MAP_SIGMA:g}] m; got '
-                           f'{(start.value.stats or {}).get("sigma")!r}): scans cannot be '
-                           'matched against it; give one with --set sigma=M')
+    if start is not None:               # checked here to name the file and the option
+        from .session import require_noise_scale
+        try:
+            require_noise_scale(start.value, config.smemsf.sigma is not None,
+                                'give one with --set sigma=M')
+        except ValueError as exc:
+            raise CliError(f'{args.map}: {exc}') from None
     if args.loop_closure and (not args.scan_matching or start is not None
                               or args.pose_source != 'odom'):
         raise CliError('--loop-closure needs --scan-matching and --pose-source odom, '

@@ -950,6 +950,21 @@ def saved_noise_scale(stats) -> tuple:
     return sigma, r
 
 
+def require_noise_scale(value: MapValue, sigma_given: bool, advice: str) -> tuple:
+    """
+    Return a saved map's ``saved_noise_scale``; ValueError when it has segments and none.
+
+    ``sigma_given``: the configuration fixes sigma itself (then none is needed). ``advice``
+    ends the message: how to give one, in the words of the caller (node or command line).
+    """
+    sigma, r = saved_noise_scale(value.stats)
+    if len(value.segments) and sigma is None and not sigma_given:
+        raise ValueError(f'the map has no noise scale (stats.sigma, in (0, {MAX_MAP_SIGMA:g}] '
+                         f'm; got {(value.stats or {}).get("sigma")!r}): scans cannot be '
+                         f'matched against it; {advice}')
+    return sigma, r
+
+
 MAX_SCAN_FRAMES = 64
 """Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
 cannot grow it)."""
@@ -1164,12 +1179,9 @@ class MappingSession:
             if pose.shape != (3,) or not np.isfinite(pose).all():
                 raise ValueError(f'initial pose must be 3 finite numbers (x, y, yaw), got '
                                  f'{list(np.ravel(initial_pose))}')
-        sigma, r = saved_noise_scale(value.stats)
-        if len(value.segments) and sigma is None and self.mapper.config.smemsf.sigma is None:
-            raise ValueError(f'the map has no noise scale (stats.sigma, in (0, {MAX_MAP_SIGMA:g}] '
-                             f'm; got {(value.stats or {}).get("sigma")!r}): scans cannot be '
-                             'matched against it; give one (the parameter smemsf.sigma; '
-                             'replay --set sigma=M)')
+        sigma, r = require_noise_scale(value, self.mapper.config.smemsf.sigma is not None,
+                                       'give one (the parameter smemsf.sigma; replay --set '
+                                       'sigma=M)')
         with self._map_lock:
             mapper = self.mapper
             config = self._config.resolved(True)
