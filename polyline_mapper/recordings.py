@@ -445,8 +445,8 @@ def open_recording(path, scan_topic: str = None, odom_topic: str = None, period:
     Odometry topics opens for a caller that does not need odometry). ``period``: seconds
     between a CARMEN log's scans when its times do not increase. ``seed``, ``noise`` (m): of a
     ``sim:`` drive. Raises ValueError (BagError for bags) with one line when the input cannot
-    be used. ``pose_source`` 'scan': the caller places the scans by themselves (a bag
-    without /tf is then not warned about).
+    be used. ``pose_source``: how the caller places the scans; a bag without /tf is not warned
+    about when that is 'scan' (by themselves), nor when it is 'odom' and the bag has odometry.
     """
     kind = kind_of(path)
     path = str(path)
@@ -475,23 +475,24 @@ def open_recording(path, scan_topic: str = None, odom_topic: str = None, period:
                         warnings)
     else:
         yield from _open_bag(path, scan_topic, odom_topic, 'auto' if odometry is None
-                             else odometry, pose_source == 'scan')
+                             else odometry, pose_source)
 
 
 def _open_bag(path: str, scan_topic, odom_topic, odometry,
-              scans_only: bool = False) -> Iterator[Recording]:
+              pose_source: str = None) -> Iterator[Recording]:
     from .formats.bag import BagReader, ODOM_TYPE
     with BagReader(path, scan_topic, odom_topic, odometry=odometry) as bag:
         first = [bag]
         topics = [bag.scan_topic] + ([bag.odom_topic] if bag.odom_topic else []) + bag.tf_topics \
             + ([bag.estimate_topic] if bag.estimate_topic else [])
         warnings = list(bag.warnings)       # e.g. a ROS 1 index rebuilt from the chunks
-        if not bag.tf_topics and not scans_only:
-            if ODOM_TYPE in bag.topics.values():
+        odometry_topic = ODOM_TYPE in bag.topics.values()
+        if not bag.tf_topics and pose_source != 'scan':
+            if odometry_topic and pose_source != 'odom':
                 warnings.append(f'{path}: no /tf or /tf_static topic: its scans can be placed '
                                 'by odometry (--pose-source odom) or by the scans alone '
                                 '(--pose-source scan)')
-            else:
+            elif not odometry_topic:
                 warnings.append(f'{path}: no /tf, /tf_static or Odometry topic: its scans can '
                                 'be placed by the scans alone (--pose-source scan)')
 

@@ -93,7 +93,20 @@ class ReplayResult:
         skipped = self.skipped
         cause = max(skipped, key=skipped.get) if skipped else None
         return (f'no scan could be mapped ({what})'
-                + (f'; e.g. {self.session.examples[cause]}' if cause else ''))
+                + (f'; e.g. {self.session.examples[cause]}' if cause else '')
+                + (self._mount_hint() if cause and cause.startswith('no pose') else ''))
+
+    def _mount_hint(self) -> str:
+        """Say how to place scans whose frame no transform names: by odometry and the mount."""
+        options = self.session.options
+        known = self.session.poses.buffer.frames()
+        lost = [f for f in self.session.scan_frames if f and f not in known]
+        if options.pose_source == 'scan' or options.mount is not None or not lost:
+            return ''
+        odom = '' if options.pose_source == 'odom' else '--pose-source odom '
+        return (f"; no transform names the scans' frame {lost[0]!r}: give the laser's pose on "
+                f'the robot with {odom}--laser-mount X,Y,YAW_DEG (the odometry then places '
+                'the robot)')
 
     def summary(self, path: str) -> str:
         """One line a person reads after a replay."""

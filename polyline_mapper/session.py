@@ -2065,6 +2065,12 @@ class MappingSession:
         return self.poses.fixed_frame
 
     @property
+    def scan_frames(self) -> tuple:
+        """Return the frames of the scans received (the newest ``MAX_SCAN_FRAMES``)."""
+        with self._lock:
+            return tuple(self._scan_stamps)
+
+    @property
     def map_frame(self) -> str:
         """Return the frame of the map: a loaded map's own, else the fixed frame (or 'map')."""
         if self._loaded is not None:

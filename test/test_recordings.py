@@ -269,6 +269,9 @@ def test_a_bag_with_two_odometry_topics_opens_unless_odometry_is_required(tmp_pa
     notf = write_bag(tmp_path / 'no-tf', bag_drive_messages(drive, tf=False, static=False))
     with open_recording(notf) as rec:
         assert len(rec.warnings) == 1 and 'no /tf or /tf_static topic' in rec.warnings[0]
+    for placed in ('odom', 'scan'):             # ... unless the caller places them so already
+        with open_recording(notf, pose_source=placed) as rec:
+            assert rec.warnings == [], placed
 
 
 def test_read_points_reads_point_files_and_logs_and_refuses_the_rest(tmp_path, carmen_log):

@@ -147,7 +147,19 @@ def test_missing_and_stale_transforms_are_counted_or_fatal(tmp_path, rotated, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'no scan could be mapped' in err[0]
     assert f'{len(rotated.stamps)} no pose: unknown_frame' in err[0]
+    # ... and says how the scans can be placed: by the odometry and the laser's mount
+    assert err[0].endswith("no transform names the scans' frame 'laser': give the laser's pose "
+                           'on the robot with --pose-source odom --laser-mount X,Y,YAW_DEG (the '
+                           'odometry then places the robot)')
     assert not out.exists()
+    assert main(['replay', nostatic, '-o', str(out), '--pose-source', 'odom', '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "frame 'laser' is unknown" in err[0]
+    assert 'the robot with --laser-mount X,Y,YAW_DEG' in err[0]
+    assert main(['replay', nostatic, '-o', str(out), '--pose-source', 'odom', '--laser-mount',
+                 ','.join(f'{v:g}' for v in (*rotated.mount[:2], np.degrees(rotated.mount[2]))),
+                 '-q']) == 0
+    assert wall_error(read_map(str(out))['segments_array'], rotated.world).max() < 0.1
     # a fixed frame that is not in the tree
     bag = write_bag(tmp_path / 'ok', drive_messages(rotated))
     assert main(['replay', bag, '-o', str(out), '--fixed-frame', 'map', '-q']) == 2
