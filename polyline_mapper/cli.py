@@ -658,9 +658,25 @@ def cmd_export(args) -> int:
     return 0
 
 
+CONVERT_REFUSED = {
+    'bag': 'a bag: replay, fit, plot and play read bags (rosbag2 and ROS 1) as they are',
+    'sim': 'a simulated drive: replay, fit, plot and play read it as it is',
+    'points': 'a point file (for fit and plot --points)',
+}
+"""What ``convert`` says of the inputs it does not take, by ``recordings.kind_of``."""
+
+
 def cmd_convert(args) -> int:
     from .formats.carmen_bag import carmen_to_bag
     from .formats.output import check_new_folder
+    from .recordings import kind_of
+    try:
+        kind = kind_of(args.input)
+    except ValueError:
+        kind = None                     # any other name is read as a CARMEN log, as before
+    if kind in CONVERT_REFUSED:
+        raise CliError(f'{args.input}: convert writes a rosbag2 from a CARMEN log, and this is '
+                       f'{CONVERT_REFUSED[kind]}')
     check_new_folder(args.output, [args.input])
     bar = _progress_factory(not args.quiet, 'convert', 'msg')
     info = carmen_to_bag(args.input, args.output, args.storage, args.period, progress=bar,

@@ -2,7 +2,7 @@
 
 import json
 
-from bag_helpers import drive_messages, room_drive, write_bag, write_carmen
+from bag_helpers import drive_messages, room_drive, write_bag, write_carmen, write_ros1_bag
 from conftest import radish_head
 import numpy as np
 from polyline_mapper.cli import main
@@ -269,6 +269,14 @@ def test_convert_errors_leave_nothing_behind(tmp_path, capsys, monkeypatch):
         assert main(['convert'] + argv + ['-q']) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith('polyline-mapper: error:'), (argv, err)
+    # a bag (here a ROS 1 one) or a simulated drive is not read as a CARMEN log: said so
+    ros1 = write_ros1_bag(tmp_path / 'r.bag', drive_messages(drive))
+    for given, what in ((ros1, 'this is a bag: replay, fit, plot and play read bags'),
+                        ('sim:office', 'this is a simulated drive')):
+        assert main(['convert', given, '-o', str(tmp_path / 'x'), '-q']) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and 'convert writes a rosbag2 from a CARMEN log' in err[0], err
+        assert what in err[0]
     # a failure half way through writing: no bag, no temporary folder
     from polyline_mapper.formats import bag as bagmod
     calls = []
@@ -280,7 +288,8 @@ def test_convert_errors_leave_nothing_behind(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(bagmod.BagWriter, 'write', failing)
     assert main(['convert', log, '-o', str(tmp_path / 'x'), '-q']) == 2
     assert 'No space left on device' in capsys.readouterr().err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.log', 'c.log.gz', 'taken']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['bad.log', 'c.log.gz', 'r.bag',
+                                                          'taken']
 
 
 def test_replays_of_the_same_input_write_the_same_map_but_for_timing(tmp_path, rotated, capsys):
