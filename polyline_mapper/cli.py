@@ -395,7 +395,12 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         raise CliError(f'{" and ".join(given)} {"applies" if len(given) == 1 else "apply"} '
                        f'with --pose-source odom only (given: {args.pose_source})')
     mount, flip = _mount(args.laser_mount)
-    return SessionOptions(pose_source=args.pose_source, fixed_frame=args.fixed_frame,
+    fixed = args.fixed_frame
+    if fixed is None and matching and args.pose_source == 'odom':
+        # The matched map is not the odometry frame (it leaves it as the odometry drifts): it is
+        # 'map', above the odometry frame, as the node's (REP 105).
+        fixed = 'map'
+    return SessionOptions(pose_source=args.pose_source, fixed_frame=fixed,
                           every=every, update_every_n_scans=group, mount=mount,
                           mount_upside_down=flip, scan_matching=matching)
 
@@ -750,7 +755,9 @@ def _pose_args(sp) -> None:
                     'by scan matching (implies --scan-matching; the first scan at the origin '
                     "of the map frame, 'map' unless --fixed-frame)")
     sp.add_argument('--fixed-frame', help="map frame with --pose-source tf (default: 'map' "
-                    "when the scan's TF tree has it, else the tree's root)")
+                    "when the scan's TF tree has it, else the tree's root) or with --pose-source "
+                    "odom and scan matching (default: 'map'; without matching the map is in the "
+                    'odometry frame)')
     sp.add_argument('--odom-topic', help='nav_msgs/Odometry topic for --pose-source odom '
                     '(default: the only one)')
     sp.add_argument('--laser-mount', metavar='X,Y,YAW_DEG[,flip]',

@@ -318,3 +318,20 @@ def test_replay_groups_scans_into_updates_like_the_node(tmp_path, rotated, capsy
     assert maps[1]['stats']['scans_used'] == maps[3]['stats']['scans_used']
     assert main(['replay', bag, '-o', str(tmp_path / 'x.json'), '-q',
                  '--update-every-n-scans', '0']) == 2
+
+
+def test_a_scan_matched_odometry_replay_is_in_the_map_frame(tmp_path, rotated):
+    # With --pose-source odom the map is the odometry frame, unless the scans are matched: the
+    # matched map leaves the odometry frame as the odometry drifts, and is 'map' (the node's
+    # default fixed_frame, REP 105) or the --fixed-frame given; the name alone differs.
+    bag = write_bag(tmp_path / 'odo', drive_messages(rotated))
+    maps = {}
+    for extra, frame in (([], 'odom'), (['--scan-matching'], 'map'),
+                         (['--scan-matching', '--fixed-frame', 'world'], 'world')):
+        out = tmp_path / f'{frame}.json'
+        assert main(['replay', bag, '-o', str(out), '--pose-source', 'odom', '-q'] + extra) == 0
+        data = read_map(str(out))
+        assert data['frame_id'] == frame and data['stats']['fixed_frame'] == frame, extra
+        maps[frame] = data
+    assert maps['map']['segments'] == maps['world']['segments']
+    assert maps['map']['trajectory'] == maps['world']['trajectory']
