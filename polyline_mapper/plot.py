@@ -119,9 +119,25 @@ def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.
         plt.close(fig)
 
 
+def polyline_colours(n: int) -> list:
+    """
+    Return ``n`` RGBA colours for polylines, cycling through tab10 without its grey.
+
+    The points are drawn grey (0.55), and tab10's grey (0.50) would hide every tenth polyline
+    on them.
+    """
+    import matplotlib.pyplot as plt
+    cmap = plt.get_cmap('tab10')
+    palette = [cmap(i) for i in range(10) if i != TAB10_GREY]
+    return [palette[i % len(palette)] for i in range(n)]
+
+
+TAB10_GREY = 7
+"""Index of tab10's grey, left out of ``polyline_colours``."""
+
+
 def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
     """Draw truth, points, map, scale bar and labels on ``ax``; ``box``: (lo, hi, span)."""
-    import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
     lo, hi, span = box
     if truth is not None and len(truth):
@@ -131,9 +147,8 @@ def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
         ax.scatter(pts[:, 0], pts[:, 1], s=0.3, c='0.55', linewidths=0, zorder=2,
                    rasterized=True)
     if polylines:
-        cmap = plt.get_cmap('tab10')
         lines = [np.asarray(p) for p in polylines]
-        ax.add_collection(LineCollection(lines, colors=[cmap(i % 10) for i in range(len(lines))],
+        ax.add_collection(LineCollection(lines, colors=polyline_colours(len(lines)),
                                          linewidths=1.6, zorder=3))
         verts = np.concatenate(lines)
         ax.scatter(verts[:, 0], verts[:, 1], s=6, c='k', zorder=4)

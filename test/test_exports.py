@@ -200,3 +200,13 @@ def test_the_trajectory_exports_as_csv_and_tum(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and 'no trajectory' in err[0] and 'unknown trajectory format' in err[1]
     assert not (tmp_path / 'f.csv').exists() and not (tmp_path / 't.svg').exists()
+
+
+def test_every_polyline_colour_stands_out_from_the_grey_points():
+    # tab10's eighth colour is grey (0.50): every tenth polyline vanished on the grey points
+    # (0.55), e.g. a 13 m outer wall of a simulated TurtleBot map (bag audit).
+    from polyline_mapper.plot import polyline_colours
+    colours = np.array(polyline_colours(20))[:, :3]
+    chroma = colours.max(axis=1) - colours.min(axis=1)
+    assert chroma.min() > 0.2, colours[chroma.argmin()]         # tab:brown 0.25, grey 0
+    assert len({tuple(c) for c in colours[:9]}) == 9        # nine colours before they repeat
