@@ -406,11 +406,12 @@ class Recording:
     Odometry, PoseEstimate, Skipped). ``drive`` is the SimulatedDrive of a ``sim:`` input (its
     true poses and walls), else None. ``warnings``: lines to show the user (e.g. skipped
     malformed lines). ``estimate_topic``: the topic of the pose estimates a bag holds, or None.
+    ``odometry``: whether it holds odometry (a bag with an Odometry topic; logs and drives do).
     """
 
     def __init__(self, messages: Callable[[], Iterator[tuple]], scan_count: int,
                  description: str, kind: str, warnings: list = None, drive=None,
-                 estimate_topic: str = None):
+                 estimate_topic: str = None, odometry: bool = True):
         self._messages = messages
         self.scan_count = int(scan_count)
         self.description = description
@@ -418,6 +419,7 @@ class Recording:
         self.warnings = list(warnings or [])
         self.drive = drive
         self.estimate_topic = estimate_topic
+        self.odometry = bool(odometry)
 
     def messages(self) -> Iterator[tuple]:
         """Yield ``(log_time, topic, record)`` from the start of the recording."""
@@ -504,7 +506,7 @@ def _open_bag(path: str, scan_topic, odom_topic, odometry,
                 yield from again.messages()
         yield Recording(messages, bag.scan_count, f'bag, {bag.scan_count} scans on '
                         f'{bag.scan_topic}; topics {", ".join(topics)}', 'bag', warnings,
-                        estimate_topic=bag.estimate_topic)
+                        estimate_topic=bag.estimate_topic, odometry=odometry_topic)
 
 
 def read_log(path: str, period: float = 1.0) -> tuple:

@@ -45,6 +45,8 @@ class ReplayResult:
     """(N, 2) every point given to the mapper, fixed frame, metres."""
     seconds: float = 0.0
     warnings: list = field(default_factory=list)
+    odometry: bool = True
+    """Whether the recording holds odometry (``recordings.Recording.odometry``)."""
 
     @property
     def mapper(self):
@@ -101,8 +103,9 @@ class ReplayResult:
         options = self.session.options
         known = self.session.poses.buffer.frames()
         lost = [f for f in self.session.scan_frames if f and f not in known]
-        if options.pose_source == 'scan' or options.mount is not None or not lost:
-            return ''
+        if (options.pose_source == 'scan' or options.mount is not None or not lost
+                or not self.odometry):
+            return ''           # (without odometry the recording's warning names scan mode)
         odom = '' if options.pose_source == 'odom' else '--pose-source odom '
         return (f"; no transform names the scans' frame {lost[0]!r}: give the laser's pose on "
                 f'the robot with {odom}--laser-mount X,Y,YAW_DEG (the odometry then places '
@@ -263,7 +266,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     if session.received < source.scan_count:
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')
-    return ReplayResult(session, value, points, time.perf_counter() - t0, warnings)
+    return ReplayResult(session, value, points, time.perf_counter() - t0, warnings,
+                        source.odometry)
 
 
 def _judged(session: MappingSession) -> tuple:
