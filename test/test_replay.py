@@ -335,3 +335,21 @@ def test_a_scan_matched_odometry_replay_is_in_the_map_frame(tmp_path, rotated):
         maps[frame] = data
     assert maps['map']['segments'] == maps['world']['segments']
     assert maps['map']['trajectory'] == maps['world']['trajectory']
+
+
+def test_a_map_the_beams_see_through_warns_of_the_mount_and_the_poses(tmp_path, rotated, capsys):
+    # The laser is mounted turned 90 deg; given as turned -90 deg, the scans disagree and the
+    # beams pass through most of the map: one warning naming the mount and the poses (a new
+    # user's replay with a backwards laser given yaw 0 printed a good-looking summary only).
+    bag = write_bag(tmp_path / 'odo', drive_messages(rotated, static=False))
+    out = tmp_path / 'm.json'
+    x, y = rotated.mount[:2]
+    for yaw, warned in ((90, False), (-90, True)):
+        assert main(['replay', bag, '-o', str(out), '--pose-source', 'odom', '--laser-mount',
+                     f'{x:g},{y:g},{yaw}', '-q']) == 0
+        share = read_map(str(out))['stats']['contradicted_share']
+        err = [line for line in capsys.readouterr().err.splitlines() if 'pass through' in line]
+        assert (share > 0.25) == warned and len(err) == warned, (yaw, share, err)
+    assert err[0].endswith("check the laser's mount (--laser-mount: a laser facing backwards "
+                           'has yaw 180, one upside down flip) and the poses (drifting '
+                           'odometry: --scan-matching)')
