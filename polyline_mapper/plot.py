@@ -119,6 +119,10 @@ def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.
         plt.close(fig)
 
 
+TAB10_GREY = 7
+"""Index of tab10's grey, left out of ``polyline_colours``."""
+
+
 def polyline_colours(n: int) -> list:
     """
     Return ``n`` RGBA colours for polylines, cycling through tab10 without its grey.
@@ -130,10 +134,6 @@ def polyline_colours(n: int) -> list:
     cmap = plt.get_cmap('tab10')
     palette = [cmap(i) for i in range(10) if i != TAB10_GREY]
     return [palette[i % len(palette)] for i in range(n)]
-
-
-TAB10_GREY = 7
-"""Index of tab10's grey, left out of ``polyline_colours``."""
 
 
 def _draw(ax, pts, segments, polylines, truth, box, title) -> None:
