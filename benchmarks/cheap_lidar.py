@@ -34,7 +34,8 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import drive_truth, stamp, table_header, write_readme, write_results
+from common import (aligned_segments, drive_truth, stamp, table_header, write_readme,
+                    write_results)
 from matching import flat
 import numpy as np
 from polyline_mapper.core import map_metrics
@@ -89,10 +90,8 @@ def one(drive, drift, matching: bool) -> dict:
     err = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
     yaw = np.angle(np.exp(1j * (traj[:, 3] - truth[:, 2])))
     te = trajectory_error(traj[:, 1:], truth)
-    x, y, a = te['alignment']
-    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
     segs = np.asarray(value.segments, dtype=np.float64)
-    moved = segs @ rot.T + [x, y]
+    moved = aligned_segments(segs, te['alignment'])
     pts = drive.points()
     w = drive.world
     raw = map_metrics(pts, segs)

@@ -9,6 +9,7 @@ import subprocess
 
 import numpy as np
 from polyline_mapper.core.freespace import judge
+from polyline_mapper.core.register import transform
 from polyline_mapper.recordings import SIM_START
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -126,6 +127,17 @@ def drive_truth(drive, trajectory) -> np.ndarray:
     """
     stamps = np.asarray(trajectory)[:, 0]
     return drive.poses[np.searchsorted(SIM_START + np.asarray(drive.stamps), stamps - 1e-6)]
+
+
+def aligned_segments(segments, alignment) -> np.ndarray:
+    """
+    Return ``segments`` (K, 2, 2) moved by a rigid ``alignment`` (x, y, yaw).
+
+    With ``core.metrics.trajectory_error``'s ``alignment``: the map laid onto the true frame by
+    the motion that aligns its trajectory (the ATE's), ``register.transform`` of every end.
+    """
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2)
+    return transform(segs, alignment).reshape(-1, 2, 2)
 
 
 def contradicted(segments, points, origins) -> dict:

@@ -41,7 +41,7 @@ import pathlib
 import sys
 import tempfile
 
-from common import datasets_argument, HERE, stamp, write_readme
+from common import aligned_segments, datasets_argument, HERE, stamp, write_readme
 import numpy as np
 from polyline_mapper.core import map_metrics
 from polyline_mapper.core.metrics import relative_error, trajectory_error
@@ -84,9 +84,7 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None
         raise RuntimeError(f'{len(used)} poses used for {len(true_base)} scans')
     err = trajectory_error(used, true_base)
     rpe, rpe10 = relative_error(used, true_base), relative_error(used, true_base, 10)
-    al = err['alignment']                        # the map, laid onto the true frame as a whole
-    c, s = np.cos(al[2]), np.sin(al[2])
-    aligned = segs @ np.array([[c, s], [-s, c]]) + al[:2]
+    aligned = aligned_segments(segs, err['alignment'])   # the map laid onto the true frame
     raw = map_metrics(truth, segs)
     lay = map_metrics(truth, aligned)
     own = map_metrics(res.points, segs)

@@ -31,7 +31,8 @@ import json
 import sys
 
 from baselines.walls import wall_scores
-from common import drive_truth, stamp, table_header, write_readme, write_results
+from common import (aligned_segments, drive_truth, stamp, table_header, write_readme,
+                    write_results)
 from matching import flat
 import numpy as np
 from polyline_mapper.core.metrics import trajectory_error
@@ -57,9 +58,7 @@ def one(drive, drift) -> dict:
     world = drive.world
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
     te = trajectory_error(traj[:, 1:], truth)
-    x, y, a = te['alignment']
-    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    moved = np.asarray(value.segments, dtype=np.float64) @ rot.T + [x, y]
+    moved = aligned_segments(value.segments, te['alignment'])
     aligned = wall_scores(moved, world.walls, world.distance, points=drive.points())
     return {'drift_seed': drift, 'scans': int(len(traj)),
             'rms_m': round(rms, 4),

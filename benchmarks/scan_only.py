@@ -40,7 +40,8 @@ import pathlib
 import sys
 import tempfile
 
-from common import datasets_argument, stamp, table_header, write_readme, write_results
+from common import (aligned_segments, datasets_argument, stamp, table_header, write_readme,
+                    write_results)
 import numpy as np
 from polyline_mapper.core import map_metrics
 from polyline_mapper.core.metrics import trajectory_error
@@ -99,10 +100,8 @@ def one(name: str, datasets: str, drop: int = 0, folder: str = None) -> dict:
     traj = np.asarray(value.trajectory)
     i = np.clip(np.searchsorted(stamps, traj[:, 0] - 1e-6), 0, len(stamps) - 1)
     err = trajectory_error(traj[:, 1:], truth[i])
-    al = err['alignment']
-    c, s = np.cos(al[2]), np.sin(al[2])
     segs = value.segments
-    aligned = segs @ np.array([[c, s], [-s, c]]) + al[:2]
+    aligned = aligned_segments(segs, err['alignment'])
     lay = map_metrics(points_of(i), aligned)        # the true points of the scans mapped
     own = map_metrics(res.points, segs)
     st = value.stats
