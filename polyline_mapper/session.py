@@ -63,8 +63,8 @@ from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
-from .core.register import (match_scan, odometry_covariance, RELOCALIZE_SHARE, scan_chords,
-                            ScanMatch, search_after_gap, spread, transform)
+from .core.register import (CHORD_MIN_EXTENT, match_scan, odometry_covariance, RELOCALIZE_SHARE,
+                            scan_chords, ScanMatch, search_after_gap, spread, transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
@@ -341,6 +341,98 @@ def far_enough(last: Optional[np.ndarray], pose: np.ndarray) -> bool:
                 and abs(wrap_angle(step[2])) < KEYFRAME_STEP[1])
 
 
+FOREGROUND_DEPTH = 0.3
+"""
+Scan matching: metres by which the readings on both sides of a run must lie farther from the
+laser than the run's ends for the run to stand free (``RecentChords``): a person, a post. A run
+of a wall that ends where its readings thin out (at range, or at grazing incidence) has a
+neighbour about as far on at least one side.
+"""
+
+
+CHORD_CONFIRMATIONS, CHORD_CONFIRM = 1, 0.06
+"""
+Scan matching: a person-sized chord (``RecentChords``) stops being transient once this many
+other kept keyframes have a chord end or middle within this many metres of its middle: it
+stood still while the robot moved (a post). A person walking ahead has moved on. With 2
+instead of 1, the drifted CSAIL log (seed 2) kept the odometry along a corridor whose only cue
+along it was such a post: 0.146 -> 0.304 m ATE; with 1 it maps as before.
+"""
+
+
+def _near(points: np.ndarray, frame: list) -> np.ndarray:
+    """
+    Return which ``points`` lie within ``CHORD_CONFIRM`` of a keyframe's chords: (M,) bool.
+
+    Of an end or the middle of one of ``frame``'s chords (a ``RecentChords`` keyframe); the
+    keyframe's KD-tree is built on first use.
+    """
+    if frame[3] is None:
+        from scipy.spatial import cKDTree
+        chords = frame[0]
+        frame[3] = cKDTree(np.concatenate([chords[:, 0], chords[:, 1], chords.mean(axis=1)]))
+    return np.isfinite(frame[3].query(points, k=1, distance_upper_bound=CHORD_CONFIRM)[0])
+
+
+class RecentChords:
+    """
+    The chords of the last keyframes (fixed frame): the map's newest edge for scan matching.
+
+    Chords along a run of readings that stands free (``FOREGROUND_DEPTH``) and is narrower
+    than ``register.CHORD_MIN_EXTENT`` may be something that moves: a person. Until another
+    keyframe confirms them (``CHORD_CONFIRMATIONS``), ``transient`` marks them for
+    ``match_scan``, which holds a weakly constrained direction at the prediction when they
+    carry it (``register.TRANSIENT_SHARE``): a person walking ahead along a corridor no longer
+    pulls the matches back along it. The chords are matched to all the same.
+    """
+
+    def __init__(self, size: int):
+        self._frames = deque(maxlen=size)
+        """Per keyframe: [chords (K, 2, 2), person-sized (K,), other keyframes confirming (K,)
+        (counted up to ``CHORD_CONFIRMATIONS``), KD-tree of the chords' ends and middles or
+        None (``_near``)]."""
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def clear(self) -> None:
+        """Forget every keyframe."""
+        self._frames.clear()
+
+    def add(self, world: np.ndarray, origin: np.ndarray) -> None:
+        """Keep a keyframe's chords: its points (fixed frame, beam order), laser at ``origin``."""
+        chords, extent, first, last = scan_chords(world, extents=True)
+        r = np.hypot(*(world - np.asarray(origin, dtype=np.float64)[:2]).T)
+        n = len(world)
+        before = np.where(first > 0, r[np.maximum(first - 1, 0)], -np.inf)
+        after = np.where(last < n - 1, r[np.minimum(last + 1, n - 1)], -np.inf)
+        alone = (before > r[first] + FOREGROUND_DEPTH) & (after > r[last] + FOREGROUND_DEPTH)
+        short = (extent < CHORD_MIN_EXTENT) & alone
+        new = [chords, short, np.zeros(len(chords), dtype=np.intp), None]
+        for f in self._frames:
+            if not len(f[0]) or not len(chords):
+                continue
+            wait = new[1] & (new[2] < CHORD_CONFIRMATIONS)
+            if wait.any():
+                new[2][wait] += _near(chords[wait].mean(axis=1), f)
+            wait = f[1] & (f[2] < CHORD_CONFIRMATIONS)
+            if wait.any():
+                f[2][wait] += _near(f[0][wait].mean(axis=1), new)
+        self._frames.append(new)
+
+    def chords(self) -> np.ndarray:
+        """Return the chords, oldest keyframe first: (K, 2, 2)."""
+        if not self._frames:
+            return np.zeros((0, 2, 2))
+        return np.concatenate([f[0] for f in self._frames])
+
+    def transient(self) -> np.ndarray:
+        """Return which of ``chords()`` lie along an unconfirmed person-sized run: (K,) bool."""
+        if not self._frames:
+            return np.zeros(0, dtype=bool)
+        return np.concatenate([f[1] & (f[2] < CHORD_CONFIRMATIONS) for f in self._frames])
+
+
 class GapTrack:
     """
     Scan mode, after a gap: the scans tracked against each other until they are found on the map.
@@ -364,7 +456,7 @@ class GapTrack:
         self.center = np.asarray(center, dtype=np.float64).copy()
         self.window = (float(window[0]), float(window[1]))
         self.motion = deque(maxlen=2)
-        self.chords = deque(maxlen=RECENT_SCANS)
+        self.chords = RecentChords(RECENT_SCANS)
         self.keys = []
         self.key_pose = None
         self.warned = 0
@@ -391,7 +483,7 @@ class GapTrack:
             else:
                 pose = extrapolate(self.motion, stamp)
             if self.chords:
-                m = match_scan(local, pose, np.concatenate(list(self.chords)), sigma,
+                m = match_scan(local, pose, self.chords.chords(), sigma,
                                degenerate=degenerate)
                 if m.ok:
                     pose = m.pose
@@ -402,7 +494,7 @@ class GapTrack:
         if not far_enough(self.key_pose, pose):
             return False
         world = transform(local, pose)
-        self.chords.append(scan_chords(world))
+        self.chords.add(world, pose)
         self.keys.append(spread(world, GAP_POINTS))
         self.key_pose = pose
         return True
@@ -1017,7 +1109,9 @@ def _percentiles(values) -> dict:
 def _not_seen_through(segs: np.ndarray, support: np.ndarray, recent: np.ndarray,
                       origin: np.ndarray, points: np.ndarray, tol: float) -> tuple:
     """
-    Leave out the young segments and recent chords the scan sees through; (segs, support, recent).
+    Leave out the young segments and recent chords the scan sees through.
+
+    Returns (segs, support, recent, kept): ``kept`` (R,) bool, which of ``recent`` are left.
 
     Young: ``support`` below ``ESTABLISHED_SUPPORT``. Seen through: by the beams ``origin`` ->
     ``points`` (the scan at its predicted pose), ``core.cleanup.seen_through`` with noise
@@ -1026,14 +1120,16 @@ def _not_seen_through(segs: np.ndarray, support: np.ndarray, recent: np.ndarray,
     """
     young = np.flatnonzero(support < ESTABLISHED_SUPPORT)
     pieces = np.concatenate([segs[young], recent])
+    every = np.ones(len(recent), dtype=bool)
     if not len(pieces):
-        return segs, support, recent
+        return segs, support, recent, every
     gone = seen_through(pieces, origin, points, tol)
     if not gone.any():
-        return segs, support, recent
+        return segs, support, recent, every
     keep = np.ones(len(segs), dtype=bool)
     keep[young[gone[:len(young)]]] = False
-    return segs[keep], support[keep], recent[~gone[len(young):]]
+    kept = ~gone[len(young):]
+    return segs[keep], support[keep], recent[kept], kept
 
 
 class MappingSession:
@@ -1100,7 +1196,7 @@ class MappingSession:
         self._last_add = None
         self._correction = np.zeros(3)
         """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
-        self._recent = deque(maxlen=RECENT_SCANS)
+        self._recent = RecentChords(RECENT_SCANS)
         """Scan matching: chords of the last matched scans (fixed frame), the map's newest edge."""
         self._recent_pose = None
         """Scan matching: the pose of the newest keyframe in ``_recent``."""
@@ -1682,7 +1778,7 @@ class MappingSession:
         """
         if not far_enough(self._recent_pose, pose):
             return
-        self._recent.append(scan_chords(transform(local, pose)))
+        self._recent.add(transform(local, pose), pose)
         self._recent_pose = np.asarray(pose, dtype=np.float64).copy()
 
     def _match(self, local: np.ndarray, given: np.ndarray, base: np.ndarray,
@@ -1715,7 +1811,7 @@ class MappingSession:
         segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
         support = self.mapper.support if sigma is not None else np.zeros(0)
         sigma = sigma or MATCH_SIGMA
-        recent = np.concatenate(list(self._recent)) if self._recent else np.zeros((0, 2, 2))
+        recent, transient = self._recent.chords(), self._recent.transient()
         stamp, window, estimate = gap
         if window is not None:
             return self._find_after_gap(local, given, prediction, np.concatenate([segs, recent]),
@@ -1727,6 +1823,7 @@ class MappingSession:
         segs, recent, support = (np.compress(inside[0], segs, axis=0),
                                  np.compress(inside[1], recent, axis=0),
                                  np.compress(inside[0], support))
+        transient = np.compress(inside[1], transient)
         if not len(segs) and not len(recent):
             self.matches['no map yet'] += 1
             if not self._proposals:                 # (lost: not where the map is)
@@ -1734,9 +1831,10 @@ class MappingSession:
                 self._anchor = np.asarray(base, dtype=np.float64).copy()
             return prediction, None
         if MATCH_SEEN_THROUGH and self.options.pose_source != 'scan':
-            segs, support, recent = _not_seen_through(segs, support, recent, prediction[:2],
-                                                      world, self.mapper.config.smemsf.kappa
-                                                      * sigma)
+            segs, support, recent, kept = _not_seen_through(
+                segs, support, recent, prediction[:2], world,
+                self.mapper.config.smemsf.kappa * sigma)
+            transient = transient[kept]
         near = np.concatenate([segs, recent])
         degenerate = guard = MATCH_DEGENERATE[self.options.pose_source]
         starts = prior = None
@@ -1753,6 +1851,7 @@ class MappingSession:
                        relocalize=RELOCALIZE, relocalize_share=self._relocalize_share(),
                        prediction_cov=cov, established=np.concatenate(
                            [support >= ESTABLISHED_SUPPORT, np.zeros(len(recent), dtype=bool)]),
+                       transient=np.concatenate([np.zeros(len(segs), dtype=bool), transient]),
                        prediction_prior=prior, relocalize_near=prior is not None)
         lost = bool(self._proposals)
         if m.reason == 'correction too large':
