@@ -346,10 +346,9 @@ def test_a_person_walking_ahead_does_not_drag_the_matched_poses():
     # with the evidence: 0.060 m with numpy 2.4, 0.133 with numpy 1.26 before the arcs seen
     # through were left out; 0.085 / 0.047 since), so the bars hold for the median drive, and
     # no drive may be dragged (0.25 m) or lose the walls (F1 0.4 without the evidence).
-    # Medians since: 0.060 / 0.069 m with numpy 2.4, 0.081 / 0.052 m with numpy 1.26; since the
-    # person's chords are transient (register.TRANSIENT_SHARE) 0.047 / 0.042 m (numpy 2.4),
-    # and over chord lengths 0.14-0.16 m (benchmarks/walker_chords.py) 0.053 / 0.047 m where
-    # they were 0.131 / 0.073 m.
+    # Medians since: 0.060 / 0.069 m with numpy 2.4, 0.081 / 0.052 m with numpy 1.26. Since the
+    # person's chords are transient (register.TRANSIENT_SHARE), over chord lengths 0.14-0.16 m
+    # (benchmarks/walker_chords.py, 24 drives) 0.053 / 0.047 m where they were 0.130 / 0.073 m.
     evidence = IncrementalConfig(free_space_window=10, free_space_ghosts=0,
                                  free_space_hit_margin=0.0, free_space_memory=0.0)
     # (Walls F1 >= 0.95 with the evidence: test_a_person_walking_ahead_leaves_the_walls_alone_
