@@ -98,6 +98,10 @@ class NodeProcess:
         return self.proc.returncode
 
 
+RELIABLE_DEPTH = 1000
+"""History of the reliable scan publisher (``Peer``) and of the node's overridden subscription."""
+
+
 class Peer:
     """An in-process node (own context) that plays drives, listens to the map, calls services."""
 
@@ -105,19 +109,21 @@ class Peer:
         """
         Start the peer node in its own context.
 
-        ``reliable_scans``: publish scans as ``polyline-mapper play`` does (reliable, depth 10)
-        instead of sensor-data QoS, for a node whose /scan subscription is made reliable by the
-        QoS overrides: then no scan is lost in transport.
+        ``reliable_scans``: publish scans reliably, with a history of ``RELIABLE_DEPTH``
+        (``polyline-mapper play`` keeps 10), instead of sensor-data QoS, for a node whose /scan
+        subscription the QoS overrides make reliable with as deep a history: then no scan is
+        lost in transport once both sides have matched (``wait_for_node`` waits longer for
+        that).
         """
         _check_alone('Peer')
+        self.reliable_scans = bool(reliable_scans)
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from nav_msgs.msg import Odometry
         from polyline_mapper.ros.qos import MAP_QOS
-        from polyline_mapper.ros.player import STREAM_QOS
         from polyline_mapper.ros.qos import TF_QOS, TF_STATIC_QOS
         from polyline_mapper_msgs.msg import PolylineMap
-        from rclpy.qos import qos_profile_sensor_data
+        from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import LaserScan
         from tf2_msgs.msg import TFMessage
         from visualization_msgs.msg import MarkerArray
@@ -127,8 +133,9 @@ class Peer:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         n = self.node
-        self.scan_pub = n.create_publisher(
-            LaserScan, 'scan', STREAM_QOS if reliable_scans else qos_profile_sensor_data)
+        self.scan_pub = n.create_publisher(LaserScan, 'scan', QoSProfile(
+            depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+            if reliable_scans else qos_profile_sensor_data)
         self.tf_pub = n.create_publisher(TFMessage, '/tf', TF_QOS)
         self.static_pub = n.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
         self.odom_pub = n.create_publisher(Odometry, 'odom', 10)
@@ -173,8 +180,10 @@ class Peer:
                                 and pub.get_subscription_count() > 0
                                 and self.node.count_publishers('/polyline_map') > 0, timeout)
         # Discovery is two-sided: give the node's readers a moment to match our writers too,
-        # so the first best-effort scans are not dropped on its side.
-        self.spin_for(0.5)
+        # so the first scans are not dropped on its side. A peer that must deliver every scan
+        # waits longer: a node held up by three busy loops on two cores missed the first 27
+        # of 230 scans after 0.5 s (none in three runs after 3 s).
+        self.spin_for(3.0 if self.reliable_scans else 0.5)
         return found
 
     def play(self, messages, rate: float, mode: str = 'tf', t0: float = None) -> float:

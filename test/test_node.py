@@ -11,7 +11,8 @@ from polyline_mapper.formats.mapjson import read_map
 from polyline_mapper.recordings import drive_messages
 from polyline_mapper.ros.messages import scan_msg
 import pytest
-from rosnode import map_segments, NodeProcess, Peer, scans_of, stamp_of, wall_errors
+from rosnode import (map_segments, NodeProcess, Peer, RELIABLE_DEPTH, scans_of, stamp_of,
+                     wall_errors)
 from std_srvs.srv import Trigger
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
@@ -34,8 +35,14 @@ def tf_run(office_drive, tmp_path_factory):
         # can fall behind 40 Hz for a second, when the default max_scan_latency (1 s) drops a
         # scan with a warning, as designed (test_node_load covers that; here, with two
         # busy-loop processes beside the test: one scan dropped too_late).
-        'max_scan_latency': 0.0, 'scan_buffer_size': 400})
-    peer = Peer('test_peer_tf')
+        'max_scan_latency': 0.0, 'scan_buffer_size': 400,
+        # Reliable transport: with sensor-data QoS a loaded machine loses scans (the shutdown
+        # test below received 221, 106 and fewer of 230 in CI runs), and a map of part of the
+        # drive misses walls the checks below expect. The default QoS is checked on a node
+        # started with the shipped parameters (test_node_modes).
+        'qos_overrides./scan.subscription.reliability': 'reliable',
+        'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH})
+    peer = Peer('test_peer_tf', reliable_scans=True)
     try:
         assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
         msgs = list(drive_messages(office_drive, mount=(0.2, -0.05, 0.3),
@@ -50,14 +57,6 @@ def tf_run(office_drive, tmp_path_factory):
     finally:
         peer.close()
         node.stop()
-
-
-def test_scan_input_has_sensor_data_qos_by_default(tf_run):
-    from rclpy.qos import qos_profile_sensor_data
-    _, peer, _, _, _ = tf_run
-    qos = peer.subscription_qos('/scan')
-    # Best effort (the history depth is not carried by DDS discovery, so it is not checked).
-    assert len(qos) == 1 and qos[0].reliability == qos_profile_sensor_data.reliability, qos
 
 
 def test_without_scan_matching_initialpose_is_left_to_the_robot_s_localizer(tf_run):
@@ -248,7 +247,7 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
                                   'update_every_n_scans': 8, 'scan_buffer_size': 400,
                                   'max_scan_latency': 0.0,
                                   'qos_overrides./scan.subscription.reliability': 'reliable',
-                                  'qos_overrides./scan.subscription.depth': 50})
+                                  'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH})
     peer = Peer('test_peer_save', reliable_scans=True)
     try:
         assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
@@ -257,7 +256,14 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
         scans = sum(topic == '/scan' for _, topic, _ in msgs)
         assert scans % 8 != 0
         last = peer.play(msgs, RATE)
-        assert peer.spin_until(lambda: peer.maps and len(peer.maps[-1].segments) > 0, TIMEOUT)
+        # The map of the last full group of 8: the node has taken the scans up to it, and the
+        # few sent after it are queued behind (reliable and in order). A loaded node is
+        # seconds behind the player: a signal sent before then found scans not yet taken
+        # (192 and 110 of 230 with three busy loops beside the test).
+        full = last - (scans % 8) / RATE
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            full, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        peer.spin_for(0.5)
         published = stamp_of(peer.maps[-1])
         assert not out.exists()
         # Ctrl-C and, right after, the SIGTERM that ros2 launch sends when a node is slow to stop

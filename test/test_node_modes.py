@@ -7,7 +7,8 @@ from conftest import REPO
 from polyline_mapper.recordings import drive_messages
 from polyline_mapper.ros.messages import scan_msg
 import pytest
-from rosnode import map_segments, NodeProcess, Peer, scans_of, stamp_of, wall_errors
+from rosnode import (map_segments, NodeProcess, Peer, RELIABLE_DEPTH, scans_of, stamp_of,
+                     wall_errors)
 from std_srvs.srv import Trigger
 
 pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
@@ -33,14 +34,14 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
         # too_late). test_node_load covers the shedding; here every scan must be mapped.
         'max_scan_latency': 0.0, 'scan_buffer_size': 1000,
         'qos_overrides./scan.subscription.reliability': 'reliable',
-        'qos_overrides./scan.subscription.depth': 50,
+        'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH,
         'qos_overrides./odom.subscription.reliability': 'reliable',
         'qos_overrides./odom.subscription.depth': 50})
     peer = Peer('test_peer_odom', reliable_scans=True)
     try:
         assert peer.wait_for_node(TIMEOUT, odom=True), node.stderr()
-        for topic in ('/scan', '/odom'):         # the overrides took
-            for policy, value in (('reliability', 'reliable'), ('depth', 50)):
+        for topic, depth in (('/scan', RELIABLE_DEPTH), ('/odom', 50)):   # the overrides took
+            for policy, value in (('reliability', 'reliable'), ('depth', depth)):
                 name = f'qos_overrides.{topic}.subscription.{policy}'
                 assert peer.parameter(name) == value, name
         msgs = list(drive_messages(office_drive, mount=(0.15, 0.05, math.pi / 2),
@@ -67,12 +68,17 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
 
 def test_without_any_transform_scans_are_skipped_once_warned(office_drive, tmp_path):
     # Started with the shipped parameter file: every value in it has the declared type.
+    from rclpy.qos import qos_profile_sensor_data
     node = NodeProcess(tmp_path, {'transform_timeout': 0.2, 'warning_period': 300.0},
                        params_file=REPO / 'config' / 'polyline_mapper.yaml')
     peer = Peer('test_peer_no_tf')
     try:
         assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
                                and peer.maps, TIMEOUT), node.stderr()
+        # The scan input has sensor-data QoS: best effort (the history depth is not carried
+        # by DDS discovery, so it is not checked).
+        qos = peer.subscription_qos('/scan', timeout=TIMEOUT)
+        assert len(qos) == 1 and qos[0].reliability == qos_profile_sensor_data.reliability, qos
         scans = scans_of(drive_messages(office_drive))
         # Scans until the first warning, then three more: all must be skipped, one warned.
         sent = 0
