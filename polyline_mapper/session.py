@@ -456,7 +456,7 @@ class GapTrack:
         self.center = np.asarray(center, dtype=np.float64).copy()
         self.window = (float(window[0]), float(window[1]))
         self.motion = deque(maxlen=2)
-        self.chords = RecentChords(RECENT_SCANS)
+        self.chords = deque(maxlen=RECENT_SCANS)
         self.keys = []
         self.key_pose = None
         self.warned = 0
@@ -483,7 +483,7 @@ class GapTrack:
             else:
                 pose = extrapolate(self.motion, stamp)
             if self.chords:
-                m = match_scan(local, pose, self.chords.chords(), sigma,
+                m = match_scan(local, pose, np.concatenate(list(self.chords)), sigma,
                                degenerate=degenerate)
                 if m.ok:
                     pose = m.pose
@@ -494,7 +494,7 @@ class GapTrack:
         if not far_enough(self.key_pose, pose):
             return False
         world = transform(local, pose)
-        self.chords.add(world, pose)
+        self.chords.append(scan_chords(world))
         self.keys.append(spread(world, GAP_POINTS))
         self.key_pose = pose
         return True
