@@ -256,13 +256,15 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
         scans = sum(topic == '/scan' for _, topic, _ in msgs)
         assert scans % 8 != 0
         last = peer.play(msgs, RATE)
-        # The map of the last full group of 8: the node has taken the scans up to it, and the
-        # few sent after it are queued behind (reliable and in order). A loaded node is
-        # seconds behind the player: a signal sent before then found scans not yet taken
-        # (192 and 110 of 230 with three busy loops beside the test).
+        # A map at least as new as the last full group of 8: the node has taken the scans up
+        # to it, and the few sent after it are queued behind (reliable and in order). A loaded
+        # node is seconds behind the player: a signal sent before then found scans not yet
+        # taken (192 and 110 of 230 with three busy loops beside the test). (A node that fell
+        # behind maps every scan queued in one update: in CI all 230 in 25 updates, so the
+        # map's stamp may pass that group's.)
         full = last - (scans % 8) / RATE
-        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
-            full, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) >= full - 1e-6,
+                               TIMEOUT), node.stderr()[-3000:]
         peer.spin_for(0.5)
         published = stamp_of(peer.maps[-1])
         assert not out.exists()
