@@ -394,6 +394,10 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         # /tf_static and odometry is not read, in scan mode no pose data at all.
         raise CliError(f'{" and ".join(given)} {"applies" if len(given) == 1 else "apply"} '
                        f'with --pose-source odom only (given: {args.pose_source})')
+    knots = getattr(args, 'chord_knots', 'arc')
+    if knots != 'arc' and not matching and args.pose_source != 'scan':
+        raise CliError('--chord-knots applies to scan matching only: add --scan-matching (or '
+                       '--pose-source scan)')
     mount, flip = _mount(args.laser_mount)
     fixed = args.fixed_frame
     if fixed is None and matching and args.pose_source == 'odom':
@@ -402,7 +406,7 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         fixed = 'map'
     return SessionOptions(pose_source=args.pose_source, fixed_frame=fixed,
                           every=every, update_every_n_scans=group, mount=mount,
-                          mount_upside_down=flip, scan_matching=matching)
+                          mount_upside_down=flip, scan_matching=matching, chord_knots=knots)
 
 
 def _initial_pose(text: str) -> tuple:
@@ -788,6 +792,11 @@ def _pose_args(sp) -> None:
                     help='--pose-source odom: the laser pose on the odometry child frame (m, m, '
                     "deg; flip: mounted upside down), like the node's laser_* parameters; "
                     "default: the scan frame's mount from /tf_static")
+    sp.add_argument('--chord-knots', choices=('arc', 'median'), default='arc',
+                    help="scan matching: the last scans' chord knots every 0.15 m of the raw "
+                    "arc (default) or of an arc of median steps ('median': for lidars whose "
+                    "noise grows with the range, as a TurtleBot3's, where the default turns "
+                    "the heading); the node's chord_knots")
 
 
 def build_parser() -> argparse.ArgumentParser:

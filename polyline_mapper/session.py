@@ -63,8 +63,9 @@ from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
-from .core.register import (CHORD_MIN_EXTENT, match_scan, odometry_covariance, RELOCALIZE_SHARE,
-                            scan_chords, ScanMatch, search_after_gap, spread, transform)
+from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, match_scan, odometry_covariance,
+                            RELOCALIZE_SHARE, scan_chords, ScanMatch, search_after_gap, spread,
+                            transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
 from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
@@ -386,7 +387,9 @@ class RecentChords:
     pulls the matches back along it. The chords are matched to all the same.
     """
 
-    def __init__(self, size: int):
+    def __init__(self, size: int, knots: str = 'arc'):
+        self.knots = knots
+        """``register.scan_chords``'s knot rule (``SessionOptions.chord_knots``)."""
         self._frames = deque(maxlen=size)
         """Per keyframe: [chords (K, 2, 2), person-sized (K,), other keyframes confirming (K,)
         (counted up to ``CHORD_CONFIRMATIONS``), KD-tree of the chords' ends and middles or
@@ -401,7 +404,7 @@ class RecentChords:
 
     def add(self, world: np.ndarray, origin: np.ndarray) -> None:
         """Keep a keyframe's chords: its points (fixed frame, beam order), laser at ``origin``."""
-        chords, extent, first, last = scan_chords(world, extents=True)
+        chords, extent, first, last = scan_chords(world, extents=True, knots=self.knots)
         r = np.hypot(*(world - np.asarray(origin, dtype=np.float64)[:2]).T)
         n = len(world)
         before = np.where(first > 0, r[np.maximum(first - 1, 0)], -np.inf)
@@ -445,7 +448,9 @@ class GapTrack:
     """
 
     def __init__(self, since: float, first: float, center: np.ndarray, window: tuple,
-                 estimate: np.ndarray = None):
+                 estimate: np.ndarray = None, knots: str = 'arc'):
+        self.knots = knots
+        """``register.scan_chords``'s knot rule (``SessionOptions.chord_knots``)."""
         self.since = float(since)
         """Stamp (s) of the last posed scan before the gap."""
         self.estimate = estimate
@@ -494,7 +499,7 @@ class GapTrack:
         if not far_enough(self.key_pose, pose):
             return False
         world = transform(local, pose)
-        self.chords.append(scan_chords(world))
+        self.chords.append(scan_chords(world, knots=self.knots))
         self.keys.append(spread(world, GAP_POINTS))
         self.key_pose = pose
         return True
@@ -587,6 +592,12 @@ class SessionOptions:
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
     consistent as the scans, not as the odometry. Off: the poses are used as given."""
+    chord_knots: str = 'arc'
+    """Scan matching: how the knots of the last scans' chords (``register.scan_chords``) are
+    placed along each scan: 'arc' every 0.15 m of the raw arc; 'median' every 0.15 m of an
+    arc whose steps are medians of their neighbours', for lidars whose range noise grows with
+    the range (a TurtleBot3's LDS-01, RPLidar-class), where 'arc' turns every match the same
+    way (1.6-4.6 deg over a 3-minute simulated drive, benchmarks/cheap_lidar.py)."""
     odom_gap_factor: float = 1.5
     """A scan whose stamp falls between two odometry messages (odom mode) or two transforms of
     the odometry edge (tf mode: the lowest moving transform above the laser, odom ->
@@ -600,6 +611,8 @@ class SessionOptions:
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
+        if self.chord_knots not in CHORD_KNOTS:
+            raise ValueError(f"chord_knots must be 'arc' or 'median', got {self.chord_knots!r}")
         if self.pose_source not in POSE_SOURCES:
             raise ValueError(f'pose_source must be tf, odom or scan, got {self.pose_source!r}')
         if self.pose_source == 'scan':
@@ -1196,7 +1209,7 @@ class MappingSession:
         self._last_add = None
         self._correction = np.zeros(3)
         """Scan matching: fixed frame <- frame of the given poses (map -> odom), (x, y, yaw)."""
-        self._recent = RecentChords(RECENT_SCANS)
+        self._recent = RecentChords(RECENT_SCANS, self.options.chord_knots)
         """Scan matching: chords of the last matched scans (fixed frame), the map's newest edge."""
         self._recent_pose = None
         """Scan matching: the pose of the newest keyframe in ``_recent``."""
@@ -1894,7 +1907,8 @@ class MappingSession:
         track = self._gap
         if track is None:
             since = self._motion[-1][0] if self._motion and estimate is None else stamp
-            track = self._gap = GapTrack(since, stamp, prediction, window, estimate)
+            track = self._gap = GapTrack(since, stamp, prediction, window, estimate,
+                                         self.options.chord_knots)
             if window[0] > GAP_REACH:
                 track.why = (f'the robot may be anywhere within {window[0]:.1f} m, beyond the '
                              f'{GAP_REACH:g} m scan matching searches')

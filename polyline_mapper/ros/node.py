@@ -505,7 +505,8 @@ def session_options(settings) -> SessionOptions:
         update_every_n_scans=settings.update_every_n_scans,
         max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
         max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution,
-        scan_matching=settings.scan_matching, mapping=settings.mapping)
+        scan_matching=settings.scan_matching, mapping=settings.mapping,
+        chord_knots=settings.chord_knots)
 
 
 def _cm(sigma) -> str:
