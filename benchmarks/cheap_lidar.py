@@ -12,7 +12,8 @@ the beams taken over the scan time (a spinning sensor), 0.12-3.5 m, 1 % dropouts
 2026-11-29). The robot drives at 0.2 m/s and turns at 1 rad/s through the office (its first 12
 waypoints, 38 m) and round a 10 m corridor loop (2 m wide), the laser on the base, with true
 odometry and with ``OdometryDrift`` seeds (issue 19's model), mapped through the session
-(``replay_records``) with and without ``scan_matching``. Scores per run: RMS of the base
+(``replay_records``) without ``scan_matching`` and with it, its ``chord_knots`` 'arc' (the
+default) and 'median'. Scores per run: RMS of the base
 position and heading against the truth as the poses stand, ATE, the map against the true
 points (mean distance, coverage within 0.10 m) and the walls' F1 as the map stands and after
 the trajectory's alignment.
@@ -22,8 +23,8 @@ against the chords (``register.scan_chords``) of another scan taken at the same 
 straight 2 m corridor (walls 40 m long, so only the heading and the across-axis are
 constrained), with the prediction exact, ``--trials`` times; the mean heading of the result,
 with the beams in the laser's counter-clockwise order and reversed, and against the true walls
-as a control. A bias that flips sign with the beam order comes from the chords, not the
-matcher.
+as a control, for each ``chord_knots`` rule. A bias that flips sign with the beam order comes
+from the chords, not the matcher.
 
 Writes both tables into benchmarks/README.md (between the ``cheap-lidar`` markers) and the rows
 to results/cheap_lidar.json.
@@ -79,11 +80,11 @@ def make(name: str, seed: int = 1):
     return drive
 
 
-def one(drive, drift, matching: bool) -> dict:
+def one(drive, drift, matching: bool, knots: str = 'arc') -> dict:
     """Map ``drive`` with drift seed ``drift`` (None: true odometry); return its scores."""
     records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
     session = replay_records(records, options=SessionOptions(
-        pose_source='tf', scan_matching=matching, keep_points=True))
+        pose_source='tf', scan_matching=matching, keep_points=True, chord_knots=knots))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
     truth = drive_truth(drive, traj)
@@ -95,7 +96,8 @@ def one(drive, drift, matching: bool) -> dict:
     pts = drive.points()
     w = drive.world
     raw = map_metrics(pts, segs)
-    return {'drift_seed': drift, 'matching': matching, 'scans': int(len(traj)),
+    return {'drift_seed': drift, 'matching': matching, 'chord_knots': knots,
+            'scans': int(len(traj)),
             'rms_m': round(float(np.sqrt(np.mean(err ** 2))), 4),
             'ate_m': round(float(te['ate']), 4),
             'yaw_rms_deg': round(float(np.degrees(np.sqrt(np.mean(yaw ** 2)))), 3),
@@ -119,7 +121,7 @@ def corridor_scan(rng, share: float) -> np.ndarray:
     return np.column_stack([r * np.cos(ang), r * np.sin(ang)])[ok]
 
 
-def knot_bias(trials: int, share: float, reverse: bool) -> dict:
+def knot_bias(trials: int, share: float, reverse: bool, knots: str = 'arc') -> dict:
     """Mean heading (deg) of ``match_scan`` against another scan's chords and the true walls."""
     rng = np.random.default_rng(0)
     walls = np.array([[[-20.0, 1.0], [20.0, 1.0]], [[-20.0, -1.0], [20.0, -1.0]]])
@@ -128,10 +130,10 @@ def knot_bias(trials: int, share: float, reverse: bool) -> dict:
         a, b = (spread(corridor_scan(rng, share), 240) for _ in range(2))
         if reverse:
             a, b = a[::-1], b[::-1]
-        chords.append(match_scan(b, np.zeros(3), scan_chords(a), 0.02).pose[2])
+        chords.append(match_scan(b, np.zeros(3), scan_chords(a, knots=knots), 0.02).pose[2])
         true.append(match_scan(b, np.zeros(3), walls, 0.02).pose[2])
     chords, true = np.degrees(chords), np.degrees(true)
-    return {'noise_share': share, 'reversed': reverse, 'trials': trials,
+    return {'noise_share': share, 'reversed': reverse, 'trials': trials, 'chord_knots': knots,
             'chords_deg': round(float(chords.mean()), 4),
             'chords_se_deg': round(float(chords.std() / np.sqrt(trials)), 4),
             'walls_deg': round(float(true.mean()), 4),
@@ -148,28 +150,34 @@ def main() -> int:
     rows, bias = [], []
     for name in ('office', 'corridors'):
         drive = make(name)
-        runs = [(None, False), (None, True)] + [(s, m) for s in args.seeds for m in (False, True)]
-        for drift, matching in runs:
-            rows.append(dict(one(drive, drift, matching), world=name))
+        runs = [(d, m, k) for d in [None] + list(args.seeds)
+                for m, k in ((False, 'arc'), (True, 'arc'), (True, 'median'))]
+        for drift, matching, knots in runs:
+            rows.append(dict(one(drive, drift, matching, knots), world=name))
             print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
-    for share in (NOISE_SHARE, 0.0):
-        for reverse in (False, True):
-            bias.append(knot_bias(args.trials, share, reverse))
-            print(json.dumps(bias[-1]), file=sys.stderr, flush=True)
+    for knots in ('arc', 'median'):
+        for share in (NOISE_SHARE, 0.0):
+            for reverse in (False, True):
+                bias.append(knot_bias(args.trials, share, reverse, knots))
+                print(json.dumps(bias[-1]), file=sys.stderr, flush=True)
     write_results('cheap_lidar', meta, rows + bias)
-    lines = table_header(meta, ['drive', 'odometry', 'scan matching', 'RMS / ATE (m)',
+    lines = table_header(meta, ['drive', 'odometry', 'scan matching (chord knots)',
+                                'RMS / ATE (m)',
                                 'heading RMS / at the end (deg)', 'map vs true points: mean '
                                 '(cm) / coverage (%)', 'walls F1 (aligned)', 'segments'])
     for r in rows:
         odom = 'true' if r['drift_seed'] is None else f"drift seed {r['drift_seed']}"
-        lines.append(f"| {r['world']} | {odom} | {'on' if r['matching'] else 'off'} | "
+        match = f"on ({r['chord_knots']})" if r['matching'] else 'off'
+        lines.append(f"| {r['world']} | {odom} | {match} | "
                      f"{r['rms_m']:.3f} / {r['ate_m']:.3f} | {r['yaw_rms_deg']:.2f} / "
                      f"{r['yaw_end_deg']:+.2f} | {r['mean_cm']:.2f} / {r['coverage']:.1f} | "
                      f"{r['f1']:.2f} ({r['f1_aligned']:.2f}) | {r['segments']} |")
-    lines += ['', "| range noise | beams | mean heading of a match against the other scan's "
-              'chords (deg, +- se) | against the true walls (deg, +- se) |', '|---|---|---|---|']
+    lines += ['', '| chord knots | range noise | beams | mean heading of a match against the '
+              "other scan's chords (deg, +- se) | against the true walls (deg, +- se) |",
+              '|---|---|---|---|---|']
     for b in bias:
-        lines.append(f"| {NOISE * 100:g} cm + {b['noise_share'] * 100:g} % of range | "
+        lines.append(f"| {b['chord_knots']} | {NOISE * 100:g} cm + {b['noise_share'] * 100:g} "
+                     '% of range | '
                      f"{'reversed' if b['reversed'] else 'counter-clockwise'} | "
                      f"{b['chords_deg']:+.3f} +- {b['chords_se_deg']:.3f} | "
                      f"{b['walls_deg']:+.3f} +- {b['walls_se_deg']:.3f} |")

@@ -58,11 +58,13 @@ LOGS = ['intel-corrected', 'csail-corrected', 'freiburg-079-corrected']
 MODES = ('corrected', 'odometry', 'matching', 'exact-matching', 'loops')
 
 
-def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None) -> dict:
+def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None,
+        knots: str = 'arc') -> dict:
     """
     Map ``path`` in ``mode`` (drift ``seed``; None for the corrected poses); return its row.
 
-    ``config``: the mapper's ``IncrementalConfig`` (None: the defaults).
+    ``config``: the mapper's ``IncrementalConfig`` (None: the defaults); ``knots``: the
+    session's ``chord_knots``.
     """
     with tempfile.TemporaryDirectory() as tmp:
         if mode == 'corrected':
@@ -74,7 +76,8 @@ def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None
             carmen_to_bag(str(path), bag, drift_seed=0 if exact else seed,
                           drift_model=OdometryDrift(0.0, 0.0, 0.0) if exact else None)
             res = run_replay(bag, config, options=SessionOptions(
-                pose_source='odom', keep_points=True, scan_matching=mode != 'odometry'),
+                pose_source='odom', keep_points=True, scan_matching=mode != 'odometry',
+                chord_knots=knots),
                 progress=True, loop_closure=mode == 'loops')
     segs = res.map_value.segments
     used = np.asarray(res.map_value.trajectory)[:, 1:]          # base poses, one per scan used
@@ -117,6 +120,9 @@ def main() -> int:
     ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
                     help="the mapper's settings for every replay, as replay --set takes them "
                     '(e.g. free_space_window=10); each row records them')
+    ap.add_argument('--chord-knots', choices=('arc', 'median'), default='arc',
+                    help="the session's chord_knots (replay --chord-knots) for every replay "
+                    'with scan matching')
     ap.add_argument('--from-json', nargs='+', metavar='JSON', help='run nothing: join these '
                     'runs (e.g. two logs run side by side, each with --json) into '
                     'results/drift.json and the README block')
@@ -147,7 +153,8 @@ def main() -> int:
             log = read_carmen(str(path))
             logs[name] = (path, log, log.points())
         path, log, truth = logs[name]
-        row = dict(one(path, seed, truth, log, mode, config), log=name, set=args.set)
+        row = dict(one(path, seed, truth, log, mode, config, args.chord_knots), log=name,
+                   set=args.set, chord_knots=args.chord_knots)
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.json:

@@ -56,11 +56,12 @@ SETTINGS = {
 """IncrementalConfig fields of each row (over the defaults)."""
 
 
-def one(drive, fields: dict) -> dict:
+def one(drive, fields: dict, knots: str = 'arc') -> dict:
     """Map the drive with scan matching and the mapper ``fields``; return its scores."""
     records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0)))
     session = replay_records(records, IncrementalConfig(**fields),
-                             SessionOptions(scan_matching=True, keep_points=True))
+                             SessionOptions(scan_matching=True, keep_points=True,
+                                            chord_knots=knots))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
     err = np.hypot(*(traj[:, 1:3] - drive_truth(drive, traj)[:, :2]).T)

@@ -3,7 +3,7 @@ A person walking ahead of the robot: the transient chords' hold, and the chord l
 
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
-    .venv/bin/python benchmarks/walker_chords.py [--seeds 1 2 3 4 5 6 7 8]
+    .venv/bin/python benchmarks/walker_chords.py [--seeds 1 2 3 4 5 6 7 8] [--chord-knots median]
 
 The simulated dynamic office of ``walker_ahead.py`` (true poses, scan matching, the session as
 ``test_imperfect_poses`` drives it), every seed mapped with the chords of the last scans
@@ -21,7 +21,8 @@ matching runs by default) and ``evidence`` (the evidence per square alone), as t
 One row per setting, extent and length: the median, mean and largest RMS position error over
 the seeds, how many of them keep the walls F1 >= 0.95, and the lowest F1. Writes the table
 into benchmarks/README.md (between the ``walker-chords`` markers) and the rows to
-results/walker_chords.json.
+results/walker_chords.json; with ``--chord-knots median`` (the session's ``chord_knots``) between
+the ``walker-chords-median`` markers and to results/walker_chords_median.json.
 """
 
 import argparse
@@ -46,26 +47,30 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
     ap.add_argument('--seeds', type=int, nargs='+', default=list(range(1, 9)),
                     help='drive seeds (default 1-8, the tests)')
+    ap.add_argument('--chord-knots', choices=('arc', 'median'), default='arc',
+                    help="the session's chord_knots")
     args = ap.parse_args()
+    name = 'walker_chords' + ('' if args.chord_knots == 'arc' else '_median')
     meta = stamp('.venv/bin/python benchmarks/walker_chords.py ' + ' '.join(sys.argv[1:]))
     drives = {seed: make_drive('sim:office_dynamic', seed) for seed in args.seeds}
     extents = (register.CHORD_MIN_EXTENT, 0.0)
-    jobs = [(name, extent, length) for name in ('off', 'evidence') for extent in extents
+    jobs = [(setting, extent, length) for setting in ('off', 'evidence') for extent in extents
             for length in LENGTHS]
     chords, extent0 = session.scan_chords, session.CHORD_MIN_EXTENT
     rows = []
     bar = tqdm(total=len(jobs) * len(drives), unit='drive', file=sys.stderr)
     try:
-        for name, extent, length in jobs:
+        for setting, extent, length in jobs:
             session.scan_chords = functools.partial(register.scan_chords, length=length)
             session.CHORD_MIN_EXTENT = extent
             runs = []
             for seed, drive in drives.items():
-                runs.append(one(drive, SETTINGS[name]))
+                runs.append(one(drive, SETTINGS[setting], args.chord_knots))
                 bar.update()
             rms = np.array([r['rms_m'] for r in runs])
             f1 = np.array([r['f1'] for r in runs])
-            rows.append({'setting': name, 'min_extent': extent, 'length': length,
+            rows.append({'setting': setting, 'min_extent': extent, 'length': length,
+                         'chord_knots': args.chord_knots,
                          'seeds': list(drives), 'rms_m': rms.tolist(), 'f1': f1.tolist(),
                          'median_m': round(float(np.median(rms)), 4),
                          'mean_m': round(float(rms.mean()), 4),
@@ -75,7 +80,7 @@ def main() -> int:
     finally:
         session.scan_chords, session.CHORD_MIN_EXTENT = chords, extent0
         bar.close()
-    write_results('walker_chords', meta, rows)
+    write_results(name, meta, rows)
     lines = table_header(meta, ['setting', 'min extent (m)', 'chord length (m)',
                                 'RMS median / mean / largest (m)',
                                 f'drives with walls F1 >= 0.95 (of {len(drives)})',
@@ -84,7 +89,7 @@ def main() -> int:
         lines.append(f"| {r['setting']} | {r['min_extent']:.2f} | {r['length']:.2f} "
                      f"| {r['median_m']:.3f} / {r['mean_m']:.3f} / {r['max_m']:.3f} "
                      f"| {r['walls_095']} | {r['f1_min']:.2f} |")
-    write_readme('walker-chords', '\n'.join(lines) + '\n')
+    write_readme(name.replace('_', '-'), '\n'.join(lines) + '\n')
     return 0
 
 
