@@ -45,6 +45,7 @@ from common import aligned_segments, datasets_argument, HERE, stamp, write_readm
 import numpy as np
 from polyline_mapper.core import map_metrics
 from polyline_mapper.core.metrics import relative_error, trajectory_error
+from polyline_mapper.core.register import CHORD_KNOTS
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.poses import se2_compose, se2_inverse
@@ -120,7 +121,7 @@ def main() -> int:
     ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
                     help="the mapper's settings for every replay, as replay --set takes them "
                     '(e.g. free_space_window=10); each row records them')
-    ap.add_argument('--chord-knots', choices=('arc', 'median'), default='arc',
+    ap.add_argument('--chord-knots', choices=CHORD_KNOTS, default='arc',
                     help="the session's chord_knots (replay --chord-knots) for every replay "
                     'with scan matching')
     ap.add_argument('--from-json', nargs='+', metavar='JSON', help='run nothing: join these '

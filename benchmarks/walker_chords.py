@@ -47,7 +47,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
     ap.add_argument('--seeds', type=int, nargs='+', default=list(range(1, 9)),
                     help='drive seeds (default 1-8, the tests)')
-    ap.add_argument('--chord-knots', choices=('arc', 'median'), default='arc',
+    ap.add_argument('--chord-knots', choices=register.CHORD_KNOTS, default='arc',
                     help="the session's chord_knots")
     args = ap.parse_args()
     name = 'walker_chords' + ('' if args.chord_knots == 'arc' else '_median')

@@ -792,7 +792,8 @@ def _pose_args(sp) -> None:
                     help='--pose-source odom: the laser pose on the odometry child frame (m, m, '
                     "deg; flip: mounted upside down), like the node's laser_* parameters; "
                     "default: the scan frame's mount from /tf_static")
-    sp.add_argument('--chord-knots', choices=('arc', 'median'), default='arc',
+    from .core.register import CHORD_KNOTS
+    sp.add_argument('--chord-knots', choices=CHORD_KNOTS, default='arc',
                     help="scan matching: the last scans' chord knots every 0.15 m of the raw "
                     "arc (default) or of an arc of median steps ('median': for lidars whose "
                     "noise grows with the range, as a TurtleBot3's, where the default turns "

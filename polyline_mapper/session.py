@@ -612,7 +612,7 @@ class SessionOptions:
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
         if self.chord_knots not in CHORD_KNOTS:
-            raise ValueError(f"chord_knots must be 'arc' or 'median', got {self.chord_knots!r}")
+            raise ValueError(f'chord_knots must be one of {CHORD_KNOTS}, got {self.chord_knots!r}')
         if self.pose_source not in POSE_SOURCES:
             raise ValueError(f'pose_source must be tf, odom or scan, got {self.pose_source!r}')
         if self.pose_source == 'scan':

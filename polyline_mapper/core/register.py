@@ -807,6 +807,8 @@ def scan_chords(points: np.ndarray, gap: float = 0.5, length: float = 0.15,
            [[2.  , 0.  ],
             [2.1 , 0.  ]]])
     """
+    if knots not in CHORD_KNOTS:
+        raise ValueError(f'knots must be one of {CHORD_KNOTS}, got {knots!r}')
     pts = as_points(points)
     if len(pts) < 2:
         none = np.zeros(0, dtype=np.intp)
@@ -814,8 +816,6 @@ def scan_chords(points: np.ndarray, gap: float = 0.5, length: float = 0.15,
     d = np.hypot(*np.diff(pts, axis=0).T)
     broken = np.concatenate([[True], d >= gap])            # a point that starts a run
     run = np.cumsum(broken)
-    if knots not in CHORD_KNOTS:
-        raise ValueError(f'knots must be one of {CHORD_KNOTS}, got {knots!r}')
     step = np.where(d < gap, d, 0.0)
     if knots == 'median':
         step = median_filter(step, size=CHORD_STEP_WINDOW, mode='nearest')
