@@ -783,9 +783,9 @@ def _pose_args(sp) -> None:
                     'by scan matching (implies --scan-matching; the first scan at the origin '
                     "of the map frame, 'map' unless --fixed-frame)")
     sp.add_argument('--fixed-frame', help="map frame with --pose-source tf (default: 'map' "
-                    "when the scan's TF tree has it, else the tree's root) or with --pose-source "
-                    "odom and scan matching (default: 'map'; without matching the map is in the "
-                    'odometry frame)')
+                    "when the scan's TF tree has it, else the tree's root; with scan matching "
+                    "'map' above that root) or with --pose-source odom and scan matching "
+                    "(default: 'map'; without matching the map is in the odometry frame)")
     sp.add_argument('--odom-topic', help='nav_msgs/Odometry topic for --pose-source odom '
                     '(default: the only one)')
     sp.add_argument('--laser-mount', metavar='X,Y,YAW_DEG[,flip]',

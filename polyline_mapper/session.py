@@ -555,8 +555,9 @@ class SessionOptions:
     """'tf', 'odom' or 'scan' (no pose data: constant velocity refined by scan matching; sets
     ``scan_matching``)."""
     fixed_frame: Optional[str] = None
-    """Map frame. tf: default 'map' when the scan frame's tree has it, else its root; odom: the
-    odometry frame (odometry in another frame is skipped and counted); scan: default 'map'."""
+    """Map frame. tf: default 'map' when the scan frame's tree has it, else its root (with
+    ``scan_matching``: 'map' above that root); odom: the odometry frame (odometry in another
+    frame is skipped and counted); scan: default 'map'."""
     tolerance: float = 0.1
     """Seconds a stamp may lie outside the stored transforms and still use the nearest."""
     wait: float = 0.5
@@ -672,7 +673,8 @@ class PoseSource:
         self.buffer = TransformBuffer2D(options.cache_seconds)
         self.fixed_frame = options.fixed_frame
         self.localizer = bool(options.scan_matching and options.fixed_frame)
-        """Scan matching into a given fixed frame: the session publishes that frame (map ->
+        """Scan matching into a given fixed frame (or, in tf mode, into 'map' when the tree has
+        no map frame: set at the first posed scan): the session publishes that frame (map ->
         odom), so the poses are looked up in ``odom_frame`` and transforms from the fixed frame
         (its own map -> odom, read back from /tf) are never a pose source."""
         self.odom_frame = None
@@ -847,6 +849,12 @@ class PoseSource:
             self.base_frame = chain[-2]
         else:
             target = self.fixed_frame or self._default_fixed(frame)
+            if self.options.scan_matching and self.fixed_frame is None and target != 'map':
+                # A tree without a map frame (odom -> base_link only): the matched poses leave
+                # its root as the odometry drifts, so the map is 'map' above it (REP 105), as
+                # in odom mode and the node's; the root is then the odometry frame.
+                self.localizer, self.fixed_frame = True, 'map'
+                self.base_frame = self._chain(frame)[-2]
         pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
                                          self.options.tolerance if tolerance is None
                                          else tolerance)

@@ -337,6 +337,26 @@ def test_a_scan_matched_odometry_replay_is_in_the_map_frame(tmp_path, rotated):
     assert maps['map']['trajectory'] == maps['world']['trajectory']
 
 
+def test_a_scan_matched_tf_replay_without_a_map_frame_is_in_the_map_frame(tmp_path):
+    # A robot without a localizer: /tf odom -> base_link drifts and there is no map frame.
+    # Unmatched, the map is the tree's root (odom); matched, it leaves odom as the odometry
+    # drifts and is 'map' above it, as the same recording's odom-mode replay and the node's
+    # (it was labelled 'odom'). The map and trajectory are the odom mode's, number for number.
+    drive, maps = 'sim:office,odom_drift=2', {}
+    for source, extra, frame in (('tf', [], 'odom'), ('tf', ['--scan-matching'], 'map'),
+                                 ('odom', ['--scan-matching'], 'map')):
+        out = tmp_path / f'{source}{len(extra)}.json'
+        assert main(['replay', drive, '-o', str(out), '--pose-source', source, '-q']
+                    + extra) == 0
+        data = read_map(str(out))
+        assert data['frame_id'] == frame and data['stats']['fixed_frame'] == frame, extra
+        assert data['stats']['scans_used'] == 355
+        maps[source, len(extra)] = data
+    assert maps['tf', 1]['segments'] == maps['odom', 1]['segments']
+    assert maps['tf', 1]['trajectory'] == maps['odom', 1]['trajectory']
+    assert maps['tf', 1]['segments'] != maps['tf', 0]['segments']
+
+
 def test_a_map_the_beams_see_through_warns_of_the_mount_and_the_poses(tmp_path, rotated, capsys):
     # The laser is mounted turned 90 deg; given as turned -90 deg, the scans disagree and the
     # beams pass through most of the map: one warning naming the mount and the poses (a new
