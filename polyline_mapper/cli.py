@@ -515,7 +515,8 @@ def cmd_replay(args) -> int:
     disagree = _seen_through(value.stats, args)
     if disagree:
         print(f'polyline-mapper: warning: {disagree}', file=sys.stderr)
-    value.stats['total_seconds'] = round(time.perf_counter() - t0, 3)
+    value.stats.update(total_seconds=round(time.perf_counter() - t0, 3),
+                       laser_mount=args.laser_mount)
     if start is not None:
         value.stats.update(start_map=os.path.basename(args.map), mapping=not args.no_mapping)
     save_map(value, res.points, args.output, args.plot,
@@ -584,12 +585,18 @@ def _beams_for_map(args, value: MapValue) -> tuple:
     same stamp, so the beams are those the map's stats judged; scans without a row are left
     out. Without a trajectory, or when no stamp matches (another recording: warned), the
     input as ``read_beams_any`` gives it. ``note``: the summary's words on it, or ''.
+
+    The scans are registered with the pose options given; with none given and ``--points``
+    the map's own input (its file name), with those its replay recorded
+    (``_recorded_pose_args``), so a map replayed with ``--pose-source odom --laser-mount ...``
+    is drawn over its beams without repeating them.
     """
     from .core.geometry import se2_compose, se2_inverse
     from .recordings import kind_of
     traj = value.trajectory
     if traj is None or not len(traj) or kind_of(args.points) == 'points':
         return read_beams_any(args.points, args)[:2] + ('',)
+    args, posed = _recorded_pose_args(args, value.stats or {})
     res = _register(args.points, args)
     points, origins = res.points, res.session.origins()
     own, sizes = res.map_value.trajectory, res.session.scan_sizes()
@@ -612,7 +619,36 @@ def _beams_for_map(args, value: MapValue) -> tuple:
         q = q[keep]
         return se2_compose(fix, np.column_stack([q, np.zeros(len(q))]))[:, :2]
     return move(points), move(origins), (f" at the map's trajectory ({int(found.sum())} of "
-                                         f'{len(found)} scans)')
+                                         f'{len(found)} scans{posed})')
+
+
+POSE_ARGS = (('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
+             ('laser_mount', None), ('fixed_frame', None))
+"""The options (argparse dest, default) that place a bag's or a drive's scans."""
+
+
+def _recorded_pose_args(args, stats: dict) -> tuple:
+    """
+    ``args`` with the pose options the map's replay recorded, when none is given: (args, note).
+
+    Taken only when ``--points`` names the map's own input (``stats['input']``, its file name)
+    and the stats record a pose source; ``fixed_frame`` is not taken (the scans are moved onto
+    the map's trajectory whatever frame they are registered in). ``note``: the options taken,
+    for the summary, or ''.
+    """
+    if any(getattr(args, name, default) != default for name, default in POSE_ARGS) or \
+            stats.get('pose_source') not in ('tf', 'odom', 'scan') or \
+            stats.get('input') != os.path.basename(os.path.normpath(args.points)):
+        return args, ''
+    taken = {'pose_source': stats['pose_source']}
+    if stats['pose_source'] == 'odom':
+        taken.update(odom_topic=stats.get('odom_topic'), laser_mount=stats.get('laser_mount'))
+    if stats.get('scan_topic'):
+        taken['scan_topic'] = stats['scan_topic']
+    flags = ' '.join(f'--{name.replace("_", "-")} {value}' for name, value in taken.items()
+                     if value is not None and (name, value) not in POSE_ARGS)
+    return argparse.Namespace(**{**vars(args), **taken}), (
+        f', posed as its replay: {flags}' if flags else '')
 
 
 def cmd_plot(args) -> int:
@@ -882,7 +918,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument('--points', metavar='INPUT', help='point file, CARMEN log or bag whose '
                     'points to draw underneath (bags are registered as replay does; a map with '
                     'a trajectory, e.g. from replay --scan-matching, places each scan at its '
-                    'row of the same stamp, as its stats did)')
+                    'row of the same stamp, as its stats did; with no pose option given, those '
+                    "of the map's replay are used when INPUT is its input)")
     pl.add_argument('--free-space', action='store_true', help='draw the beams of --points '
                     '(a CARMEN log or bag) and the segments they contradict in red')
     pl.add_argument('--title', help='figure title')

@@ -407,11 +407,14 @@ class Recording:
     true poses and walls), else None. ``warnings``: lines to show the user (e.g. skipped
     malformed lines). ``estimate_topic``: the topic of the pose estimates a bag holds, or None.
     ``odometry``: whether it holds odometry (a bag with an Odometry topic; logs and drives do).
+    ``scan_topic``, ``odom_topic``: a bag's LaserScan topic and the Odometry topic read (None
+    when none is read), as chosen or found; None for logs and drives.
     """
 
     def __init__(self, messages: Callable[[], Iterator[tuple]], scan_count: int,
                  description: str, kind: str, warnings: list = None, drive=None,
-                 estimate_topic: str = None, odometry: bool = True):
+                 estimate_topic: str = None, odometry: bool = True, scan_topic: str = None,
+                 odom_topic: str = None):
         self._messages = messages
         self.scan_count = int(scan_count)
         self.description = description
@@ -420,6 +423,8 @@ class Recording:
         self.drive = drive
         self.estimate_topic = estimate_topic
         self.odometry = bool(odometry)
+        self.scan_topic = scan_topic
+        self.odom_topic = odom_topic
 
     def messages(self) -> Iterator[tuple]:
         """Yield ``(log_time, topic, record)`` from the start of the recording."""
@@ -506,7 +511,8 @@ def _open_bag(path: str, scan_topic, odom_topic, odometry,
                 yield from again.messages()
         yield Recording(messages, bag.scan_count, f'bag, {bag.scan_count} scans on '
                         f'{bag.scan_topic}; topics {", ".join(topics)}', 'bag', warnings,
-                        estimate_topic=bag.estimate_topic, odometry=odometry_topic)
+                        estimate_topic=bag.estimate_topic, odometry=odometry_topic,
+                        scan_topic=bag.scan_topic, odom_topic=bag.odom_topic)
 
 
 def read_log(path: str, period: float = 1.0) -> tuple:

@@ -250,6 +250,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
     st.update(scans_announced=int(source.scan_count),
               input=os.path.basename(os.path.normpath(path)),
               input_type=source.description, pose_source=options.pose_source,
+              scan_topic=source.scan_topic,
+              odom_topic=source.odom_topic if options.pose_source == 'odom' else None,
               every=int(options.every), fixed_frame=session.fixed_frame,
               update_ms_median=round(ms['p50'], 3) if ms else None,
               update_ms_p99=round(ms['p99'], 3) if ms else None,

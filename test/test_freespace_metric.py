@@ -250,6 +250,37 @@ def test_plot_judges_a_scan_matched_maps_beams_where_the_map_placed_them(tmp_pat
     assert "at the map's trajectory" not in cap.out and 'segments contradicted' in cap.out
 
 
+def test_plot_poses_a_bag_as_its_maps_replay_did_when_not_told(tmp_path, capsys):
+    # A bag with /odom and /scan only (no /tf), the laser mounted off the base: its replay needs
+    # --pose-source odom --laser-mount. The map records them, and plot --points of the same bag
+    # poses it so without them being repeated (it failed: no /tf to place the scans).
+    drive = room_drive(mount=(0.2, -0.1, np.pi / 2), step=0.3, rng=8)
+    bag = write_bag(tmp_path / 'odom_only', drive_messages(drive, tf=False, static=False))
+    mp = tmp_path / 'm.json'
+    assert main(['replay', bag, '--pose-source', 'odom', '--laser-mount', '0.2,-0.1,90',
+                 '--scan-matching', '-o', str(mp), '-q']) == 0
+    stats = json.loads(mp.read_text())['stats']
+    assert (stats['pose_source'], stats['odom_topic'], stats['scan_topic'],
+            stats['laser_mount']) == ('odom', '/odom', '/scan', '0.2,-0.1,90')
+    capsys.readouterr()
+    assert main(['plot', str(mp), '--points', bag, '--free-space', '-o',
+                 str(tmp_path / 'fs.png')]) == 0
+    out = capsys.readouterr().out
+    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
+    assert int(said.group(1)) == stats['contradicted_segments'], out
+    assert float(said.group(2)) == pytest.approx(100 * stats['contradicted_share'], abs=0.05)
+    n = stats['scans_used']
+    assert (f"beams at the map's trajectory ({n} of {n} scans, posed as its replay: "
+            '--pose-source odom --odom-topic /odom --laser-mount 0.2,-0.1,90 --scan-topic '
+            '/scan)') in out, out
+    # options given are the user's: tf mode finds no transform in this bag
+    assert main(['plot', str(mp), '--points', bag, '--pose-source', 'tf', '--scan-topic',
+                 '/scan', '-o', str(tmp_path / 'tf.png'), '-q']) == 2
+    # another recording than the map's input: its own options (tf) as before
+    other = write_bag(tmp_path / 'other', drive_messages(drive, tf=False, static=False))
+    assert main(['plot', str(mp), '--points', other, '-o', str(tmp_path / 'o.png'), '-q']) == 2
+
+
 def test_passing_beams_flags_each_beam_that_passes_through_any_segment():
     # Against every (segment, beam) pair tested one by one (pair_tests), seeded random walls
     # and returns around one laser position.
