@@ -237,7 +237,7 @@ def cmd_fit(args) -> int:
     config, extra = load_fit_options(args.config, args.set)
     window = extra['free_space_window']
     t0 = time.perf_counter()
-    points, origins, desc = read_beams_any(args.input, args, args.range_max)
+    points, origins, desc, posed = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
         raise CliError(f'{args.input}: {len(points)} usable point(s); need at least 2')
     if window > 0 and origins is None and fit_window_asked(args.config, args.set):
@@ -248,7 +248,8 @@ def cmd_fit(args) -> int:
     used = window if result.beams else 0
     stats = write_outputs(result, points, config, args.output, args.plot, args.frame_id,
                           title=f'{os.path.basename(args.input)}: {len(result.segments)} segments',
-                          extra={'input': os.path.basename(args.input), 'input_type': desc,
+                          extra={'input': os.path.basename(os.path.normpath(args.input)),
+                                 'input_type': desc, **posed,
                                  'total_seconds': round(time.perf_counter() - t0, 3),
                                  'free_space_window': used, 'free_space_hit_margin':
                                      extra['free_space_hit_margin'] if used else 0.0,
@@ -533,8 +534,10 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
     """
     Points of a point file, a CARMEN log, a bag or a drive, with their laser positions.
 
-    Returns ``(points, origins, description)``; ``origins`` is None for a point file. Bags and
-    simulated drives are registered as replay does, without mapping (``range_max``: logs only).
+    Returns ``(points, origins, description, posed)``; ``origins`` is None for a point file.
+    Bags and simulated drives are registered as replay does, without mapping (``range_max``:
+    logs only); ``posed`` is then what placed their scans, as replay's stats record it
+    (``pose_source``, ``scan_topic``, ``odom_topic``, ``laser_mount``), else {}.
     """
     from .recordings import kind_of
     kind = kind_of(path)
@@ -551,11 +554,14 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
                     'other pose sources)')
             raise CliError(f'{" and ".join(given)} {"does" if len(given) == 1 else "do"} not '
                            f'apply to {what}')
-        return read_input(path, range_max, not args.quiet)
+        return read_input(path, range_max, not args.quiet) + ({},)
     if range_max is not None:
         raise CliError('--range-max applies to CARMEN logs only')
     res = _register(path, args)
-    return res.points, res.session.origins(), res.map_value.stats.get('input_type', 'scans')
+    st = res.map_value.stats
+    posed = {key: st.get(key) for key in ('pose_source', 'scan_topic', 'odom_topic')}
+    return (res.points, res.session.origins(), st.get('input_type', 'scans'),
+            {**posed, 'laser_mount': args.laser_mount})
 
 
 def _register(path: str, args):
@@ -587,16 +593,18 @@ def _beams_for_map(args, value: MapValue) -> tuple:
     input as ``read_beams_any`` gives it. ``note``: the summary's words on it, or ''.
 
     The scans are registered with the pose options given; with none given and ``--points``
-    the map's own input (its file name), with those its replay recorded
-    (``_recorded_pose_args``), so a map replayed with ``--pose-source odom --laser-mount ...``
-    is drawn over its beams without repeating them.
+    the map's own input (its file name), with those its replay or fit recorded
+    (``_recorded_pose_args``), so a map made with ``--pose-source odom --laser-mount ...`` is
+    drawn over its beams without repeating them.
     """
     from .core.geometry import se2_compose, se2_inverse
     from .recordings import kind_of
     traj = value.trajectory
-    if traj is None or not len(traj) or kind_of(args.points) == 'points':
+    if kind_of(args.points) == 'points':
         return read_beams_any(args.points, args)[:2] + ('',)
     args, posed = _recorded_pose_args(args, value.stats or {})
+    if traj is None or not len(traj):
+        return read_beams_any(args.points, args)[:2] + (f' ({posed[2:]})' if posed else '',)
     res = _register(args.points, args)
     points, origins = res.points, res.session.origins()
     own, sizes = res.map_value.trajectory, res.session.scan_sizes()
@@ -629,12 +637,14 @@ POSE_ARGS = (('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
 
 def _recorded_pose_args(args, stats: dict) -> tuple:
     """
-    ``args`` with the pose options the map's replay recorded, when none is given: (args, note).
+    Return ``args`` with the pose options the map recorded, when none is given, and a note.
+
+    The options are those the map's replay or fit recorded.
 
     Taken only when ``--points`` names the map's own input (``stats['input']``, its file name)
-    and the stats record a pose source; ``fixed_frame`` is not taken (the scans are moved onto
-    the map's trajectory whatever frame they are registered in). ``note``: the options taken,
-    for the summary, or ''.
+    and the stats record a pose source; ``fixed_frame`` is not taken (a replay's scans are
+    moved onto its trajectory whatever frame they are registered in; a fit records none).
+    ``note``: the options taken, for the summary, or ''.
     """
     if any(getattr(args, name, default) != default for name, default in POSE_ARGS) or \
             stats.get('pose_source') not in ('tf', 'odom', 'scan') or \
@@ -648,7 +658,7 @@ def _recorded_pose_args(args, stats: dict) -> tuple:
     flags = ' '.join(f'--{name.replace("_", "-")} {value}' for name, value in taken.items()
                      if value is not None and (name, value) not in POSE_ARGS)
     return argparse.Namespace(**{**vars(args), **taken}), (
-        f', posed as its replay: {flags}' if flags else '')
+        f', posed as when mapped: {flags}' if flags else '')
 
 
 def cmd_plot(args) -> int:

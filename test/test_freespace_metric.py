@@ -250,10 +250,11 @@ def test_plot_judges_a_scan_matched_maps_beams_where_the_map_placed_them(tmp_pat
     assert "at the map's trajectory" not in cap.out and 'segments contradicted' in cap.out
 
 
-def test_plot_poses_a_bag_as_its_maps_replay_did_when_not_told(tmp_path, capsys):
-    # A bag with /odom and /scan only (no /tf), the laser mounted off the base: its replay needs
-    # --pose-source odom --laser-mount. The map records them, and plot --points of the same bag
-    # poses it so without them being repeated (it failed: no /tf to place the scans).
+def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
+    # A bag with /odom and /scan only (no /tf), the laser mounted off the base: its replay (and
+    # fit) needs --pose-source odom --laser-mount. The map records them, and plot --points of
+    # the same bag poses it so without them being repeated (it failed: no /tf to place the
+    # scans).
     drive = room_drive(mount=(0.2, -0.1, np.pi / 2), step=0.3, rng=8)
     bag = write_bag(tmp_path / 'odom_only', drive_messages(drive, tf=False, static=False))
     mp = tmp_path / 'm.json'
@@ -270,9 +271,23 @@ def test_plot_poses_a_bag_as_its_maps_replay_did_when_not_told(tmp_path, capsys)
     assert int(said.group(1)) == stats['contradicted_segments'], out
     assert float(said.group(2)) == pytest.approx(100 * stats['contradicted_share'], abs=0.05)
     n = stats['scans_used']
-    assert (f"beams at the map's trajectory ({n} of {n} scans, posed as its replay: "
+    assert (f"beams at the map's trajectory ({n} of {n} scans, posed as when mapped: "
             '--pose-source odom --odom-topic /odom --laser-mount 0.2,-0.1,90 --scan-topic '
             '/scan)') in out, out
+    # the same for a batch fit of the bag (no trajectory: the scans at the poses registered)
+    fp = tmp_path / 'f.json'
+    assert main(['fit', bag, '--pose-source', 'odom', '--laser-mount', '0.2,-0.1,90', '-o',
+                 str(fp), '-q']) == 0
+    fstats = json.loads(fp.read_text())['stats']
+    assert (fstats['pose_source'], fstats['odom_topic'], fstats['laser_mount'],
+            fstats['input']) == ('odom', '/odom', '0.2,-0.1,90', 'odom_only')
+    assert main(['plot', str(fp), '--points', bag, '--free-space', '-o',
+                 str(tmp_path / 'ffs.png')]) == 0
+    out = capsys.readouterr().out
+    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
+    assert int(said.group(1)) == fstats['contradicted_segments'], out
+    assert float(said.group(2)) == pytest.approx(100 * fstats['contradicted_share'], abs=0.05)
+    assert '(posed as when mapped: --pose-source odom' in out, out
     # options given are the user's: tf mode finds no transform in this bag
     assert main(['plot', str(mp), '--points', bag, '--pose-source', 'tf', '--scan-topic',
                  '/scan', '-o', str(tmp_path / 'tf.png'), '-q']) == 2
