@@ -644,11 +644,21 @@ def _recorded_pose_args(args, stats: dict) -> tuple:
     Taken only when ``--points`` names the map's own input (``stats['input']``, its file name)
     and the stats record a pose source; ``fixed_frame`` is not taken (a replay's scans are
     moved onto its trajectory whatever frame they are registered in; a fit records none).
-    ``note``: the options taken, for the summary, or ''.
+    ``note``: the options taken, for the summary, or ''. Options given with another pose
+    source than the map's: one warning (a replay's trajectory holds the robot base's poses,
+    which in scan mode is the laser: scans registered otherwise land off by the mount).
     """
-    if any(getattr(args, name, default) != default for name, default in POSE_ARGS) or \
-            stats.get('pose_source') not in ('tf', 'odom', 'scan') or \
+    recorded = stats.get('pose_source')
+    if recorded not in ('tf', 'odom', 'scan') or \
             stats.get('input') != os.path.basename(os.path.normpath(args.points)):
+        return args, ''
+    if getattr(args, 'pose_given', False) or \
+            any(getattr(args, name, default) != default for name, default in POSE_ARGS):
+        if args.pose_source != recorded:
+            print(f'polyline-mapper: warning: {args.points}: the map was made with '
+                  f'--pose-source {recorded}; registered with --pose-source '
+                  f'{args.pose_source}, its scans may be drawn off where the map placed them '
+                  "(leave the pose options out to use the map's own)", file=sys.stderr)
         return args, ''
     taken = {'pose_source': stats['pose_source']}
     if stats['pose_source'] == 'odom':
@@ -663,6 +673,10 @@ def _recorded_pose_args(args, stats: dict) -> tuple:
 
 def cmd_plot(args) -> int:
     from .formats.mapjson import read_map
+    # Given or not (None): ``_recorded_pose_args`` takes the map's own options only when no
+    # pose option is given, so an explicit --pose-source tf is the user's too.
+    args.pose_given = args.pose_source is not None
+    args.pose_source = args.pose_source or 'tf'
     inputs = [args.map, args.points]
     check_outputs([args.output], inputs)
     _suffixes(png=args.output)
@@ -820,10 +834,13 @@ SECONDS = number(0.0)
 POSITIVE = number(0.0, lo_open=True)
 
 
-def _pose_args(sp) -> None:
+def _pose_args(sp, plot: bool = False) -> None:
     sp.add_argument('--scan-topic', help='sensor_msgs/LaserScan topic (default: the only one)')
-    sp.add_argument('--pose-source', choices=('tf', 'odom', 'scan'), default='tf',
-                    help='tf: laser pose in the fixed frame from /tf and /tf_static (default); '
+    # plot: None when not given (cmd_plot then takes the map's own, else 'tf')
+    sp.add_argument('--pose-source', choices=('tf', 'odom', 'scan'),
+                    default=None if plot else 'tf',
+                    help='tf: laser pose in the fixed frame from /tf and /tf_static (default; '
+                    "plot: the map's own with its input, else tf); "
                     'odom: nav_msgs/Odometry plus the laser mount, map in the odometry frame; '
                     'scan: no pose data, each scan predicted at constant velocity and refined '
                     'by scan matching (implies --scan-matching; the first scan at the origin '
@@ -934,7 +951,7 @@ def build_parser() -> argparse.ArgumentParser:
                     '(a CARMEN log or bag) and the segments they contradict in red')
     pl.add_argument('--title', help='figure title')
     pl.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
-    _pose_args(pl)
+    _pose_args(pl, plot=True)
     pl.set_defaults(func=cmd_plot)
 
     e = sub.add_parser('export', help='write a map JSON as GeoJSON, SVG, CSV, or the map_server '

@@ -288,9 +288,12 @@ def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
     assert int(said.group(1)) == fstats['contradicted_segments'], out
     assert float(said.group(2)) == pytest.approx(100 * fstats['contradicted_share'], abs=0.05)
     assert '(posed as when mapped: --pose-source odom' in out, out
-    # options given are the user's: tf mode finds no transform in this bag
-    assert main(['plot', str(mp), '--points', bag, '--pose-source', 'tf', '--scan-topic',
-                 '/scan', '-o', str(tmp_path / 'tf.png'), '-q']) == 2
+    # options given are the user's (a pose source other than the map's is warned of): tf mode
+    # finds no transform in this bag
+    assert main(['plot', str(mp), '--points', bag, '--pose-source', 'tf', '-o',
+                 str(tmp_path / 'tf.png'), '-q']) == 2
+    err = capsys.readouterr().err
+    assert 'the map was made with --pose-source odom; registered with --pose-source tf' in err
     # another recording than the map's input: its own options (tf) as before
     other = write_bag(tmp_path / 'other', drive_messages(drive, tf=False, static=False))
     assert main(['plot', str(mp), '--points', other, '-o', str(tmp_path / 'o.png'), '-q']) == 2
