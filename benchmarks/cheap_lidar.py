@@ -4,6 +4,7 @@ A TurtleBot3-class lidar: scan matching with range-proportional noise, and the c
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/cheap_lidar.py [--seeds 1 2 3] [--trials 200]
+    .venv/bin/python benchmarks/cheap_lidar.py --sigma 0.025 [--noise-seeds 1 2 3 4 5]
 
 Cheap lidars (an LDS-01 on a TurtleBot3, an RPLidar A1) err by a share of the range, not by a
 constant. The simulated drives here have such a laser: 360 beams over the full circle, 5 Hz,
@@ -28,9 +29,17 @@ from the chords, not the matcher.
 
 Writes both tables into benchmarks/README.md (between the ``cheap-lidar`` markers) and the rows
 to results/cheap_lidar.json.
+
+``--sigma S`` instead maps both drives with true odometry, one range-noise seed after another
+(``--noise-seeds``), with the noise scale estimated from the scans (the default) and fixed at
+S (``smemsf.sigma``), without scan matching and with it ('median' knots): the mapper's sigma,
+the segments, how many are shorter than 0.5 m, the map against the true points and the walls'
+F1 (block ``cheap-lidar-sigma``, results/cheap_lidar_sigma.json). With the noise growing with
+the range, the estimate follows the near points, which are the many.
 """
 
 import argparse
+import dataclasses
 import json
 import sys
 
@@ -40,6 +49,7 @@ from common import (aligned_segments, drive_truth, stamp, table_header, write_re
 from matching import flat
 import numpy as np
 from polyline_mapper.core import map_metrics
+from polyline_mapper.core.incremental import IncrementalConfig
 from polyline_mapper.core.metrics import trajectory_error
 from polyline_mapper.core.register import match_scan, scan_chords, spread
 from polyline_mapper.recordings import drive_messages
@@ -80,10 +90,18 @@ def make(name: str, seed: int = 1):
     return drive
 
 
-def one(drive, drift, matching: bool, knots: str = 'arc') -> dict:
-    """Map ``drive`` with drift seed ``drift`` (None: true odometry); return its scores."""
+def one(drive, drift, matching: bool, knots: str = 'arc', sigma: float = None) -> dict:
+    """
+    Map ``drive`` with drift seed ``drift`` (None: true odometry); return its scores.
+
+    ``sigma`` (m): the mapper's noise scale fixed (``smemsf.sigma``); None: estimated.
+    """
     records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
-    session = replay_records(records, options=SessionOptions(
+    config = IncrementalConfig()
+    if sigma is not None:
+        config = dataclasses.replace(config, smemsf=dataclasses.replace(config.smemsf,
+                                                                        sigma=sigma))
+    session = replay_records(records, config, options=SessionOptions(
         pose_source='tf', scan_matching=matching, keep_points=True, chord_knots=knots))
     value = session.map_value()
     traj = np.asarray(value.trajectory)
@@ -106,7 +124,9 @@ def one(drive, drift, matching: bool, knots: str = 'arc') -> dict:
             'coverage': round(100 * raw['coverage_0_10m'], 1),
             'f1': round(wall_scores(segs, w.walls, w.distance, points=pts)['f1'], 3),
             'f1_aligned': round(wall_scores(moved, w.walls, w.distance, points=pts)['f1'], 3),
-            'segments': int(len(segs))}
+            'segments': int(len(segs)),
+            'short': int(np.count_nonzero(np.hypot(*(segs[:, 1] - segs[:, 0]).T) < 0.5)),
+            'sigma_m': round(float(session.mapper.sigma), 4)}
 
 
 def corridor_scan(rng, share: float) -> np.ndarray:
@@ -145,8 +165,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
     ap.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3], help='drift seeds')
     ap.add_argument('--trials', type=int, default=200, help='matches per knot-bias row')
+    ap.add_argument('--sigma', type=float, default=None,
+                    help='instead: true odometry, the noise scale estimated and fixed at this')
+    ap.add_argument('--noise-seeds', type=int, nargs='+', default=[1, 2, 3, 4, 5],
+                    help='range-noise seeds of the drives (with --sigma)')
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/cheap_lidar.py ' + ' '.join(sys.argv[1:]))
+    if args.sigma is not None:
+        return sigma_sweep(meta, args.sigma, args.noise_seeds)
     rows, bias = [], []
     for name in ('office', 'corridors'):
         drive = make(name)
@@ -182,6 +208,32 @@ def main() -> int:
                      f"{b['chords_deg']:+.3f} +- {b['chords_se_deg']:.3f} | "
                      f"{b['walls_deg']:+.3f} +- {b['walls_se_deg']:.3f} |")
     write_readme('cheap-lidar', '\n'.join(lines) + '\n')
+    return 0
+
+
+def sigma_sweep(meta: dict, sigma: float, seeds: list) -> int:
+    """``--sigma``: true odometry, the noise scale estimated and fixed; write the block."""
+    rows = []
+    for name in ('office', 'corridors'):
+        for seed in seeds:
+            drive = make(name, seed)
+            for matching in (False, True):
+                for fixed in (None, sigma):
+                    rows.append(dict(one(drive, None, matching, 'median' if matching else
+                                         'arc', fixed), world=name, noise_seed=seed,
+                                     sigma_fixed=fixed))
+                    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    write_results('cheap_lidar_sigma', meta, rows)
+    lines = table_header(meta, ['drive', 'range-noise seed', 'scan matching', 'sigma (m)',
+                                'segments (shorter than 0.5 m)', 'RMS (m)',
+                                'map vs true points: mean (cm) / coverage (%)', 'walls F1'])
+    for r in rows:
+        how = 'estimated' if r['sigma_fixed'] is None else 'fixed'
+        lines.append(f"| {r['world']} | {r['noise_seed']} | "
+                     f"{'on (median)' if r['matching'] else 'off'} | {how} {r['sigma_m']:.4f} | "
+                     f"{r['segments']} ({r['short']}) | {r['rms_m']:.3f} | "
+                     f"{r['mean_cm']:.2f} / {r['coverage']:.1f} | {r['f1']:.2f} |")
+    write_readme('cheap-lidar-sigma', '\n'.join(lines) + '\n')
     return 0
 
 

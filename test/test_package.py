@@ -242,6 +242,17 @@ def test_the_no_free_space_preset_turns_only_the_evidence_off_and_loads_everywhe
     assert 'no_free_space.yaml' in (REPO / 'README.md').read_text()
 
 
+def test_the_lds01_preset_is_node_parameters_of_their_declared_types():
+    # config/lds01.yaml (a TurtleBot3-class lidar) loads as node parameters after
+    # polyline_mapper.yaml and as --config: only the noise scale differs from the defaults.
+    path = REPO / 'config' / 'lds01.yaml'
+    params = flatten(yaml.safe_load(path.read_text())['/**']['ros__parameters'])
+    want = defaults()
+    assert params == {'smemsf.sigma': 0.025} and type(want['smemsf.sigma']) is float
+    settings_from(dict(want, **params))
+    assert 'config/lds01.yaml' in (REPO / 'README.md').read_text()
+
+
 def test_the_free_space_preset_is_the_default_with_scan_matching_too():
     # The defaults' window is -1 (auto: 10 with the poses given, 0 with scan matching); the
     # preset sets it to 10 and every other evidence value as the defaults do.
