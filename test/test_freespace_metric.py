@@ -228,12 +228,8 @@ def test_plot_judges_a_scan_matched_maps_beams_where_the_map_placed_them(tmp_pat
                  '-q']) == 0
     stats = json.loads(mp.read_text())['stats']
     png = tmp_path / 'fs.png'
-    assert main(['plot', str(mp), '--points', drive, '--pose-source', 'odom', '--free-space',
-                 '-o', str(png)]) == 0
-    out = capsys.readouterr().out
-    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
-    assert int(said.group(1)) == stats['contradicted_segments'], out
-    assert float(said.group(2)) == pytest.approx(100 * stats['contradicted_share'], abs=0.05)
+    out = plotted_as_judged(['plot', str(mp), '--points', drive, '--pose-source', 'odom',
+                             '--free-space', '-o', str(png)], stats, capsys)
     n = stats['scans_used']
     assert f"beams at the map's trajectory ({n} of {n} scans)" in out, out
     assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
@@ -250,6 +246,16 @@ def test_plot_judges_a_scan_matched_maps_beams_where_the_map_placed_them(tmp_pat
     assert "at the map's trajectory" not in cap.out and 'segments contradicted' in cap.out
 
 
+def plotted_as_judged(argv: list, stats: dict, capsys) -> str:
+    """Run ``plot --free-space``; assert it judges as the map's stats did; return its output."""
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
+    assert int(said.group(1)) == stats['contradicted_segments'], out
+    assert float(said.group(2)) == pytest.approx(100 * stats['contradicted_share'], abs=0.05)
+    return out
+
+
 def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
     # A bag with /odom and /scan only (no /tf), the laser mounted off the base: its replay (and
     # fit) needs --pose-source odom --laser-mount. The map records them, and plot --points of
@@ -264,12 +270,8 @@ def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
     assert (stats['pose_source'], stats['odom_topic'], stats['scan_topic'],
             stats['laser_mount']) == ('odom', '/odom', '/scan', '0.2,-0.1,90')
     capsys.readouterr()
-    assert main(['plot', str(mp), '--points', bag, '--free-space', '-o',
-                 str(tmp_path / 'fs.png')]) == 0
-    out = capsys.readouterr().out
-    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
-    assert int(said.group(1)) == stats['contradicted_segments'], out
-    assert float(said.group(2)) == pytest.approx(100 * stats['contradicted_share'], abs=0.05)
+    out = plotted_as_judged(['plot', str(mp), '--points', bag, '--free-space', '-o',
+                             str(tmp_path / 'fs.png')], stats, capsys)
     n = stats['scans_used']
     assert (f"beams at the map's trajectory ({n} of {n} scans, posed as when mapped: "
             '--pose-source odom --odom-topic /odom --laser-mount 0.2,-0.1,90 --scan-topic '
@@ -281,12 +283,8 @@ def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
     fstats = json.loads(fp.read_text())['stats']
     assert (fstats['pose_source'], fstats['odom_topic'], fstats['laser_mount'],
             fstats['input']) == ('odom', '/odom', '0.2,-0.1,90', 'odom_only')
-    assert main(['plot', str(fp), '--points', bag, '--free-space', '-o',
-                 str(tmp_path / 'ffs.png')]) == 0
-    out = capsys.readouterr().out
-    said = re.search(r'(\d+) segments contradicted \(([\d.]+)% of map length\)', out)
-    assert int(said.group(1)) == fstats['contradicted_segments'], out
-    assert float(said.group(2)) == pytest.approx(100 * fstats['contradicted_share'], abs=0.05)
+    out = plotted_as_judged(['plot', str(fp), '--points', bag, '--free-space', '-o',
+                             str(tmp_path / 'ffs.png')], fstats, capsys)
     assert '(posed as when mapped: --pose-source odom' in out, out
     # options given are the user's (a pose source other than the map's is warned of): tf mode
     # finds no transform in this bag
