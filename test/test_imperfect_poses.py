@@ -595,8 +595,9 @@ def test_median_chord_knots_keep_a_turtlebot_class_lidar_on_course():
 def test_true_odometry_matched_holds_a_turtlebot_class_lidar_along_its_corridors():
     # 10 m corridor loop, 2 m wide, a 3.5 m lidar: along each side the scans barely constrain
     # the axis. Corrections along it under the kernel scale (about 3 cm) were taken although
-    # 5 sigma of a 4 cm step's odometry error is 1 cm: the matched pose lagged the true one by
-    # 16 cm along an 8 m side, 0.095 m RMS, walls F1 0.62. Held now: 0.047 m, F1 0.96.
+    # 5 sigma of a 4 cm step's odometry error is 1 cm: the matched pose lagged the true one
+    # (16 cm along an 8 m side with range-noise seed 2), here 0.095 m RMS, walls F1 0.62. Held
+    # now: 0.047 m, F1 0.96.
     drive = lds_drive(corridors=True)
     s = score(drive, replay_records(records(drive), options=SessionOptions(
         scan_matching=True, keep_points=True, chord_knots='median')))
