@@ -530,6 +530,11 @@ def cmd_replay(args) -> int:
     return 0
 
 
+POSE_ARGS = (('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
+             ('fixed_frame', None), ('laser_mount', None))
+"""The options (argparse dest, default) that place a bag's or a drive's scans."""
+
+
 def read_beams_any(path: str, args, range_max: float = None) -> tuple:
     """
     Points of a point file, a CARMEN log, a bag or a drive, with their laser positions.
@@ -544,10 +549,8 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
     if kind in ('points', 'carmen'):
         # The recording options place a bag's or a drive's scans; a log's records carry their
         # corrected laser poses, a point file none: given here, they would change nothing.
-        given = [f'--{name.replace("_", "-")}' for name, default in (
-            ('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
-            ('fixed_frame', None), ('laser_mount', None))
-            if getattr(args, name, default) != default]
+        given = [f'--{name.replace("_", "-")}' for name, default in POSE_ARGS
+                 if getattr(args, name, default) != default]
         if given:
             what = ('a point file' if kind == 'points' else
                     'a CARMEN log (its corrected laser poses place its scans; replay it for '
@@ -628,11 +631,6 @@ def _beams_for_map(args, value: MapValue) -> tuple:
         return se2_compose(fix, np.column_stack([q, np.zeros(len(q))]))[:, :2]
     return move(points), move(origins), (f" at the map's trajectory ({int(found.sum())} of "
                                          f'{len(found)} scans{posed})')
-
-
-POSE_ARGS = (('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
-             ('laser_mount', None), ('fixed_frame', None))
-"""The options (argparse dest, default) that place a bag's or a drive's scans."""
 
 
 def _recorded_pose_args(args, stats: dict) -> tuple:

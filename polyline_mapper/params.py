@@ -77,7 +77,7 @@ NODE_PARAMS = (
               "'median' every 0.15 m of an arc whose steps are each the median of 31 around "
               'it. Use median for a lidar whose range noise grows with the range (a '
               "TurtleBot3's LDS-01, RPLidar-class): with arc every match turns the same way "
-              '(1.6-4.6 deg over a 3-minute simulated drive).', choices=CHORD_KNOTS),
+              '(1.9-4.9 deg over a 3-minute simulated drive).', choices=CHORD_KNOTS),
     ParamSpec('map_odom_post_date', 0.2,
               'scan_matching: seconds the map -> odom transform is stamped after its scan, as '
               "AMCL's transform_tolerance, so transforms at the current time resolve between "

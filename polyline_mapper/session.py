@@ -598,7 +598,7 @@ class SessionOptions:
     placed along each scan: 'arc' every 0.15 m of the raw arc; 'median' every 0.15 m of an
     arc whose steps are medians of their neighbours', for lidars whose range noise grows with
     the range (a TurtleBot3's LDS-01, RPLidar-class), where 'arc' turns every match the same
-    way (1.6-4.6 deg over a 3-minute simulated drive, benchmarks/cheap_lidar.py)."""
+    way (1.9-4.9 deg over a 3-minute simulated drive, benchmarks/cheap_lidar.py)."""
     odom_gap_factor: float = 1.5
     """A scan whose stamp falls between two odometry messages (odom mode) or two transforms of
     the odometry edge (tf mode: the lowest moving transform above the laser, odom ->

@@ -654,8 +654,8 @@ def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> 
 
     Weak: eigenvalue below ``WEAK_SHARE`` of the largest. Disagree: the correction along the
     direction exceeds ``WEAK_SIGMAS`` standard deviations of the prediction (``cov``). Only
-    directions the established map (``_Problem``'s
-    ``established`` segments) carries less than ``ESTABLISHED_SHARE`` of count: a correction
+    directions the established map (``_Problem``'s ``established`` segments) carries less
+    than ``ESTABLISHED_SHARE`` of count: a correction
     that long-seen walls make is drift the odometry carried (a loop's return), not something
     that moved with the robot.
     """
@@ -794,7 +794,7 @@ def scan_chords(points: np.ndarray, gap: float = 0.5, length: float = 0.15,
     noise that grows with the range (a TurtleBot3's LDS-01: 1.5 cm + 1 %) the far end of every
     chord is displaced more: every chord turns the same way (-0.11 deg a match, +0.11 with the
     beams reversed; -0.03 / +0.03 with 1.5 cm alone), and a drive with perfect odometry ends
-    1.6-4.6 deg off (benchmarks/cheap_lidar.py). 'median' counts each step as the median of the
+    1.9-4.9 deg off (benchmarks/cheap_lidar.py). 'median' counts each step as the median of the
     ``CHORD_STEP_WINDOW`` steps around it (steps across a break count 0), so whether a reading
     is a knot does not depend on its own noise.
     With ``extents`` it returns (chords, extent, first, last): per chord, the distance between
