@@ -347,17 +347,26 @@ def cmd_record_map(args) -> int:
     # recording ends, unlike `play`, which exits 128 + signal because it did not finish). A
     # second signal while the map is being written aborts it: exit 130, nothing written.
     with stop_on_signals(stops.append):
-        value = run_record_map(args.topic, once=args.once, idle=args.idle,
-                               timeout=args.timeout, ros_args=_ros_args(args),
-                               should_stop=lambda: bool(stops))
+        value, grid = run_record_map(args.topic, once=args.once, idle=args.idle,
+                                     timeout=args.timeout, ros_args=_ros_args(args),
+                                     should_stop=lambda: bool(stops),
+                                     grid_topic=args.grid_topic)
         st = value.stats
-        save_map(value, None, args.output, args.plot,
+        save_map(value, None, args.output, args.plot, grid=grid,
                  title=f"{st['segments']} segments from {st['topic']}")
+    if args.grid_topic and grid is None:
+        print(f'polyline-mapper: warning: no planner map (nav_msgs/OccupancyGrid) of frame '
+              f"{value.frame_id} on {st['grid_topic']}: {args.output} has no grid, so `export` "
+              "marks the segments occupied and leaves the rest unknown (is the node's "
+              'grid_publish_period 0?)', file=sys.stderr)
     if not args.quiet:
         how = f', stopped by {signal.Signals(stops[0]).name}' if stops else ''
+        with_grid = '' if grid is None else (f', with its planner map ({grid.width} x '
+                                             f'{grid.height} cells, stamp '
+                                             f"{st['grid_stamp']:.3f} s)")
         print(f"wrote {args.output}: {st['segments']} segments in {st['polylines']} polylines "
               f"(frame {value.frame_id}, stamp {st['stamp']:.3f} s) from {st['topic']}, "
-              f"{st['maps_received']} map(s) received{how}")
+              f"{st['maps_received']} map(s) received{with_grid}{how}")
     return 0
 
 
@@ -999,6 +1008,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help='polyline_mapper_msgs/PolylineMap topic (default: polyline_map)')
     rm.add_argument('-o', '--output', required=True, help='map JSON to write')
     rm.add_argument('--plot', metavar='PNG', help='also write a PNG of the map')
+    rm.add_argument('--grid-topic', default='map', metavar='TOPIC',
+                    help="the node's planner map (nav_msgs/OccupancyGrid), stored with the map "
+                    "for export (default: map; '' for none)")
     rm.add_argument('--once', action='store_true', help='save the first map received and stop')
     rm.add_argument('--idle', type=SECONDS, metavar='SECONDS',
                     help='stop once no new map came for this long (default: run until Ctrl-C '

@@ -309,3 +309,43 @@ def test_record_map_refuses_a_map_that_disagrees_with_itself():
     with pytest.raises(ValueError, match='the map on /polyline_map: "polylines" disagree with '
                                          '"segments": segment 0 .* not saved'):
         recorder.to_value()
+
+
+def test_record_map_keeps_the_planner_map_of_the_map_frame_only():
+    # The grid is stored with the map (export gives it to map_server); one of another frame
+    # (another node's, or one whose fixed_frame changed) is not, and an older one is taken as
+    # it is, its stamp in the stats.
+    from builtin_interfaces.msg import Time
+    from polyline_mapper.core.grid import GridMap
+    from polyline_mapper.core.mapvalue import MapValue
+    from polyline_mapper.ros.messages import grid_to_msg, map_to_msg
+    from polyline_mapper.ros.recorder import MapRecorder
+
+    class Node:
+        def resolve_topic_name(self, topic):
+            return '/' + topic
+
+        def create_subscription(self, *args):
+            return None
+
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0]])
+    value = MapValue(np.stack([square[:-1], square[1:]], axis=1), np.array([10.0, 12.0]),
+                     [square], [False], 'map', 5.0, {})
+    cells = np.full((4, 6), -1, dtype=np.int8)
+    cells[1, 1:5], cells[2, 1:5] = 100, 0
+    grid = GridMap(cells, 0.5, (-0.5, -0.75))
+    recorder = MapRecorder(Node())
+    recorder._on_map(map_to_msg(value, 'map', Time(sec=5)))
+    assert recorder.grid() is None and recorder.to_value().stats['grid_stamp'] is None
+    recorder._on_grid(grid_to_msg(grid, 'odom', Time(sec=5)))
+    assert recorder.grid() is None and not recorder.grid_current()
+    recorder._on_grid(grid_to_msg(grid, 'map', Time(sec=4)))
+    assert not recorder.grid_current()
+    assert recorder.to_value().stats['grid_stamp'] == 4.0
+    saved = recorder.to_dict()['grid']
+    assert saved['width'] == 6 and saved['height'] == 4 and saved['origin'] == [-0.5, -0.75]
+    recorder._on_grid(grid_to_msg(grid, 'map', Time(sec=5)))
+    assert recorder.grid_current() and np.array_equal(recorder.grid().data, cells)
+    quiet = MapRecorder(Node(), grid_topic='')
+    quiet._on_map(map_to_msg(value, 'map', Time(sec=5)))
+    assert 'grid' not in quiet.to_dict() and 'grid_topic' not in quiet.to_value().stats

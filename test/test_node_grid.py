@@ -1,5 +1,8 @@
 """The planner map over DDS: nav_msgs/OccupancyGrid on 'map' from the real node."""
 
+import subprocess
+import sys
+
 import numpy as np
 from polyline_mapper.recordings import drive_messages
 from polyline_mapper.ros.qos import MAP_QOS
@@ -115,6 +118,33 @@ def test_occupied_cells_are_the_polylines_and_free_cells_the_traced_beams(grid_r
     # and the rooms the laser saw are free: most touched cells are (the rest: walls, ends)
     assert free[touched].mean() > 0.8
     assert (cells[touched] == -1).mean() < 0.1
+
+
+def test_record_map_stores_the_grid_the_node_publishes(grid_run, tmp_path):
+    # record-map took only the polylines: its file exported for map_server had no free cell
+    # (the node's ~/save_map stored the grid). Now it keeps the newest grid with the map.
+    from polyline_mapper.formats.mapjson import read_map
+    from test_planner_export import load_like_map_server
+    _, _, _, grids, _, last, _ = grid_run
+    out = tmp_path / 'recorded.json'
+    rec = subprocess.run([sys.executable, '-m', 'polyline_mapper.cli', 'record-map', '-o',
+                          str(out), '--once', '--timeout', '20'], capture_output=True,
+                         text=True, timeout=120)
+    assert rec.returncode == 0 and 'with its planner map' in rec.stdout, rec.stderr
+    saved = read_map(out)
+    assert saved['stats']['stamp'] == pytest.approx(last, abs=1e-6)
+    assert saved['stats']['grid_stamp'] == pytest.approx(last, abs=1e-6)
+    assert np.array_equal(saved.grid.data, _cells(grids[0]))
+    assert saved.grid.origin == pytest.approx((grids[0].info.origin.position.x,
+                                               grids[0].info.origin.position.y))
+    # ... and export hands map_server the free space the node's grid holds, cell for cell
+    cli = subprocess.run([sys.executable, '-m', 'polyline_mapper.cli', 'export', str(out), '-o',
+                          str(tmp_path / 'recorded.yaml')], capture_output=True, text=True,
+                         timeout=120)
+    assert cli.returncode == 0, cli.stderr
+    loaded, meta = load_like_map_server(tmp_path / 'recorded.yaml')
+    assert np.array_equal(loaded, _cells(grids[0])) and (loaded == 0).sum() > 1000
+    assert meta['origin'][:2] == pytest.approx(saved.grid.origin)
 
 
 def test_save_map_stores_the_grid_and_the_resolution_is_read_only(grid_run):

@@ -2,44 +2,89 @@
 ``polyline-mapper record-map``: take the map a running node publishes, for saving as map JSON.
 
 Subscribes to a polyline_mapper_msgs/PolylineMap topic with the node's QoS (reliable, transient
-local), so the current map arrives at once, and keeps the newest. It stops after the first map
-(``once``), after ``idle`` seconds without a new map, when ``should_stop()`` says so (the
-command line sets that from SIGINT / SIGTERM, see ``ros.player.stop_on_signals``) or on
-KeyboardInterrupt, and returns the newest as a ``MapValue``. No map within ``timeout`` seconds,
-a stop before any map, or a map whose polylines disagree with its segments (``read_map`` would
-refuse the file) is an error (ValueError, one line).
+local), so the current map arrives at once, and keeps the newest; and to the node's planner map
+(nav_msgs/OccupancyGrid on ``map``, the same QoS), kept with it so that the file holds the grid
+as the node's ``~/save_map`` writes it (``export`` then gives map_server the free space the
+beams saw, not only the segments). It stops after the first map (``once``), after ``idle``
+seconds without a new map, when ``should_stop()`` says so (the command line sets that from
+SIGINT / SIGTERM, see ``ros.player.stop_on_signals``) or on KeyboardInterrupt, then waits up to
+``GRID_WAIT`` s for a grid as new as the map (the node publishes it at most every
+``grid_publish_period``), and returns the newest map as a ``MapValue`` with the grid. No map
+within ``timeout`` seconds, a stop before any map, or a map whose polylines disagree with its
+segments (``read_map`` would refuse the file) is an error (ValueError, one line).
 """
 
 import math
 import time
-from typing import Callable, Optional
+from typing import Callable, NamedTuple, Optional
 
+from nav_msgs.msg import OccupancyGrid
 from polyline_mapper_msgs.msg import PolylineMap
 
 from . import startup
-from .messages import map_from_msg
+from .messages import grid_from_msg, map_from_msg, stamp_seconds
 from .qos import MAP_QOS
+from ..core.grid import GridMap
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import check_edges, map_value_to_dict
 
+GRID_WAIT = 3.0
+"""Seconds ``run_record_map`` waits, once it stops, for a planner map as new as the map (the
+node publishes one at most every ``grid_publish_period``, 1 s by default)."""
+
+
+class RecordedMap(NamedTuple):
+    """What ``run_record_map`` took: the map, and its planner map (None when none came)."""
+
+    value: MapValue
+    grid: Optional[GridMap]
+
+
+def _resolved(node, topic: str) -> str:
+    """Return ``topic`` resolved on ``node`` (ValueError, one line, for an invalid name)."""
+    try:
+        return node.resolve_topic_name(topic)
+    except Exception as exc:                    # noqa: B902 - rclpy's RCLError
+        raise ValueError(f'topic {topic!r}: {startup.rcl_reason(exc)}') from None
+
 
 class MapRecorder:
-    """Keep the newest PolylineMap of ``topic`` on ``node`` (and when it came)."""
+    """Keep the newest PolylineMap of ``topic`` on ``node`` (and when it came), and its grid."""
 
-    def __init__(self, node, topic: str = 'polyline_map'):
-        try:
-            self.topic = node.resolve_topic_name(topic)
-        except Exception as exc:                # noqa: B902 - rclpy's RCLError
-            raise ValueError(f'topic {topic!r}: {startup.rcl_reason(exc)}') from None
+    def __init__(self, node, topic: str = 'polyline_map', grid_topic: str = 'map'):
+        """Subscribe to ``topic`` and, unless ``grid_topic`` is empty, to the planner map."""
+        self.topic = _resolved(node, topic)
+        self.grid_topic = _resolved(node, grid_topic) if grid_topic else None
         self.latest: Optional[PolylineMap] = None
+        self.latest_grid: Optional[OccupancyGrid] = None
         self.count = 0
         self.received_at = None
         node.create_subscription(PolylineMap, topic, self._on_map, MAP_QOS)
+        if grid_topic:
+            node.create_subscription(OccupancyGrid, grid_topic, self._on_grid, MAP_QOS)
 
     def _on_map(self, msg: PolylineMap) -> None:
         self.latest = msg
         self.count += 1
         self.received_at = time.monotonic()
+
+    def _on_grid(self, msg: OccupancyGrid) -> None:
+        self.latest_grid = msg
+
+    def grid_current(self) -> bool:
+        """Whether the newest grid is of the newest map's frame and at least as new."""
+        g, m = self.latest_grid, self.latest
+        return (g is not None and m is not None and g.header.frame_id == m.header.frame_id
+                and stamp_seconds(g.header.stamp) >= stamp_seconds(m.header.stamp) - 1e-9)
+
+    def grid(self) -> Optional[GridMap]:
+        """Return the newest planner map of the map's frame as a GridMap, else None."""
+        g = self.latest_grid
+        if g is None or self.latest is None or g.header.frame_id != self.latest.header.frame_id:
+            return None
+        if g.info.width * g.info.height != len(g.data) or not g.info.resolution > 0:
+            return None                         # not a grid a map file can hold
+        return grid_from_msg(g)
 
     def stamp(self) -> float:
         """Return the newest map's header time in seconds, -inf before any map."""
@@ -60,23 +105,31 @@ class MapRecorder:
         stats = {'segments': int(len(m['segments'])), 'polylines': len(m['polylines']),
                  'stamp': round(m['stamp'], 6), 'topic': self.topic,
                  'maps_received': self.count}
+        if self.grid_topic:
+            grid = self.grid()
+            stats['grid_topic'] = self.grid_topic
+            stats['grid_stamp'] = (None if grid is None else
+                                   round(stamp_seconds(self.latest_grid.header.stamp), 6))
         stats.update(extra_stats or {})
         return MapValue(m['segments'], m['support'], m['polylines'], m['closed'],
                         m['frame_id'], m['stamp'], stats)
 
     def to_dict(self, extra_stats: dict = None) -> dict:
-        """Build the map JSON dict of the newest map (ValueError when there is none)."""
-        return map_value_to_dict(self.to_value(extra_stats))
+        """Build the map JSON dict of the newest map and its grid (ValueError without a map)."""
+        return map_value_to_dict(self.to_value(extra_stats), grid=self.grid())
 
 
 def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float = None,
                    timeout: float = 30.0, ros_args=None,
-                   should_stop: Callable[[], bool] = None) -> MapValue:
+                   should_stop: Callable[[], bool] = None,
+                   grid_topic: str = 'map') -> RecordedMap:
     """
-    Wait for the map published on ``topic``; return the newest as a MapValue.
+    Wait for the map published on ``topic``; return the newest, with its planner map.
 
     Runs its own rclpy context; see the module docstring for when it stops. ``timeout`` None
-    or 0 waits for the first map forever. ``should_stop`` is polled every 50 ms.
+    or 0 waits for the first map forever. ``should_stop`` is polled every 50 ms. The planner
+    map comes from ``grid_topic`` (nav_msgs/OccupancyGrid; '' or None: none is taken); a grid
+    older than the map after ``GRID_WAIT`` s is taken as it is (``stats['grid_stamp']``).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -91,7 +144,7 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
         node = rclpy.create_node('polyline_mapper_map_recorder', context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        rec = MapRecorder(node, topic)
+        rec = MapRecorder(node, topic, grid_topic)
         t0 = time.monotonic()
         try:
             while True:
@@ -110,8 +163,18 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
             pass
         if rec.count == 0:
             raise ValueError(f'interrupted before any map arrived on {rec.topic}')
+        # A grid as new as the map, unless a signal ended the recording (then the newest grid
+        # already received is taken: a Ctrl-C does not wait).
+        try:
+            end = time.monotonic() + GRID_WAIT
+            while (grid_topic and not rec.grid_current() and time.monotonic() < end
+                   and not (should_stop is not None and should_stop())):
+                executor.spin_once(timeout_sec=0.05)
+        except KeyboardInterrupt:
+            pass
         value = rec.to_value()
+        grid = rec.grid()
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
-    return value
+    return RecordedMap(value, grid)
