@@ -142,9 +142,10 @@ def test_bad_grid_entries_and_refused_outputs_are_one_line_errors(replayed, tmp_
     before = src.read_bytes()
     assert main(['export', str(src), '-o', str(src), '--format', 'yaml']) == 2
     assert src.read_bytes() == before and not src.with_suffix('.pgm').exists()
-    assert main(['export', str(src), '-o', str(tmp_path / 'x.pgm'), '--format', 'yaml']) == 2
-    assert 'name the map_server YAML' in capsys.readouterr().err
-    assert not (tmp_path / 'x.pgm').exists()
+    for extra in (['--format', 'yaml'], []):    # (without --format: "unknown format 'pgm'")
+        assert main(['export', str(src), '-o', str(tmp_path / 'x.pgm')] + extra) == 2
+        assert 'name the map_server YAML' in capsys.readouterr().err
+        assert not (tmp_path / 'x.pgm').exists()
 
 
 def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_path, capsys):

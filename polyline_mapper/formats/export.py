@@ -265,6 +265,9 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
     fmt = 'yaml' if fmt == 'yml' else fmt
+    if fmt == 'pgm':
+        raise ValueError(f'{path}: name the map_server YAML (OUT.yaml); its image OUT.pgm is '
+                         'written beside it')
     if fmt not in FORMATS:
         raise ValueError(f'{path}: unknown export format {fmt!r} (expected .geojson, .svg, '
                          '.csv or .yaml, or --format)')
