@@ -373,3 +373,17 @@ def test_a_map_the_beams_see_through_warns_of_the_mount_and_the_poses(tmp_path, 
     assert err[0].endswith("check the laser's mount (--laser-mount: a laser facing backwards "
                            'has yaw 180, one upside down flip) and the poses (drifting '
                            'odometry: --scan-matching)')
+
+
+def test_the_written_trajectory_keeps_yaw_in_its_half_open_range(tmp_path):
+    # The office drive heads west (yaw pi, or -pi as atan2 gives it) along its corridor:
+    # rounded to 1e-6 rad, 61 of its 355 rows were written as -3.141593, below -pi, and
+    # `export --trajectory -o X.tum` wrote their qw as -0.000000.
+    out = tmp_path / 'office.json'
+    assert main(['replay', 'sim:office', '-o', str(out), '-q']) == 0
+    yaw = np.array(json.loads(out.read_text())['trajectory'])[:, 3]
+    assert np.all((yaw >= -np.pi) & (yaw < np.pi)), yaw.min()
+    assert (np.abs(yaw) > 3.14159).sum() >= 30          # the rows at the edge are there
+    tum = tmp_path / 'office.tum'
+    assert main(['export', str(out), '--trajectory', '-o', str(tum)]) == 0
+    assert '-0.000000' not in tum.read_text()

@@ -90,7 +90,7 @@ def map_value_to_dict(value: MapValue, config: dict = None, grid: GridMap = None
     if value.trajectory is not None:            # [t, x, y, yaw] per scan: 1 us, 0.1 mm, 1e-6 rad
         t = value.trajectory
         out['trajectory'] = np.column_stack([np.round(t[:, 0], 6), np.round(t[:, 1:3], 4),
-                                             np.round(t[:, 3], 6)]).tolist()
+                                             _yaw_rounded(t[:, 3])]).tolist()
     if grid is not None:
         entry = grid_to_dict(grid)
         if len(entry['cells']) // 2 <= MAX_GRID_RUNS:
@@ -98,6 +98,21 @@ def map_value_to_dict(value: MapValue, config: dict = None, grid: GridMap = None
         else:
             out['stats']['grid_omitted'] = (f"{len(entry['cells']) // 2} runs, more than "
                                             f'{MAX_GRID_RUNS}')
+    return out
+
+
+def _yaw_rounded(yaw: np.ndarray) -> np.ndarray:
+    """
+    Return yaw (rad) rounded to 1e-6 rad and kept in [-pi, pi).
+
+    Rounding alone takes a yaw within 5e-7 of -pi to -3.141593, below -pi, and one near +pi
+    to 3.141593 (>= pi): both are written as -3.141592, the same heading to 1.3e-6 rad.
+
+    >>> _yaw_rounded(np.array([-np.pi, np.pi - 1e-9, 0.1234567])).tolist()
+    [-3.141592, -3.141592, 0.123457]
+    """
+    out = np.round(np.asarray(yaw, dtype=np.float64), 6)
+    out[(out < -np.pi) | (out >= np.pi)] = -3.141592
     return out
 
 
