@@ -2288,9 +2288,11 @@ class MappingSession:
         """
         Forget the map and every queued scan; return the number of segments dropped.
 
-        A session started from a saved map (``load_map``) goes back to it and to its initial
-        pose.
+        The segments are counted as the map is published (``map_value``: the mapper's own
+        before ``polylines()`` joins them were 25 for 24 on the office drive). A session
+        started from a saved map (``load_map``) goes back to it and to its initial pose.
         """
+        dropped = len(self.map_value(trajectory=False).segments)
         with self._cv:
             self._generation += 1
             self.localization = None
@@ -2304,7 +2306,6 @@ class MappingSession:
             self._restart(None if self._loaded is None else self._loaded[2])
             self._origins.clear()
         with self._map_lock:
-            dropped = len(self.mapper.segments)
             self.mapper.reset()
             if self._loaded is not None:        # back to the loaded map and initial pose
                 value = self._loaded[0]

@@ -290,6 +290,23 @@ def test_reset_forgets_the_map_and_the_queue(office_drive):
     assert session.used == 30
 
 
+def test_reset_counts_the_segments_as_the_map_is_published():
+    # ~/reset answered "25 segments dropped" for the office drive whose published (and saved)
+    # map had 24: it counted the mapper's own segments, before polylines() joins them.
+    from polyline_mapper.recordings import open_recording
+    with open_recording('sim:office') as rec:
+        records = [r for _, _, rec_ in rec.messages()
+                   for r in (rec_ if isinstance(rec_, list) else [rec_])]
+    session = MappingSession(None, SessionOptions())
+    for record in records:
+        session.add(record)
+        session.step()
+    session.flush()
+    published = len(session.map_value().segments)
+    assert len(session.mapper.segments) != published      # the case: 25 against 24
+    assert session.reset() == published
+
+
 def test_far_returns_beyond_the_mapping_range_are_dropped_like_invalid_readings(office_drive):
     assert IncrementalConfig().max_mapping_range == 100.0
     far, invalid = [], []

@@ -274,7 +274,7 @@ class PolylineMapperNode(Node):
         self.session.add(odometry_from_msg(msg))
 
     def _on_reset(self, request, response):
-        dropped = self.session.reset()
+        dropped = self.session.reset()     # as /polyline_map and ~/save_map count them
         self._publish()
         if self.settings.grid_publish_period > 0:
             self._publish_grid()
