@@ -111,9 +111,10 @@ def plot_free_space(path, points: np.ndarray, origins: np.ndarray, segments: np.
                    Line2D([], [], color='red', lw=2.2,
                           label=f'contradicted: {share * 100:.1f}% of map length '
                                 f'({int(bad.sum())} segments)')]
-        ax.legend(handles=handles, loc='upper right', fontsize=9, framealpha=0.9)
+        # below the map, in a strip of its own: over the map it hid walls
+        fig.legend(handles=handles, loc='lower center', ncol=3, fontsize=9, frameon=False)
         _frame(ax, lo, hi, span, title)
-        fig.tight_layout()
+        fig.tight_layout(rect=(0.0, 0.3 / height, 1.0, 1.0))
         fig.savefig(path, dpi=dpi, format='png')
     finally:
         plt.close(fig)
