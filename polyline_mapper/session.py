@@ -113,6 +113,18 @@ KEYFRAME_STEP = (0.25, 0.15)
 """Scan matching: metres / radians a scan must be from the last keyframe to become one."""
 MATCH_POINTS = 240
 """Scan matching: a scan with more points is matched (and kept as chords) with this many."""
+DESKEW_ROUNDS = 3
+"""
+Scan matching with the beams placed from the matched motion (scan mode, or no pose data over the
+sweep): matches again, at most this many times, with the beams placed from the motion the match
+itself implies (the last matched pose to this one) while that moves the sweep's end by more than
+``DESKEW_TOLERANCE``. With the motion of the interval before, a deskew error fed back: a
+scan deskewed with too fast a turn matches turned back by about half the excess, the next
+velocity then errs the other way, and so on (a simulated 5 Hz lidar swept over its whole period:
++-1.5 deg, sign alternating, scan after scan; turns in place lost a TurtleBot-like bag).
+"""
+DESKEW_TOLERANCE = (0.002, 0.002)
+"""(m, rad) at the end of the sweep below which ``DESKEW_ROUNDS`` stop."""
 MATCH_SIGMA = 0.03
 """Scan matching: the noise scale (m) used before the map has estimated its own sigma."""
 MATCH_REACH = (0.5, 0.2)
@@ -300,6 +312,62 @@ def motion_velocity(motion, stamp: float) -> Optional[np.ndarray]:
     step = _compose(_inverse(p0), p1)
     step[2] = wrap_angle(step[2])
     return step / (t1 - t0)
+
+
+class _Deskew:
+    """
+    A scan's beams placed from a constant motion over its sweep, and placed again from a match.
+
+    ``last``: the last matched (stamp, laser pose); ``velocity``: the motion per second (body
+    frame) the beams are first placed with. ``propose(pose)`` returns the arguments of
+    ``beam_points`` for the motion from ``last`` to ``pose`` (a match of the scan at its stamp),
+    or None when that moves the sweep's end by less than ``DESKEW_TOLERANCE`` (or cannot be
+    used: ``motion_velocity``); ``accept()`` keeps the proposal; ``local`` gives the points of
+    the motion kept.
+    """
+
+    def __init__(self, scan: Scan, last: tuple, velocity: np.ndarray):
+        self.stamp, self.last = float(scan.stamp), last
+        self.span = beam_span(scan)
+        self.times = float(scan.time_increment) * np.arange(len(scan.ranges))
+        self.velocity = np.asarray(velocity, dtype=np.float64)
+        self.motion = self._motion(self.velocity)
+        self._proposal = None
+        self._scan = scan
+        self.angles = self.limit = None         # the beams' angles and range limit (``bind``)
+
+    def bind(self, angles: np.ndarray, limit: float) -> None:
+        """Take the beams' angles (laser frame) and the mapping range limit."""
+        self.angles, self.limit = angles, limit
+
+    def _motion(self, velocity: np.ndarray) -> np.ndarray:
+        """Each beam's laser pose relative to the stamp's, (B, 3), at constant ``velocity``."""
+        knots = np.array([0.0, 0.5 * self.span, self.span])
+        rel = np.vstack([np.zeros(3), velocity[None] * knots[1:, None]])
+        rel[:, 2] = np.unwrap(wrap_angle(rel[:, 2]))
+        return np.column_stack([np.interp(self.times, knots, rel[:, k]) for k in range(3)])
+
+    def propose(self, pose) -> Optional[tuple]:
+        """Return ``beam_points``'s arguments for the motion ``pose`` implies, or None."""
+        v = motion_velocity([self.last, (self.stamp, np.asarray(pose, dtype=np.float64))],
+                            self.stamp)
+        if v is None:
+            return None
+        d = np.abs(v - self.velocity) * self.span
+        if math.hypot(d[0], d[1]) <= DESKEW_TOLERANCE[0] and d[2] <= DESKEW_TOLERANCE[1]:
+            return None
+        self._proposal = v
+        return self._scan.ranges, self.angles, self._motion(v), self._scan.range_min, self.limit
+
+    def accept(self) -> None:
+        """Keep the last proposal's motion."""
+        self.velocity = self._proposal
+        self.motion = self._motion(self.velocity)
+
+    def local(self) -> np.ndarray:
+        """Return the scan's points (laser frame at its stamp) with the motion kept."""
+        return beam_points(self._scan.ranges, self.angles, self.motion, self._scan.range_min,
+                           self.limit)
 
 
 def extrapolate(motion, stamp: float) -> np.ndarray:
@@ -1245,6 +1313,7 @@ class MappingSession:
         ``replay``). Grows with the scans: set it only for a recording of known length."""
         self._motion = deque(maxlen=2)
         """(stamp, (x, y, yaw)) of the last two posed scans: the matched motion."""
+        self._deskew: Optional[_Deskew] = None   # this scan's beams from the matched motion
         self._intervals = deque(maxlen=10)
         """Scan mode: seconds between the last posed scans (``GAP_FACTOR``)."""
         self._gap = None
@@ -1640,6 +1709,8 @@ class MappingSession:
                 if window is None and self._gap is not None:
                     window = self._gap.window   # searched for still (after a gap, an estimate)
                 motion = self._beam_motion(scan, pose, notes)
+                if self._deskew is not None:
+                    self._deskew.bind(angles, limit)
                 if motion is not None:
                     local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)
                 if self.options.scan_matching:
@@ -1652,6 +1723,8 @@ class MappingSession:
                         base = self.poses.robot_pose(scan, pose)
                         xyz, note = self._match(local, xyz, base, (scan.stamp, window,
                                                                    estimate))
+                        if self._deskew is not None:    # placed again from the match's motion
+                            local = self._deskew.local()
                         notes += [note] if note is not None else []
                         notes += self._localize(scan.stamp, given, xyz, before)
                         m = self._last_match
@@ -1760,8 +1833,10 @@ class MappingSession:
 
         None when the scan's beams are taken at once (``time_increment`` 0) or no motion is
         known. From the pose source (first, middle and last beam, interpolated between them)
-        unless in scan mode or when it has no pose at those times; else the matched motion.
+        unless in scan mode or when it has no pose at those times; else the matched motion
+        (``_deskew`` then holds it, for ``_match`` to place the beams again from its result).
         """
+        self._deskew = None
         span = beam_span(scan)
         if span == 0.0:
             ti = scan.time_increment
@@ -1784,7 +1859,8 @@ class MappingSession:
             velocity = motion_velocity(self._motion, scan.stamp)
             if velocity is None:
                 return None
-            rel = velocity[None] * knots[1:, None]
+            self._deskew = _Deskew(scan, self._motion[-1], velocity)
+            return self._deskew.motion
         rel = np.vstack([np.zeros(3), rel])
         rel[:, 2] = np.unwrap(wrap_angle(rel[:, 2]))
         return np.column_stack([np.interp(times, knots, rel[:, k]) for k in range(3)])
@@ -1874,6 +1950,23 @@ class MappingSession:
                            [support >= ESTABLISHED_SUPPORT, np.zeros(len(recent), dtype=bool)]),
                        transient=np.concatenate([np.zeros(len(segs), dtype=bool), transient]),
                        prediction_prior=prior, relocalize_near=prior is not None)
+        for _ in range(DESKEW_ROUNDS if self._deskew is not None and m.ok else 0):
+            again = self._deskew.propose(m.pose)
+            if again is None:
+                break
+            placed = spread(beam_points(*again), MATCH_POINTS)
+            m2 = match_scan(placed, prediction, near, sigma, degenerate=guard,
+                            starts=np.asarray(m.pose, dtype=np.float64)[None],
+                            prediction_cov=cov, established=np.concatenate(
+                                [support >= ESTABLISHED_SUPPORT,
+                                 np.zeros(len(recent), dtype=bool)]),
+                            transient=np.concatenate([np.zeros(len(segs), dtype=bool),
+                                                      transient]),
+                            prediction_prior=prior)
+            if not m2.ok:
+                break
+            self._deskew.accept()
+            m, local = m2, placed
         lost = bool(self._proposals)
         if m.reason == 'correction too large':
             m = self._confirm(local, given, m, near, sigma, degenerate)

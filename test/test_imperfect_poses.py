@@ -442,6 +442,27 @@ def test_scan_only_office_drive_maps_every_wall_within_10cm():
     assert s['rms'] < 0.05 and s['err'].max() < 0.1, (s['rms'], s['err'].max())
 
 
+def test_scans_alone_from_a_spinning_lidar_are_deskewed_with_their_own_matched_motion():
+    # A 5 Hz lidar sweeping over its whole period, no pose data: each scan's beams are placed
+    # from the motion between matched poses. With the motion of the interval before, the error
+    # fed back (too fast a turn deskewed, the match turns back by half the excess, the next
+    # velocity errs the other way): heading errors alternating in sign scan after scan, p95
+    # 5.7 deg while driving straight, 0.16 m RMS, walls precision 0.18. Now the scan is matched
+    # again with the motion its match implies. (A scan at the start or end of a turn in place
+    # is still deskewed with the motion before it: up to 4 deg, one scan each.)
+    drive, s = replay('sim:hall,rate=5,step=0.04,turn=0.2,moving_sensor=1', seed=1,
+                      pose_source='scan')
+    assert s['used'] == len(drive.poses)
+    turning = np.abs(np.angle(np.exp(1j * np.diff(drive.poses[:, 2])))) > 1e-6
+    near = np.zeros(len(drive.poses), dtype=bool)       # scans around a turn's start or end
+    for k in np.flatnonzero(np.diff(turning.astype(int))) + 1:
+        near[max(0, k - 1):k + 2] = True
+    yaw = np.degrees(s['yaw'][~near[s['index']]])
+    assert np.percentile(yaw, 95) < 0.3 and yaw.max() < 1.0, (np.percentile(yaw, 95), yaw.max())
+    assert s['rms'] < 0.05 and s['walls']['recall'] == 1.0, (s['rms'], s['walls'])
+    assert s['mean_distance'] < 0.025
+
+
 @pytest.mark.parametrize('start, found', [(0, True), (150, False)])
 def test_scans_alone_played_again_are_searched_for_where_the_first_scan_was(start, found):
     # A scan-only recording played again (its clock jumps back): the first pass's motion
