@@ -96,7 +96,17 @@ class ReplayResult:
         cause = max(skipped, key=skipped.get) if skipped else None
         return (f'no scan could be mapped ({what})'
                 + (f'; e.g. {self.session.examples[cause]}' if cause else '')
-                + (self._mount_hint() if cause and cause.startswith('no pose') else ''))
+                + (self._mount_hint() or self._odometry_hint()
+                   if cause and cause.startswith('no pose') else ''))
+
+    def _odometry_hint(self) -> str:
+        """Say that odometry can place scans that only static transforms reach (tf mode)."""
+        if self.session.options.pose_source != 'tf' or not self.odometry:
+            return ''
+        if not any(c.endswith('no_tf') for c in self.skipped):
+            return ''
+        return ('; the recording has odometry (nav_msgs/Odometry): --pose-source odom places '
+                'the robot by it, the laser on it as /tf_static mounts it')
 
     def _mount_hint(self) -> str:
         """Say how to place scans whose frame no transform names: by odometry and the mount."""

@@ -160,6 +160,17 @@ def test_missing_and_stale_transforms_are_counted_or_fatal(tmp_path, rotated, ca
                  ','.join(f'{v:g}' for v in (*rotated.mount[:2], np.degrees(rotated.mount[2]))),
                  '-q']) == 0
     assert wall_error(read_map(str(out))['segments_array'], rotated.world).max() < 0.1
+    # /odom and /tf_static but no moving transform (a ROS 1 robot recorded without /tf): the
+    # error pointed only to a fixed frame for a sensor that does not move, which mapped the
+    # moving robot as standing still; it names the odometry now, which places it
+    static = write_ros1_bag(tmp_path / 'static.bag', drive_messages(rotated, tf=False))
+    assert main(['replay', static, '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'only through static transforms' in err[0]
+    assert err[0].endswith('the recording has odometry (nav_msgs/Odometry): --pose-source odom '
+                           'places the robot by it, the laser on it as /tf_static mounts it')
+    assert main(['replay', static, '-o', str(out), '--pose-source', 'odom', '-q']) == 0
+    assert wall_error(read_map(str(out))['segments_array'], rotated.world).max() < 0.1
     # a fixed frame that is not in the tree
     bag = write_bag(tmp_path / 'ok', drive_messages(rotated))
     assert main(['replay', bag, '-o', str(out), '--fixed-frame', 'map', '-q']) == 2
