@@ -493,6 +493,12 @@ def _seen_through(stats: dict, args) -> str:
 def cmd_replay(args) -> int:
     from .replay import run_replay
     config = load_incremental_config(args.config, args.set)
+    if args.config:
+        from .config import unread_node_params
+        unread = unread_node_params(args.config)
+        if unread:
+            print(f'polyline-mapper: warning: {args.config}: node parameters not read by replay '
+                  f'(its command line sets them): {", ".join(unread)}', file=sys.stderr)
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
     _suffixes(args.output, args.plot)
     start, pose = _start_map(args)

@@ -108,6 +108,58 @@ def _file_values(data: dict, keys: dict, path: str) -> dict:
     return dict(data)
 
 
+REPLAY_FLAGS = {'fixed_frame': '--fixed-frame', 'pose_source': '--pose-source',
+                'scan_matching': '--scan-matching', 'chord_knots': '--chord-knots',
+                'laser_x': '--laser-mount', 'laser_y': '--laser-mount',
+                'laser_yaw': '--laser-mount', 'laser_upside_down': '--laser-mount',
+                'update_every_n_scans': '--update-every-n-scans', 'map_input_path': '--map',
+                'initial_pose': '--initial-pose', 'mapping': '--no-mapping'}
+"""Node parameters ``replay`` takes from its command line instead (``unread_node_params``)."""
+
+
+def unread_node_params(path: str) -> list:
+    """
+    Return the node parameters a ROS 2 parameter file sets off their defaults, unread here.
+
+    ``--config`` reads the ``smemsf.*`` / ``incremental.*`` entries only; a node parameter the
+    file gives its default value (the shipped ``config/polyline_mapper.yaml``) changes nothing.
+    Each as 'name: value (replay: FLAG)' when ``replay`` has a flag for it (``REPLAY_FLAGS``),
+    else 'name: value'. A flat config, or a file that cannot be read, gives none
+    (``read_values`` says why).
+    """
+    import yaml
+    try:
+        with open(path, 'r', encoding='utf-8') as fh:
+            data = yaml.safe_load(fh) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return []
+    keys = table()
+    defaults = {spec.name: spec.default for spec in all_params()}
+    out = []
+    for node in (data.values() if isinstance(data, dict) else ()):
+        params = node.get('ros__parameters') if isinstance(node, dict) else None
+        if not isinstance(params, dict):
+            continue
+        for key, value in params.items():
+            key = str(key)
+            read = key.partition('.')[0] in GROUPS or key in keys
+            if read or _same(value, defaults.get(key)):
+                continue
+            flag = REPLAY_FLAGS.get(key)
+            out.append(f'{key}: {value}' + ('' if flag is None else f' (replay: {flag})'))
+    return out
+
+
+def _same(value, default) -> bool:
+    """Whether a parameter file's ``value`` is the parameter's ``default``."""
+    if isinstance(default, float) and isinstance(value, (int, float)) and \
+            not isinstance(value, bool):
+        return math.isclose(float(value), default) or value == default
+    if isinstance(default, (list, tuple)) and isinstance(value, (list, tuple)):
+        return len(value) == len(default) and all(_same(v, d) for v, d in zip(value, default))
+    return value == default
+
+
 def _known(group: str, values: dict, path: str) -> None:
     """Raise ConfigError for a key of ``values`` that is no parameter of ``group`` (a typo)."""
     known = table((group,))

@@ -12,6 +12,27 @@ def test_the_shipped_parameter_file_gives_the_defaults(tmp_path):
     assert config == IncrementalConfig()
 
 
+def test_replay_names_the_node_parameters_of_a_file_it_does_not_read(tmp_path, capsys):
+    # A TurtleBot user's parameter file with chord_knots: median mapped with arc knots without a
+    # word (replay takes it from --chord-knots). Node parameters set off their defaults are
+    # named now, with the flag; the shipped file, all defaults, names none.
+    from conftest import REPO
+    from polyline_mapper.cli import main
+    from polyline_mapper.config import unread_node_params
+    for name in ('polyline_mapper.yaml', 'lds01.yaml', 'free_space.yaml', 'no_free_space.yaml'):
+        assert unread_node_params(str(REPO / 'config' / name)) == [], name
+    path = tmp_path / 'tb3.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    chord_knots: median\n    transform_timeout: 0.1'
+                    '\n    fixed_frame: map\n    smemsf:\n      sigma: 0.025\n')
+    assert unread_node_params(str(path)) == ['chord_knots: median (replay: --chord-knots)',
+                                             'transform_timeout: 0.1']
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:hall', '--config', str(path), '-o', str(out), '-q']) == 0
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'not read by replay' in err and '--chord-knots' in err
+    assert load_mapper_config(str(path)).smemsf.sigma == 0.025      # the smemsf entry is read
+
+
 def test_dotted_nested_and_plain_keys_of_a_ros_parameter_file(tmp_path):
     path = tmp_path / 'p.yaml'
     path.write_text('polyline_mapper_node:\n  ros__parameters:\n    fixed_frame: odom\n'
