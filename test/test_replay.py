@@ -5,7 +5,7 @@ import json
 from bag_helpers import drive_messages, room_drive, write_bag, write_carmen, write_ros1_bag
 from conftest import radish_head
 import numpy as np
-from polyline_mapper.cli import main
+from polyline_mapper.cli import main, SEEN_THROUGH_WARN
 from polyline_mapper.core.index import nearest_distance
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.mapjson import read_map
@@ -380,7 +380,7 @@ def test_a_map_the_beams_see_through_warns_of_the_mount_and_the_poses(tmp_path, 
                      f'{x:g},{y:g},{yaw}', '-q']) == 0
         share = read_map(str(out))['stats']['contradicted_share']
         err = [line for line in capsys.readouterr().err.splitlines() if 'pass through' in line]
-        assert (share > 0.25) == warned and len(err) == warned, (yaw, share, err)
+        assert (share > SEEN_THROUGH_WARN) == warned and len(err) == warned, (yaw, share, err)
     assert err[0].endswith("check the laser's mount (--laser-mount: a laser facing backwards "
                            'has yaw 180, one upside down flip) and the poses (drifting '
                            'odometry: --scan-matching)')
