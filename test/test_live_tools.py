@@ -281,6 +281,16 @@ def test_live_demo_maps_the_office_and_reports_node_update_times(tmp_path, capsy
     assert took < 60, took      # 355 scans at 2x: about 18 s of drive
 
 
+class Node:
+    """What MapRecorder asks of an rclpy node (no subscription is made)."""
+
+    def resolve_topic_name(self, topic):
+        return '/' + topic
+
+    def create_subscription(self, *args):
+        return None
+
+
 def test_record_map_refuses_a_map_that_disagrees_with_itself():
     # A publisher other than the node may send polylines of another map than its segments:
     # saved, read_map (and so export, plot, replay --map) would refuse the file later.
@@ -288,14 +298,6 @@ def test_record_map_refuses_a_map_that_disagrees_with_itself():
     from polyline_mapper.core.mapvalue import MapValue
     from polyline_mapper.ros.messages import map_to_msg
     from polyline_mapper.ros.recorder import MapRecorder
-
-    class Node:                              # what MapRecorder asks of an rclpy node
-        def resolve_topic_name(self, topic):
-            return '/' + topic
-
-        def create_subscription(self, *args):
-            return None
-
     square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0]])
     good = MapValue(np.stack([square[:-1], square[1:]], axis=1), np.array([10.0, 12.0]),
                     [square], [False], 'map', 5.0, {})
@@ -320,14 +322,6 @@ def test_record_map_keeps_the_planner_map_of_the_map_frame_only():
     from polyline_mapper.core.mapvalue import MapValue
     from polyline_mapper.ros.messages import grid_to_msg, map_to_msg
     from polyline_mapper.ros.recorder import MapRecorder
-
-    class Node:
-        def resolve_topic_name(self, topic):
-            return '/' + topic
-
-        def create_subscription(self, *args):
-            return None
-
     square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0]])
     value = MapValue(np.stack([square[:-1], square[1:]], axis=1), np.array([10.0, 12.0]),
                      [square], [False], 'map', 5.0, {})
