@@ -1064,8 +1064,26 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _names_printable() -> None:
+    """
+    Print any file name, whatever the locale.
+
+    A name with a byte that is not UTF-8 is kept by Python as a lone surrogate; under a UTF-8
+    locale stdout refused it (UnicodeEncodeError) after the files were written, so a
+    successful command ended with an error and exit 2. It is escaped instead (``\\udcff``),
+    as stderr already does.
+    """
+    reconfigure = getattr(sys.stdout, 'reconfigure', None)
+    if reconfigure is not None:
+        try:
+            reconfigure(errors='backslashreplace')
+        except (ValueError, OSError):            # a stream that cannot change: left as it is
+            pass
+
+
 def main(argv=None) -> int:
     """Entry point; returns the process exit code."""
+    _names_printable()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

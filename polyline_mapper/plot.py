@@ -172,7 +172,18 @@ def _frame(ax, lo, hi, span, title) -> None:
     ax.set_ylabel('y [m]')
     _scale_bar(ax, lo - pad, span)
     if title:
-        ax.set_title(title, fontsize=10)
+        ax.set_title(drawable(title), fontsize=10)
+
+
+def drawable(text: str) -> str:
+    """
+    Return ``text`` as a font can draw it: a file name's undecodable bytes (kept by Python as
+    lone surrogates, which matplotlib's text layout refuses with a TypeError) become U+FFFD.
+
+    >>> drawable('map of l\udce9.log')
+    'map of l\ufffd.log'
+    """
+    return str(text).encode('utf-8', 'surrogateescape').decode('utf-8', 'replace')
 
 
 def _scale_bar(ax, corner, span) -> None:

@@ -914,3 +914,19 @@ def test_plot_of_a_map_narrower_than_a_metre_has_no_python_warning(ws, capsys):
     assert code == 0 and err == [] and 'wrote' in out, err
     with open(ws['png'], 'rb') as fh:
         assert fh.read(8) == b'\x89PNG\r\n\x1a\n'
+
+
+def test_a_file_name_that_is_not_utf8_is_drawn_not_a_traceback(tmp_path, capsys):
+    # fit / replay --plot and plot put the input's name in the title; a name with a byte that
+    # is not UTF-8 (kept by Python as a lone surrogate) made matplotlib raise a TypeError: an
+    # 85-line traceback and no output. It is drawn with U+FFFD now.
+    from bag_helpers import room_drive, write_carmen
+    from polyline_mapper.formats.mapjson import read_map
+    name = os.fsdecode(b'r\xe9oom.log.gz')
+    log = write_carmen(tmp_path / name, room_drive(beams=181, fov=180.0))
+    out, png = tmp_path / 'm.json', tmp_path / os.fsdecode(b'm\xff.png')
+    assert main(['fit', str(log), '-o', str(out), '--plot', str(png), '-q']) == 0
+    assert png.stat().st_size > 10_000 and len(read_map(out)['segments']) >= 4
+    capsys.readouterr()
+    code = main(['plot', str(out), '--points', str(log), '-o', str(png)])
+    assert code == 0, capsys.readouterr().err
