@@ -1070,8 +1070,8 @@ def _names_printable() -> None:
 
     A name with a byte that is not UTF-8 is kept by Python as a lone surrogate; under a UTF-8
     locale stdout refused it (UnicodeEncodeError) after the files were written, so a
-    successful command ended with an error and exit 2. It is escaped instead (``\\udcff``),
-    as stderr already does.
+    successful command ended with an error and exit 2. It is escaped instead (a backslash and
+    its code), as stderr already does.
     """
     reconfigure = getattr(sys.stdout, 'reconfigure', None)
     if reconfigure is not None:

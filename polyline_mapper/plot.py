@@ -177,11 +177,10 @@ def _frame(ax, lo, hi, span, title) -> None:
 
 def drawable(text: str) -> str:
     """
-    Return ``text`` as a font can draw it: a file name's undecodable bytes (kept by Python as
-    lone surrogates, which matplotlib's text layout refuses with a TypeError) become U+FFFD.
+    Return ``text`` as a font can draw it.
 
-    >>> drawable('map of l\udce9.log')
-    'map of l\ufffd.log'
+    A file name's undecodable bytes (kept by Python as lone surrogates, which matplotlib's text
+    layout refuses with a TypeError) become U+FFFD.
     """
     return str(text).encode('utf-8', 'surrogateescape').decode('utf-8', 'replace')
 
