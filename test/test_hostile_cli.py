@@ -930,3 +930,30 @@ def test_a_file_name_that_is_not_utf8_is_drawn_not_a_traceback(tmp_path, capsys)
     capsys.readouterr()
     code = main(['plot', str(out), '--points', str(log), '-o', str(png)])
     assert code == 0, capsys.readouterr().err
+
+
+@pytest.mark.parametrize('bad', [2, 63])
+def test_a_log_byte_that_is_not_utf8_is_reported_at_its_line(tmp_path, capsys, bad):
+    # The line number was one past the line holding the byte (a new-user audit: 2 -> 3).
+    lines = [b'FLASER 3 1 1 1 0 0 0 0 0 0 1 h 1\n'] * 70
+    lines[bad - 1] = b'\xff\n'
+    log = tmp_path / 'g.log'
+    log.write_bytes(b''.join(lines))
+    assert main(['fit', str(log), '-o', str(tmp_path / 'x.json')]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f'not UTF-8 text at line {bad}:' in err[0], err
+
+
+@pytest.mark.parametrize('period', ['1e10', '1e300', '1e-12'])
+def test_convert_refuses_a_period_its_stamps_cannot_hold(tmp_path, capsys, period):
+    # A log whose times do not increase gets stamps --period apart. 1e10 and 1e300 s ended in a
+    # struct.error / OverflowError traceback (a ROS time's seconds are an int32); 1e-12 s gave
+    # 30 scans one stamp, and the replay of the bag skipped 29 as out of order.
+    log = tmp_path / 'z.log'
+    log.write_text('FLASER 3 1 1 1 0 0 0 0 0 0 0 h 0\n' * 30)
+    out = tmp_path / 'bag'
+    assert main(['convert', str(log), '-o', str(out), '--period', period]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'made up' in err[0] and 'a ROS time' in err[0], err
+    assert not out.exists() and not any(tmp_path.glob('.tmp-bag-*'))
+    assert main(['convert', str(log), '-o', str(out), '--period', '0.1', '-q']) == 0

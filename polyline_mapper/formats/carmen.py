@@ -71,7 +71,13 @@ class CarmenLog:
         t = np.array([r.stamp for r in self.records], dtype=np.float64)
         if len(t) and np.isfinite(t).all() and np.all(np.diff(t) > 0):
             return (t if t[0] > 0 else t - t[0] + 1.0), False
-        return 1.0 + period * np.arange(len(t)), True
+        made = 1.0 + period * np.arange(len(t))
+        if len(t) > 1 and not (period >= MIN_PERIOD and made[-1] < ROS_TIME_END):
+            raise ValueError(f'period {period:g} s: the log times do not increase, and stamps '
+                             f'made up {period:g} s apart must be at least {MIN_PERIOD:g} s apart '
+                             f'and end before {ROS_TIME_END:g} s (a ROS time; the last would be '
+                             f'{made[-1]:g} s)')
+        return made, True
 
     def scans(self, stamps=None, frame_id: str = 'laser', with_pose: bool = True) -> list:
         """
@@ -193,6 +199,12 @@ def _lines(fh, limit: int = MAX_LINE_BYTES):
         yield line, True
 
 
+MIN_PERIOD = 1e-6
+"""Seconds: made-up stamps closer than this would be one (maps and bags keep 1 us / 1 ns)."""
+ROS_TIME_END = 2.0 ** 31
+"""Seconds: builtin_interfaces/Time holds its seconds in an int32."""
+
+
 def read_carmen(path: str) -> CarmenLog:
     """
     Read the laser records of a CARMEN log (.log, .log.gz, or any gzip / text file).
@@ -248,7 +260,7 @@ def read_carmen(path: str) -> CarmenLog:
     except IsADirectoryError:
         raise ValueError(f'{path}: is a folder, not a CARMEN log') from None
     except UnicodeDecodeError as exc:
-        raise ValueError(f'{path}: unreadable log (not UTF-8 text at line {lineno + 1}: '
+        raise ValueError(f'{path}: unreadable log (not UTF-8 text at line {lineno}: '
                          f'{exc.reason})') from None
     except (OSError, EOFError, zlib.error) as exc:
         raise ValueError(f'{path}: unreadable or truncated log ({exc.__class__.__name__}: '
