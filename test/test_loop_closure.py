@@ -78,3 +78,20 @@ def test_loop_closure_needs_scan_matching_from_odometry(tmp_path, capsys):
         assert err == ['polyline-mapper: error: --loop-closure needs --scan-matching and '
                        '--pose-source odom, and a new map (not --map)']
         assert not (tmp_path / 'm.json').exists()
+
+
+@pytest.mark.parametrize('matched, closed, reason', [
+    # drifted CSAIL, seed 0 (2026-11-29): the closure onto two loops lowered the share its
+    # beams pass through but bent walls off their points; ATE 0.219 -> 0.245 m, applied
+    ((0.047214, 0.970, 0.0303), (0.043029, 0.950, 0.0353), 'fits its points worse'),
+    # drifted Intel, seed 1: ATE 0.102 -> 0.077 m; kept
+    ((0.0370, 0.965, 0.0241), (0.022974, 0.975, 0.0244), None),
+    # Intel seed 2: the closed map doubles walls
+    ((0.0241, 0.976, 0.0216), (0.038691, 0.976, 0.0216), 'more contradicted'),
+])
+def test_the_closed_map_is_judged_both_ways(matched, closed, reason):
+    from polyline_mapper.replay import closed_map_kept
+    keys = ('contradicted_share', 'coverage_0_10m', 'mean_distance')
+    keep, judged = closed_map_kept(dict(zip(keys, matched)), dict(zip(keys, closed)))
+    assert keep == (reason is None) and judged.get('reason') == reason
+    assert judged['coverage_before'] == matched[1] and judged['mean_after'] == closed[2]
