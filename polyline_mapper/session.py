@@ -914,6 +914,16 @@ class PoseSource:
                     'tf_frames', f'frame {frame!r} moves only through the ignored transform '
                     f'{self.fixed_frame} -> {target}: with scan matching fixed_frame must be a '
                     'map frame above the odometry frame')
+            if self._static.issuperset(chain[:-1]):
+                # The odometry transform (odom -> base_link) has not come yet: the root is the
+                # robot itself. Taken as the odometry frame, it was localized as one, and when
+                # the odometry came map -> base_link gave base_link a second parent (a node
+                # whose odometry driver started 1 s after the laser: 4.6 m off all run).
+                raise TransformLookupError(
+                    'no_tf', f'frame {frame!r} reaches {target!r} only through static '
+                    'transforms: scan matching localizes the odometry frame, and no odometry '
+                    f'transform ({target!r} in it) has come yet (no odometry at all: '
+                    'pose_source scan)')
             self.base_frame = chain[-2]
         else:
             target = self.fixed_frame or self._default_fixed(frame)

@@ -278,3 +278,34 @@ def test_odometry_in_a_second_frame_is_a_counted_skip(office_drive):
     assert session.examples['pose data: odom_frame'] == (
         "odometry in frame 'other_odom', expected 'odom' as the first odometry")
     assert session.localization.odom_frame == 'odom'
+
+
+def test_odometry_that_starts_after_the_laser_is_waited_for(office_drive):
+    # A robot whose odometry driver comes up after the laser: for the first scans only the
+    # mount (base_link -> laser) is known, whose root is the robot itself. Taken as the
+    # odometry frame, the robot was localized as one: the node broadcast map -> base_link
+    # (a second parent once odom -> base_link came) and was 4.6 m off all run (a new-user
+    # audit). Those scans now wait for the odometry and are skipped; the rest localize.
+    truth = _base(office_drive)[:80]
+    odom = OdometryDrift().apply(truth, 2)
+    session = MappingSession(None, SessionOptions(scan_matching=True, fixed_frame='map'))
+    session.add(tf(0.0, 'base_link', 'laser', MOUNT, static=True))
+    locs = {}
+    for i, pose in enumerate(odom):
+        if i >= 10:
+            session.add(tf(float(i), 'odom', 'base_link', pose))
+        session.add(scan_of(office_drive, i, float(i)))
+        session.step()
+        if session.localization is not None:
+            locs[session.localization.stamp] = session.localization
+    session.flush()
+    assert {(loc.odom_frame, loc.base_frame) for loc in locs.values()} == {('odom', 'base_link')}
+    assert session.used == 70 and sum(session.stats()['skipped'].values()) == 10
+    i = np.array(sorted(locs), dtype=int)
+    pose = np.array([locs[k].pose for k in sorted(locs)])
+    # the map frame is the odometry frame where the first scan was localized (10 scans of
+    # drift from the truth's): the truth laid into it by that first pose
+    into = se2_compose(odom[10], se2_inverse(truth[10]))
+    expected = se2_compose(np.broadcast_to(into, truth[i].shape), truth[i])
+    err = np.hypot(*(pose[:, :2] - expected[:, :2]).T)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05, err
