@@ -339,7 +339,7 @@ def closed_map_kept(matched: dict, closed: dict) -> tuple:
     Kept when its own beams pass through no more of it (``contradicted_share``: doubled walls
     where the second map, placed without matching, disagrees with itself) and it fits its own
     points about as well (``coverage_0_10m``, ``mean_distance``, ``CLOSED_FIT``: a closure
-    onto a wrong loop bends walls off their points while the evidence keeps the share low).
+    can undouble walls where its loops are and bend others off their points).
     ``matched`` and ``closed`` are the maps' stats; the dict holds both sides' numbers and,
     when not kept, the ``reason``.
     """
