@@ -319,36 +319,37 @@ class _Deskew:
     A scan's beams placed from a constant motion over its sweep, and placed again from a match.
 
     ``last``: the last matched (stamp, laser pose); ``velocity``: the motion per second (body
-    frame) the beams are first placed with. ``propose(pose)`` returns the arguments of
-    ``beam_points`` for the motion from ``last`` to ``pose`` (a match of the scan at its stamp),
-    or None when that moves the sweep's end by less than ``DESKEW_TOLERANCE`` (or cannot be
-    used: ``motion_velocity``); ``accept()`` keeps the proposal; ``local`` gives the points of
-    the motion kept.
+    frame) the beams are first placed with; ``times``, ``span``: each beam's seconds after the
+    stamp and the sweep's (``beam_span``); ``angles``, ``limit``: the beams' angles (laser
+    frame) and the mapping range limit. ``propose(pose)`` returns the scan's points placed
+    with the motion from ``last`` to ``pose`` (a match of the scan at its stamp), or None when
+    that moves the sweep's end by less than ``DESKEW_TOLERANCE`` (or cannot be used:
+    ``motion_velocity``); ``accept()`` keeps the proposal; ``local`` gives the points of the
+    motion kept.
     """
 
-    def __init__(self, scan: Scan, last: tuple, velocity: np.ndarray):
+    def __init__(self, scan: Scan, last: tuple, velocity: np.ndarray, times: np.ndarray,
+                 span: float, angles: np.ndarray, limit: float):
         self.stamp, self.last = float(scan.stamp), last
-        self.span = beam_span(scan)
-        self.times = float(scan.time_increment) * np.arange(len(scan.ranges))
+        self.times, self.span = times, span         # each beam's seconds, the sweep's
+        self.angles, self.limit = angles, limit     # the beams' angles, the range limit
         self.velocity = np.asarray(velocity, dtype=np.float64)
         self.motion = self._motion(self.velocity)
         self._proposal = None
         self._scan = scan
-        self.angles = self.limit = None         # the beams' angles and range limit (``bind``)
-
-    def bind(self, angles: np.ndarray, limit: float) -> None:
-        """Take the beams' angles (laser frame) and the mapping range limit."""
-        self.angles, self.limit = angles, limit
 
     def _motion(self, velocity: np.ndarray) -> np.ndarray:
-        """Each beam's laser pose relative to the stamp's, (B, 3), at constant ``velocity``."""
-        knots = np.array([0.0, 0.5 * self.span, self.span])
-        rel = np.vstack([np.zeros(3), velocity[None] * knots[1:, None]])
-        rel[:, 2] = np.unwrap(wrap_angle(rel[:, 2]))
-        return np.column_stack([np.interp(self.times, knots, rel[:, k]) for k in range(3)])
+        """Return each beam's laser pose relative to the stamp's, (B, 3), at ``velocity``."""
+        return sweep_motion(self.times, self.span,
+                            velocity[None] * np.array([[0.5 * self.span], [self.span]]))
 
-    def propose(self, pose) -> Optional[tuple]:
-        """Return ``beam_points``'s arguments for the motion ``pose`` implies, or None."""
+    def _points(self, motion: np.ndarray) -> np.ndarray:
+        """Return the scan's points (laser frame at its stamp), cast as ``motion`` says."""
+        return beam_points(self._scan.ranges, self.angles, motion, self._scan.range_min,
+                           self.limit)
+
+    def propose(self, pose) -> Optional[np.ndarray]:
+        """Return the scan's points with the motion ``pose`` implies, or None."""
         v = motion_velocity([self.last, (self.stamp, np.asarray(pose, dtype=np.float64))],
                             self.stamp)
         if v is None:
@@ -357,7 +358,7 @@ class _Deskew:
         if math.hypot(d[0], d[1]) <= DESKEW_TOLERANCE[0] and d[2] <= DESKEW_TOLERANCE[1]:
             return None
         self._proposal = v
-        return self._scan.ranges, self.angles, self._motion(v), self._scan.range_min, self.limit
+        return self._points(self._motion(v))
 
     def accept(self) -> None:
         """Keep the last proposal's motion."""
@@ -366,8 +367,21 @@ class _Deskew:
 
     def local(self) -> np.ndarray:
         """Return the scan's points (laser frame at its stamp) with the motion kept."""
-        return beam_points(self._scan.ranges, self.angles, self.motion, self._scan.range_min,
-                           self.limit)
+        return self._points(self.motion)
+
+
+def sweep_motion(times: np.ndarray, span: float, rel: np.ndarray) -> np.ndarray:
+    """
+    Return each beam's laser pose relative to the stamp's, (B, 3), over a sweep of ``span`` s.
+
+    ``rel`` (2, 3): the laser's pose at the sweep's middle and end relative to its pose at the
+    stamp; ``times`` (B,): each beam's seconds after the stamp. Interpolated linearly between
+    the start, the middle and the end (headings unwrapped).
+    """
+    knots = np.array([0.0, 0.5 * span, span])
+    rel = np.vstack([np.zeros(3), rel])
+    rel[:, 2] = np.unwrap(wrap_angle(rel[:, 2]))
+    return np.column_stack([np.interp(times, knots, rel[:, k]) for k in range(3)])
 
 
 def extrapolate(motion, stamp: float) -> np.ndarray:
@@ -1718,9 +1732,7 @@ class MappingSession:
                         window = self._gap_window(scan.stamp)
                 if window is None and self._gap is not None:
                     window = self._gap.window   # searched for still (after a gap, an estimate)
-                motion = self._beam_motion(scan, pose, notes)
-                if self._deskew is not None:
-                    self._deskew.bind(angles, limit)
+                motion = self._beam_motion(scan, pose, notes, angles, limit)
                 if motion is not None:
                     local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)
                 if self.options.scan_matching:
@@ -1837,14 +1849,16 @@ class MappingSession:
         return (max(GAP_SPEED, math.hypot(v[0], v[1])) * elapsed,
                 min(math.pi, max(GAP_TURN_RATE, v[2]) * elapsed))
 
-    def _beam_motion(self, scan: Scan, pose: PlanarPose, notes: list) -> Optional[np.ndarray]:
+    def _beam_motion(self, scan: Scan, pose: PlanarPose, notes: list, angles: np.ndarray,
+                     limit: float) -> Optional[np.ndarray]:
         """
         Return each beam's laser pose relative to the pose at the stamp, (B, 3), or None.
 
         None when the scan's beams are taken at once (``time_increment`` 0) or no motion is
         known. From the pose source (first, middle and last beam, interpolated between them)
         unless in scan mode or when it has no pose at those times; else the matched motion
-        (``_deskew`` then holds it, for ``_match`` to place the beams again from its result).
+        (``_deskew`` then holds it, for ``_match`` to place the beams again from its result;
+        ``angles`` and ``limit``, the beams' angles and the mapping range limit, are for it).
         """
         self._deskew = None
         span = beam_span(scan)
@@ -1869,11 +1883,10 @@ class MappingSession:
             velocity = motion_velocity(self._motion, scan.stamp)
             if velocity is None:
                 return None
-            self._deskew = _Deskew(scan, self._motion[-1], velocity)
+            self._deskew = _Deskew(scan, self._motion[-1], velocity, times, span, angles,
+                                   limit)
             return self._deskew.motion
-        rel = np.vstack([np.zeros(3), rel])
-        rel[:, 2] = np.unwrap(wrap_angle(rel[:, 2]))
-        return np.column_stack([np.interp(times, knots, rel[:, k]) for k in range(3)])
+        return sweep_motion(times, span, rel)
 
     def _keyframe(self, local: np.ndarray, pose: np.ndarray) -> None:
         """
@@ -1954,25 +1967,20 @@ class MappingSession:
                   max(abs(math.remainder(float(step[2]), 2.0 * math.pi)), SCAN_PRIOR[1]))
             prior = np.diag([sd[0] ** 2, sd[0] ** 2, sd[1] ** 2])
             guard = 0.0                 # the prior keeps weak directions near the start
+        terms = {'prediction_cov': cov, 'prediction_prior': prior,     # both matches' terms
+                 'established': np.concatenate([support >= ESTABLISHED_SUPPORT,
+                                                np.zeros(len(recent), dtype=bool)]),
+                 'transient': np.concatenate([np.zeros(len(segs), dtype=bool), transient])}
         m = match_scan(local, prediction, near, sigma, degenerate=guard, starts=starts,
                        relocalize=RELOCALIZE, relocalize_share=self._relocalize_share(),
-                       prediction_cov=cov, established=np.concatenate(
-                           [support >= ESTABLISHED_SUPPORT, np.zeros(len(recent), dtype=bool)]),
-                       transient=np.concatenate([np.zeros(len(segs), dtype=bool), transient]),
-                       prediction_prior=prior, relocalize_near=prior is not None)
+                       relocalize_near=prior is not None, **terms)
         for _ in range(DESKEW_ROUNDS if self._deskew is not None and m.ok else 0):
             again = self._deskew.propose(m.pose)
             if again is None:
                 break
-            placed = spread(beam_points(*again), MATCH_POINTS)
+            placed = spread(again, MATCH_POINTS)
             m2 = match_scan(placed, prediction, near, sigma, degenerate=guard,
-                            starts=np.asarray(m.pose, dtype=np.float64)[None],
-                            prediction_cov=cov, established=np.concatenate(
-                                [support >= ESTABLISHED_SUPPORT,
-                                 np.zeros(len(recent), dtype=bool)]),
-                            transient=np.concatenate([np.zeros(len(segs), dtype=bool),
-                                                      transient]),
-                            prediction_prior=prior)
+                            starts=np.asarray(m.pose, dtype=np.float64)[None], **terms)
             if not m2.ok:
                 break
             self._deskew.accept()
