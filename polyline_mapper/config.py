@@ -85,27 +85,35 @@ def typed_value(spec, value, origin: str):
     return out
 
 
-def _file_values(data: dict, keys: dict, path: str) -> dict:
-    """Return the table keys of a flat mapping or of a ROS 2 parameter file's node block."""
+def _ros_parameters(data: dict, path: str):
+    """Return the ``ros__parameters`` of a ROS 2 parameter file's node block, else None (flat)."""
     for node in data.values():
         if isinstance(node, dict) and 'ros__parameters' in node:
             params = node['ros__parameters'] or {}
             if not isinstance(params, dict):
                 raise ConfigError(f'{path}: ros__parameters must be a mapping')
-            out = {}
-            for key, value in params.items():
-                group, _, name = str(key).partition('.')
-                if group in GROUPS and isinstance(value, dict) and not name:
-                    _known(group, value, path)
-                    out.update({k: v for k, v in value.items() if k in keys})   # nested block
-                elif group in GROUPS:
-                    _known(group, {name: value}, path)
-                    if name in keys:
-                        out[name] = value                                       # dotted
-                elif key in keys:
-                    out[key] = value                                            # plain
-            return out
-    return dict(data)
+            return params
+    return None
+
+
+def _file_values(data: dict, keys: dict, path: str) -> dict:
+    """Return the table keys of a flat mapping or of a ROS 2 parameter file's node block."""
+    params = _ros_parameters(data, path)
+    if params is None:
+        return dict(data)
+    out = {}
+    for key, value in params.items():
+        group, _, name = str(key).partition('.')
+        if group in GROUPS and isinstance(value, dict) and not name:
+            _known(group, value, path)
+            out.update({k: v for k, v in value.items() if k in keys})           # nested block
+        elif group in GROUPS:
+            _known(group, {name: value}, path)
+            if name in keys:
+                out[name] = value                                               # dotted
+        elif key in keys:
+            out[key] = value                                                    # plain
+    return out
 
 
 REPLAY_FLAGS = {'fixed_frame': '--fixed-frame', 'pose_source': '--pose-source',
@@ -131,22 +139,19 @@ def unread_node_params(path: str) -> list:
     try:
         with open(path, 'r', encoding='utf-8') as fh:
             data = yaml.safe_load(fh) or {}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        params = _ros_parameters(data, path) if isinstance(data, dict) else None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ConfigError):
         return []
     keys = table()
     defaults = {spec.name: spec.default for spec in all_params()}
     out = []
-    for node in (data.values() if isinstance(data, dict) else ()):
-        params = node.get('ros__parameters') if isinstance(node, dict) else None
-        if not isinstance(params, dict):
+    for key, value in (params or {}).items():
+        key = str(key)
+        read = key.partition('.')[0] in GROUPS or key in keys
+        if read or _same(value, defaults.get(key)):
             continue
-        for key, value in params.items():
-            key = str(key)
-            read = key.partition('.')[0] in GROUPS or key in keys
-            if read or _same(value, defaults.get(key)):
-                continue
-            flag = REPLAY_FLAGS.get(key)
-            out.append(f'{key}: {value}' + ('' if flag is None else f' (replay: {flag})'))
+        flag = REPLAY_FLAGS.get(key)
+        out.append(f'{key}: {value}' + ('' if flag is None else f' (replay: {flag})'))
     return out
 
 
