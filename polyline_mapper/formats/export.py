@@ -265,7 +265,8 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
     """
     fmt = (fmt or os.path.splitext(path)[1].lstrip('.')).lower()
     fmt = 'yaml' if fmt == 'yml' else fmt
-    if fmt == 'pgm':
+    if fmt in ('yaml', 'pgm') and '.pgm' in (os.path.splitext(path)[1].lower(),
+                                             os.path.splitext(os.path.realpath(path))[1].lower()):
         raise ValueError(f'{path}: name the map_server YAML (OUT.yaml); its image OUT.pgm is '
                          'written beside it')
     if fmt not in FORMATS:
@@ -278,10 +279,6 @@ def export_map(data: dict, path: str, fmt: str = None, inputs=(),
         map_value_from_dict(data)
     if fmt == 'yaml':
         pgm, image = map_yaml_image(path)
-        if '.pgm' in (os.path.splitext(path)[1].lower(),
-                      os.path.splitext(os.path.realpath(path))[1].lower()):
-            raise ValueError(f'{path}: name the map_server YAML (OUT.yaml); its image OUT.pgm '
-                             'is written beside it')
         try:
             image.encode('utf-8')
         except UnicodeEncodeError:
