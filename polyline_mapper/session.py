@@ -1572,25 +1572,39 @@ class MappingSession:
             return self._skip('pose data', exc.cause, str(exc))
         if note is not None and note[0] == 'time_jump':
             self._scan_stamps.clear()       # the new time line's scans are not duplicates
+            if self.options.scan_matching and self._first_base is not None:
+                # The odometry restarted with the clock (a bag played again, a simulation
+                # reset): the correction map -> odom of the old time line would place the new
+                # one's scans as far off as the old odometry had drifted.
+                note = (note[0], f'{note[1]}; {self._search_from_start(record.stamp)}')
         return note
+
+    def _search_from_start(self, stamp: float) -> str:
+        """
+        After the clock jumped back: search for the next scans where the first scan was.
+
+        Taken as a pose estimate at the first scan's robot pose, searched for within
+        ``GAP_REACH`` and a full turn (``set_pose``): a recording played again from its start
+        is found there; from elsewhere its scans are not mapped (no place explains them) until
+        a pose estimate places them. Returns the words for the warning.
+        """
+        if self._first_base is None:
+            return 'no scan mapped yet: mapped as the first'
+        var = (np.array([GAP_REACH, GAP_REACH, math.pi]) / POSE_ESTIMATE_SIGMAS) ** 2
+        self._waiting.append((PoseEstimate(stamp, self.map_frame, self._first_base.copy(),
+                                           np.diag(var)), None))
+        return 'searching for its scans where the first scan was'
 
     def _scan_time_jump(self, scan: Scan, newest: float) -> tuple:
         """
         Scan mode: ``scan`` is stamped ``TIME_JUMP_BACK`` or more before its laser's newest.
 
         The clock jumped back (a recording played again): the motion since the last scan means
-        nothing and the robot is anywhere. Taken as a pose estimate at the first scan's place,
-        searched for within ``GAP_REACH`` and a full turn (``set_pose``): a recording played
-        again from its start is found there; from elsewhere its scans are not mapped (no
-        place explains them) until a pose estimate places them. Returns the warning.
+        nothing and the robot is anywhere: searched for where the first scan was
+        (``_search_from_start``). Returns the warning.
         """
         self._scan_stamps.clear()
-        where = ('no scan mapped yet: mapped as the first' if self._first_base is None else
-                 'searching for its scans where the first scan was')
-        if self._first_base is not None:
-            var = (np.array([GAP_REACH, GAP_REACH, math.pi]) / POSE_ESTIMATE_SIGMAS) ** 2
-            self._waiting.append((PoseEstimate(scan.stamp, self.map_frame,
-                                               self._first_base.copy(), np.diag(var)), None))
+        where = self._search_from_start(scan.stamp)
         return ('time_jump', f'scan of frame {scan.frame_id!r} stamped {scan.stamp:.3f}, '
                 f'{newest - scan.stamp:.1f} s before its newest: the clock jumped back; {where}')
 
