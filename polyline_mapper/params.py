@@ -184,6 +184,7 @@ CORE_RANGES = {
     'incremental.max_mapping_range': (0.0, _BIG),
     'incremental.max_scan_points': (16, 10 ** 7),
     'smemsf.sigma': (0.0, 10.0),
+    'smemsf.range_noise': (0.0, 1.0),
     'smemsf.sigma_min': (0.0, 10.0),
     'smemsf.sigma_start': (0.0, 100.0),
     'smemsf.shrink_fast': (0.0, 1.0),
@@ -360,6 +361,12 @@ def settings_from(values: dict) -> tuple:
         raise ValueError(f'initial_pose must be 3 finite numbers (x, y, yaw: m, m, rad), got '
                          f'{list(pose)}')
     node['initial_pose'] = pose
+    if node['pose_source'] == 'scan':
+        # Scans alone are placed by matching them (the session's scan mode implies it): the
+        # node then publishes the pose and takes pose estimates on initialpose, which a lost
+        # track waits for (without them, the matched poses were unseen and a lost node could
+        # not be placed again).
+        node['scan_matching'] = True
     if node['map_input_path'].strip():
         # Localizing on a saved map is matching to it: the node is then the localizer and
         # broadcasts map -> odom and the pose (without them it localized, unseen, or, with

@@ -199,6 +199,15 @@ def test_a_saved_map_makes_the_node_a_localizer():
     assert settings.scan_matching is True and settings.fixed_frame == 'map'
 
 
+def test_scans_alone_make_the_node_a_localizer():
+    # pose_source scan implies matching in the session, but the node's scan_matching stayed
+    # false: it published no pose and took no pose estimate on initialpose, which a lost
+    # scans-only track waits for (a new-user audit).
+    values = defaults()
+    values.update(pose_source='scan')
+    assert settings_from(values)[0].scan_matching is True
+
+
 def test_an_empty_trajectory_is_not_exported_as_an_empty_file(empty_map, tmp_path, capsys):
     # A map whose "trajectory" is [] (a node's ~/save_map before its first scan) wrote an
     # empty TUM / CSV file with exit 0 ("0 poses"); a map without one is refused.

@@ -91,7 +91,7 @@ def test_with_only_drifting_odometry_the_node_localizes_and_maps_consistently(
     run = _run(office_drive, tmp_path, mode, params)
     node, peer, tfs, poses = run['node'], run['peer'], run['tfs'], run['poses']
     truth, odom = run['truth'], run['odom']
-    assert 'scan matching: broadcasting map -> odometry frame' in node.stderr()
+    assert 'scan matching: pose on /pose, broadcasting map -> odometry frame' in node.stderr()
     # map -> odom on /tf: map -> odom -> base_link is the true base pose, odometry alone is not
     assert {(t.header.frame_id, t.child_frame_id) for t in tfs} == {('map', 'odom')}
     k = [round((stamp_of(t) - run['t0']) * RATE) for t in tfs]
@@ -155,3 +155,37 @@ def test_a_second_localizer_on_tf_is_warned_about(office_drive, tmp_path):
         node.stop()
     warned = node.lines('another node broadcasts')
     assert len(warned) == 1 and 'map -> odom on /tf' in warned[0], warned
+
+
+def test_scans_alone_publish_the_pose_and_no_transform(tmp_path):
+    # pose_source scan without scan_matching set: the node matched the scans (the session's
+    # scan mode implies it) but published no pose and took no pose estimate, and with it set
+    # it warned "not broadcasting map -> None" on every scan (a new-user audit). The
+    # diagnostics' name is the node's full name, so two robots' nodes are told apart.
+    from diagnostic_msgs.msg import DiagnosticArray
+    from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
+    drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), step=0.1, turn=0.1, rng=3)
+    scans = [m for m in drive_messages(drive, map_to_odom=None) if m[1] == '/scan'][:80]
+    node = NodeProcess(tmp_path, {'map_output_path': str(tmp_path / 'map.json'),
+                                  'pose_source': 'scan', 'diagnostics_period': 0.2})
+    peer = Peer('test_peer_scans_alone')
+    try:
+        tfs, poses = _listen(peer)
+        diags = []
+        peer.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+        assert peer.wait_for_node(TIMEOUT), node.stderr()
+        last = peer.play(scans, RATE, mode='scan')
+        assert peer.spin_until(lambda: poses and stamp_of(poses[-1]) == pytest.approx(
+            last, abs=1e-6) and diags, TIMEOUT), node.stderr()[-3000:]
+    finally:
+        peer.close()
+        node.stop()
+    assert len(poses) >= 70 and {p.header.frame_id for p in poses} == {'map'}
+    # the laser's pose (no mount known), the first scan at the origin of map
+    laser = np.asarray(drive.poses[:80], dtype=float)
+    want = se2_compose(np.repeat(se2_inverse(laser[:1]), 80, axis=0), laser)
+    k = [round((stamp_of(p) - stamp_of(poses[-1])) * RATE) + 79 for p in poses]
+    got = np.array([_planar(p.pose.pose) for p in poses])
+    assert np.hypot(*(got[:, :2] - want[k, :2]).T).max() < 0.1
+    assert not tfs and not node.lines('not broadcasting'), node.stderr()[-2000:]
+    assert {s.name for d in diags for s in d.status} == {'/polyline_mapper_node: mapping'}

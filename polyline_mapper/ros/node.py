@@ -187,8 +187,10 @@ class PolylineMapperNode(Node):
         s = self.settings
         log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
                  f'poses from {s.pose_source}, update every {s.update_every_n_scans} scan(s)'
-                 + (f'; scan matching: broadcasting {s.fixed_frame} -> odometry frame, pose on '
-                    f'{self.resolve_topic_name("pose")}' if s.scan_matching else ''))
+                 + (f'; scan matching: pose on {self.resolve_topic_name("pose")}'
+                    + ('' if s.pose_source == 'scan' else
+                       f', broadcasting {s.fixed_frame} -> odometry frame')
+                    if s.scan_matching else ''))
 
     # -- parameters ----------------------------------------------------------------------------
     def _values(self, changes=()) -> dict:
@@ -368,6 +370,8 @@ class PolylineMapperNode(Node):
         self._localized = loc
         frame = self.settings.fixed_frame
         self.pose_pub.publish(pose_msg(frame, time_msg(loc.stamp), loc.pose, loc.covariance))
+        if loc.odom_frame is None and self.settings.pose_source == 'scan':
+            return                          # scans alone: no odometry frame to correct
         if loc.odom_frame is None or loc.odom_frame == frame:
             self.warnings.warn('tf_frames', f'not broadcasting {frame} -> {loc.odom_frame}: the '
                                'odometry frame must differ from fixed_frame with scan matching')
@@ -425,7 +429,8 @@ class PolylineMapperNode(Node):
         for key in ('scan_matching', 'match_jumps'):
             for what, n in st.get(key, {}).items():
                 values[f'{key}_{what.replace(" ", "_")}'] = n
-        self.diag_pub.publish(diagnostics_msg(f'{self.get_name()}: mapping', level, message,
+        self.diag_pub.publish(diagnostics_msg(f'{self.get_fully_qualified_name()}: mapping',
+                                              level, message,
                                               values, self.get_clock().now().to_msg()))
 
     def close(self) -> None:
