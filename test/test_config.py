@@ -19,7 +19,8 @@ def test_replay_names_the_node_parameters_of_a_file_it_does_not_read(tmp_path, c
     from conftest import REPO
     from polyline_mapper.cli import main
     from polyline_mapper.config import unread_node_params
-    for name in ('polyline_mapper.yaml', 'lds01.yaml', 'free_space.yaml', 'no_free_space.yaml'):
+    for name in ('polyline_mapper.yaml', 'lds01.yaml', 'rplidar.yaml', 'free_space.yaml',
+                 'no_free_space.yaml'):
         assert unread_node_params(str(REPO / 'config' / name)) == [], name
     path = tmp_path / 'tb3.yaml'
     path.write_text('/**:\n  ros__parameters:\n    chord_knots: median\n    transform_timeout: 0.1'

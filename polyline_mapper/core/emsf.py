@@ -63,13 +63,16 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
             longer[:, 0] = segments[:, 0] - extend * u
             longer[:, 1] = segments[:, 1] + extend * u
             segments = longer
-        pairs = index.pairs(segments, kappa * sigma)
+        pairs = index.pairs(segments, kappa * index.widest(sigma))
+    scale = index.sigmas(sigma)
+    if scale is not None:               # each point's own cut-off, kappa times its noise scale
+        pairs = _within(pairs, pairs.dist <= kappa * scale.take(pairs.pt))
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
     # Kernel and outlier class relative to each point's nearest segment, so nothing underflows
     # however far the cut-off (log-sum-exp shift).
     pt = pairs.pt
-    z = (pairs.dist / sigma) ** 2
+    z = (pairs.dist / (sigma if scale is None else scale.take(pt))) ** 2
     zmin = np.full(n, np.inf)
     np.minimum.at(zmin, pt, z)
     g = np.exp(-0.5 * (z - zmin.take(pt)))
@@ -87,6 +90,14 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     support = np.full(n, -1, dtype=np.intp)
     support[pt.take(win)] = pairs.seg.take(win)
     return EStep(pairs, w, support)
+
+
+def _within(p: Pairs, keep: np.ndarray) -> Pairs:
+    """Return the pairs of ``p`` where ``keep`` (all of them: ``p`` itself)."""
+    if keep.all():
+        return p
+    ids = np.flatnonzero(keep)
+    return Pairs(*(np.take(a, ids) for a in (p.pt, p.seg, p.dist, p.along, p.normal)))
 
 
 def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int,

@@ -323,6 +323,7 @@ class IncrementalMapper:
         self._grid = SegmentGrid(self.config.cell)
         self._buffer = deque(maxlen=int(self.config.buffer_scans))
         self._cells = deque(maxlen=int(self.config.buffer_scans))   # grid cells of each scan
+        self._extra = deque(maxlen=int(self.config.buffer_scans))   # range noise of each point
         self._noise = []
         self._scales = deque(maxlen=int(self.config.sigma_window))
         self._spacings = deque(maxlen=int(self.config.sigma_window))
@@ -432,6 +433,7 @@ class IncrementalMapper:
         """Bytes held by the map arrays and the scan buffer."""
         return (self._seg.nbytes + self._sup.nbytes + self._alive.nbytes + self._box.nbytes
                 + sum(p.nbytes for p in self._buffer) + sum(c.nbytes for c in self._cells)
+                + sum(e.nbytes for e in self._extra)
                 + self._ev_at.nbytes + self._ev_n.nbytes + self._pool.nbytes
                 + sum(g.nbytes for g in self._ghosts)
                 + (self._memory.nbytes if self._memory is not None else 0))
@@ -488,6 +490,7 @@ class IncrementalMapper:
                               beyond_range=beyond)
         self._buffer.append(pts)
         self._cells.append(self._grid.cells(pts))
+        self._extra.append(self._range_noise(pts, origins))
         self._note_spacing(pts, ordered)
         window = np.concatenate(self._buffer)
         if not self._sigma_ready(window):
@@ -503,9 +506,12 @@ class IncrementalMapper:
         active = active[near_points(window, self._seg[active], REFIT_REACH * reach)]
         old = self._seg[active]
         virt, vw = self._virtual_points(old, self._sup[active], r)
+        extra = np.concatenate(self._extra)
         index = PointIndex(np.concatenate([window, virt]),
                            np.concatenate([np.ones(len(window)), vw]), virtual=len(virt),
-                           sample_spacing=8.0)
+                           sample_spacing=8.0,
+                           extra=np.concatenate([extra, np.zeros(len(virt))]) if extra.any()
+                           else None)
         segs = old
         for _ in range(int(self.config.iterations)):
             segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, incremental=True)
@@ -562,6 +568,14 @@ class IncrementalMapper:
         if keep.all():
             return pts, origins, 0
         return pts[keep], origins[keep], int(keep.size - np.count_nonzero(keep))
+
+    def _range_noise(self, pts: np.ndarray, origins) -> np.ndarray:
+        """Return each point's noise beyond sigma (m): ``range_noise`` x its range (0 bare)."""
+        share = self.config.smemsf.range_noise
+        if origins is None or not share:
+            return np.zeros(len(pts))
+        rel = pts - origins
+        return share * np.hypot(rel[:, 0], rel[:, 1])
 
     def _thin(self, pts: np.ndarray, origins) -> tuple:
         """Thin each run of one origin to ``max_scan_points`` (every k-th point, in order)."""

@@ -96,7 +96,7 @@ class PointIndex:
     """
 
     def __init__(self, points: np.ndarray, weights: np.ndarray = None, virtual: int = 0,
-                 sample_spacing: float = 3.0):
+                 sample_spacing: float = 3.0, extra: np.ndarray = None):
         """
         Index points with optional multiplicities.
 
@@ -106,6 +106,11 @@ class PointIndex:
         index and a wider reach, so more candidates to discard. 3 suits large dense point sets
         (a batch fit, scoring a map); on the incremental mapper's small queries (2-4k points,
         tens of segments) 8 was fastest of 2-12, 0.8x the time at 3.
+
+        ``extra`` (N,): each point's noise beyond the map's noise scale, metres (a lidar's error
+        that grows with the range: ``SMEMSFConfig.range_noise`` x the range; 0 for virtual
+        points). A point's own noise scale is then hypot(sigma, extra) (``sigmas``); None: every
+        point has the map's sigma.
         """
         self.points = as_points(points)
         self.weights = (np.ones(len(self.points)) if weights is None
@@ -117,6 +122,13 @@ class PointIndex:
         self.sample_spacing = float(sample_spacing)
         self.x, self.y = self.points[:, 0].copy(), self.points[:, 1].copy()
         self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+        self.extra = None
+        if extra is not None:
+            extra = np.asarray(extra, dtype=np.float64)
+            if extra.shape != (len(self.points),) or not (np.isfinite(extra) & (extra >= 0)).all():
+                raise ValueError(f'extra must be {len(self.points)} finite values >= 0')
+            if extra.size and extra.max() > 0:
+                self.extra = extra
 
     def __len__(self) -> int:
         return len(self.points)
@@ -166,6 +178,14 @@ class PointIndex:
         keep = np.flatnonzero(home & (dist <= radius))
         return Pairs(pt.take(keep).astype(np.intp, copy=False), owner.take(si.take(keep)),
                      dist.take(keep), along.take(keep), normal.take(keep))
+
+    def sigmas(self, sigma: float):
+        """Return each point's noise scale (N,) at the map's ``sigma`` (m); None: all ``sigma``."""
+        return None if self.extra is None else np.hypot(sigma, self.extra)
+
+    def widest(self, sigma: float) -> float:
+        """Return the largest noise scale of a point (m) at the map's ``sigma``."""
+        return sigma if self.extra is None else float(np.hypot(sigma, self.extra.max()))
 
     def count_in_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """Total point weight within ``radius`` of each centre, shape (len(centres),)."""

@@ -62,6 +62,12 @@ class SMEMSFConfig:
 
     sigma: Optional[float] = None
     """Sensor noise (m). None or 0: estimated from the points (local PCA thickness)."""
+    range_noise: float = 0.0
+    """The laser's range error that grows with the range, as a share of it (0.01: 1 cm at 1 m).
+    A point at range d then has the noise scale hypot(sigma, range_noise x d), and its E-step
+    kernel and cut-off (kappa times that) follow it, so the far, noisy returns of a cheap lidar
+    support their wall instead of seeding stubs across it. Needs the beams' origins (replay,
+    the node, ``fit`` with origins); 0: one noise scale for all points."""
     sigma_min: float = 0.005
     """Lower bound of the noise scale (m); below it registration error dominates any laser."""
     sigma_start: Optional[float] = None
@@ -140,6 +146,10 @@ class SMEMSFConfig:
             raise ValueError(f'split_fraction must be in [0, 1), got {self.split_fraction!r}')
         if not self.gap_p < 1:
             raise ValueError(f'gap_p must be in (0, 1), got {self.gap_p!r}')
+        if not (isinstance(self.range_noise, (int, float, np.number))
+                and np.isfinite(self.range_noise) and 0 <= self.range_noise <= 1):
+            raise ValueError(f'range_noise must be a share of the range in [0, 1], got '
+                             f'{self.range_noise!r}')
         if not (np.isfinite(self.min_density) and self.min_density >= 0):
             raise ValueError(f'min_density must be a finite number >= 0, got {self.min_density!r}')
         if self.min_support < 2:
@@ -272,7 +282,7 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     # its parent's line, so a point within kappa sigma of a piece extended by e is within
     # kappa sigma + e of the parent (one k-d tree query fewer per iteration).
     extend = extend_for(index, r)
-    rho = config.kappa * sigma
+    rho = config.kappa * index.widest(sigma)
     segments, parent, parent_pairs, start = split_segments(
         index, segments, r, config.split_fraction, config.gap_p, query_radius=rho + extend,
         return_pairs=True)
@@ -283,11 +293,16 @@ def smemsf_iteration(index: PointIndex, segments: np.ndarray, sigma: float,
     segments, support, merges = merge_segments(
         index, segments, support, sigma, r, np.deg2rad(config.merge_theta_ref),
         config.merge_threshold, config.merge_reach * r, config.split_fraction, config.gap_p)
-    # Residuals of supported points (to their MAP segment) and the truncated nearest distance.
+    # Residuals of supported points (to their MAP segment) and the truncated nearest distance;
+    # a point of its own noise (``PointIndex.extra``) in units of it, times sigma.
     cap = config.kappa * sigma
     nearest = np.full(len(index), cap)
     if len(est.pairs.pt):
-        np.minimum.at(nearest, est.pairs.pt, est.pairs.dist)
+        dist = est.pairs.dist
+        noisy = index.sigmas(sigma)
+        if noisy is not None:
+            dist = dist * (sigma / noisy.take(est.pairs.pt))
+        np.minimum.at(nearest, est.pairs.pt, dist)
     sup = est.support >= 0
     sup[index.n_real:] = False                 # virtual points sit on their segments exactly
     resid = nearest.compress(sup)
@@ -361,7 +376,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         out (``free_space_cut``: doorways, people's tracks, things moved during the recording),
         and ``EVIDENCE_ROUNDS`` more iterations each start with that cut, so what the cut
         leaves is refit and what it took is seeded again and judged again; a last cut ends
-        the fit. None (bare points): nothing changes, and ``FitResult.beams`` is 0.
+        the fit. With ``config.range_noise``, the ranges set each point's noise scale too.
+        None (bare points): nothing changes, and ``FitResult.beams`` is 0.
     free_space_window : int
         With ``origins``: the looks at a square over which its evidence decays (>= 1; the
         incremental mapper's ``free_space_window``), by default ``split.EVIDENCE_WINDOW``.
@@ -404,7 +420,11 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         raise ValueError('free_space_hit_margin must be a finite number >= 0, got '
                          f'{free_space_hit_margin!r}')
     rng = np.random.default_rng(config.seed)
-    index = PointIndex(pts, weights)
+    extra = None
+    if origins is not None and config.range_noise:
+        rel = pts - origins
+        extra = config.range_noise * np.hypot(rel[:, 0], rel[:, 1])
+    index = PointIndex(pts, weights, extra=extra)
     floor = _noise_floor(pts, config, rng)
     diag = float(np.hypot(*(pts.max(axis=0) - pts.min(axis=0))))
     sigma = max(config.sigma_start or diag / 20.0, floor)

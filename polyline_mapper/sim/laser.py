@@ -24,6 +24,10 @@ class LaserSpec:
     range_max: float = 12.0
     noise: float = 0.01
     """Standard deviation of the range noise (m)."""
+    noise_share: float = 0.0
+    """Standard deviation of a second range noise, as a share of the range (0.01: 1 cm at 1 m;
+    cheap lidars, RPLidar-class). Drawn after the dropouts, so a drive with it has the same
+    dropouts and constant noise as the drive without it (same seed)."""
     dropout: float = 0.01
     """Probability that a beam returns NaN."""
 
@@ -35,8 +39,8 @@ class LaserSpec:
             raise ValueError(f'fov must be in (0, 2 pi], got {self.fov!r}')
         if not 0 <= self.range_min < self.range_max:
             raise ValueError('need 0 <= range_min < range_max')
-        if self.noise < 0 or not 0 <= self.dropout < 1:
-            raise ValueError('need noise >= 0 and 0 <= dropout < 1')
+        if self.noise < 0 or not 0 <= self.dropout < 1 or not 0 <= self.noise_share < 1:
+            raise ValueError('need noise >= 0, 0 <= noise_share < 1 and 0 <= dropout < 1')
 
     @property
     def angle_min(self) -> float:
@@ -71,10 +75,13 @@ def simulate_scan(world: World, pose, spec: LaserSpec, rng, t: float = None) -> 
     d = np.stack([np.cos(ang), np.sin(ang)], axis=1)
     true, hit = world.cast(pose[..., :2], d, t)
     ranges = true + rng.normal(0.0, spec.noise, size=true.shape)
+    drop = rng.random(true.shape) < spec.dropout
+    if spec.noise_share:
+        seen = np.isfinite(true)
+        ranges[seen] += rng.normal(0.0, spec.noise_share, size=int(seen.sum())) * true[seen]
     ranges[(true >= spec.range_max) | ~np.isfinite(true)] = np.inf
     hit = np.where(np.isfinite(ranges), hit, -1)
     ranges[ranges < spec.range_min] = -np.inf
-    drop = rng.random(true.shape) < spec.dropout
     ranges[drop] = np.nan
     hit[drop] = -1
     return ranges, hit
