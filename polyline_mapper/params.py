@@ -71,6 +71,11 @@ NODE_PARAMS = (
               'odom) on /tf and the base pose on pose (PoseWithCovarianceStamped). Off: the '
               'poses are used as given (a robot with its own localizer). A map_input_path turns '
               'it on.'),
+    ParamSpec('odom_frame', '',
+              'scan_matching: the odometry frame, the child of the fixed_frame -> odom transform '
+              "the node broadcasts. '' = found: the first odometry message's frame (odom mode) "
+              "or the root of the scan frame's TF tree (tf mode). Set it when that root is not "
+              'the odometry frame (e.g. robot1/odom on a multi-robot tree).'),
     ParamSpec('chord_knots', 'arc',
               "scan_matching: where the knots of the last scans' chords (matched to beside the "
               "map) lie along each scan: 'arc' every 0.15 m of the arc through its readings; "
@@ -266,6 +271,7 @@ class NodeSettings:
     fixed_frame: str
     pose_source: str
     scan_matching: bool
+    odom_frame: str
     chord_knots: str
     map_odom_post_date: float
     transform_tolerance: float
@@ -352,6 +358,13 @@ def settings_from(values: dict) -> tuple:
         raise ValueError('map_output_path must not be empty')
     if node['fixed_frame'].lstrip('/') != node['fixed_frame']:
         raise ValueError(f"fixed_frame must not start with '/', got {node['fixed_frame']!r}")
+    odom = node['odom_frame'].strip()
+    if odom.lstrip('/') != odom:
+        raise ValueError(f"odom_frame must not start with '/', got {node['odom_frame']!r}")
+    if odom == node['fixed_frame']:
+        raise ValueError(f'odom_frame must differ from fixed_frame ({odom!r}): the node '
+                         'broadcasts fixed_frame -> odom_frame')
+    node['odom_frame'] = odom
     color = tuple(float(c) for c in node['marker_color'])
     if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
         raise ValueError(f'marker_color must be 4 numbers in [0, 1] (r, g, b, a), got {color}')

@@ -681,6 +681,11 @@ class SessionOptions:
     arc whose steps are medians of their neighbours', for lidars whose range noise grows with
     the range (a TurtleBot3's LDS-01, RPLidar-class), where 'arc' turns every match the same
     way (1.9-4.9 deg over a 3-minute simulated drive, benchmarks/cheap_lidar.py)."""
+    odom_frame: Optional[str] = None
+    """Scan matching into ``fixed_frame``: the odometry frame, whose correction fixed frame ->
+    it the session computes (the node broadcasts it). None: the first odometry's frame (odom
+    mode) or the root of the scan frame's TF tree (tf mode); set it when that root is not the
+    odometry frame (a 'world' above each robot's 'robotN/odom')."""
     odom_gap_factor: float = 1.5
     """A scan whose stamp falls between two odometry messages (odom mode) or two transforms of
     the odometry edge (tf mode: the lowest moving transform above the laser, odom ->
@@ -759,9 +764,10 @@ class PoseSource:
         no map frame: set at the first posed scan): the session publishes that frame (map ->
         odom), so the poses are looked up in ``odom_frame`` and transforms from the fixed frame
         (its own map -> odom, read back from /tf) are never a pose source."""
-        self.odom_frame = None
+        self.odom_frame = (options.odom_frame or None) if self.localizer else None
         """The frame the poses are looked up in: the fixed frame, or (``localizer``) the
-        odometry frame (odom mode) / the root of the scan frame's tree (tf mode)."""
+        odometry frame: ``options.odom_frame``, else the first odometry's frame (odom mode) /
+        the root of the scan frame's tree (tf mode)."""
         self.base_frame = None
         """The robot base: the odometry's child frame (odom mode), or in the localizer's tf mode
         the frame under ``odom_frame`` on the scan frame's chain."""
@@ -774,6 +780,8 @@ class PoseSource:
         self._static = set()
         """Frames whose edge to their parent is static (a mount)."""
         self._under_fixed = set()           # localizer: children of ignored fixed-frame edges
+        self._held = {}                     # their warnings, until the robot's chain is known
+        self._wrong_chain = None            # a scan's chain that reached one of them
         self._mounted = False
         self._newest = {}
         """Child frame -> (stamp, translation, rotation) of its newest dynamic edge sample."""
@@ -799,9 +807,16 @@ class PoseSource:
                 if record.child == self.odom_frame:
                     return None     # our own map -> odom read back: never a pose source
                 self._under_fixed.add(record.child)
-                return ('tf_frames', f'ignored transform {record.parent} -> {record.child}: with '
-                        f'scan matching this session owns the map frame {self.fixed_frame!r} '
+                text = (f'ignored transform {record.parent} -> {record.child}: with scan '
+                        f'matching this session owns the map frame {self.fixed_frame!r} '
                         '(another localizer, or fixed_frame set to the odometry frame?)')
+                if self.base_frame is None:
+                    # Before the robot's chain is known: said once it is, if the frame is on
+                    # it (another robot's map -> its odom, on a shared map frame, is not).
+                    if len(self._held) < MAX_SCAN_FRAMES:
+                        self._held.setdefault(record.child, text)
+                    return None
+                return ('tf_frames', text) if self._on_our_chain(record.child) else None
             if not record.static:
                 if not self._in_order(record.parent, record.child, record.stamp,
                                       record.translation, record.rotation):
@@ -815,8 +830,10 @@ class PoseSource:
                     self.odom_frame = record.frame_id
                 elif record.frame_id != self.odom_frame:
                     self._refuse_odometry(record.frame_id)
+                    which = ('odom_frame' if self.options.odom_frame
+                             else 'the first odometry')
                     raise RecordSkipped('odom_frame', f'odometry in frame {record.frame_id!r}, '
-                                        f'expected {self.odom_frame!r} as the first odometry')
+                                        f'expected {self.odom_frame!r} as {which}')
             elif self.fixed_frame is None:
                 self.fixed_frame = record.frame_id
             elif record.frame_id != self.fixed_frame:
@@ -922,8 +939,25 @@ class PoseSource:
                 frame = MOUNT_FRAME
         elif self.localizer:
             chain = self._chain(frame)
+            if self.options.odom_frame and self.options.odom_frame not in chain:
+                raise TransformLookupError(
+                    'no_tf', f'frame {frame!r} does not reach odom_frame '
+                    f'{self.options.odom_frame!r} (its tree goes up to {chain[-1]!r})')
+            if self.odom_frame in chain:
+                # The odometry frame, given or found (the root) once, stays it: a frame
+                # another node later puts above it (a second robot's localizer) is not ours.
+                chain = chain[:chain.index(self.odom_frame) + 1]
             target = chain[-1]
+            if target in self._parents:
+                raise TransformLookupError(
+                    'tf_frames', f'the odometry frame {target!r} has the parent '
+                    f'{self._parents[target]!r} on /tf: {self.fixed_frame} -> {target} would '
+                    f'give it a second one. Put {self.fixed_frame!r} under '
+                    f'{self._parents[target]!r} instead'
+                    + ('' if self.options.odom_frame else ", or set odom_frame (the robot's "
+                       'own odometry frame)'))
             if target in self._under_fixed and self._static.issuperset(chain[:-1]):
+                self._wrong_chain = chain       # its held warning is said (``held_notes``)
                 raise TransformLookupError(
                     'tf_frames', f'frame {frame!r} moves only through the ignored transform '
                     f'{self.fixed_frame} -> {target}: with scan matching fixed_frame must be a '
@@ -957,6 +991,33 @@ class PoseSource:
         else:
             self.fixed_frame = self.odom_frame = target
         return pose
+
+    def held_notes(self) -> list:
+        """
+        Return the warnings held back until the robot's chain was known.
+
+        Those of transforms from the fixed frame to a frame on it (``add``), or on a scan's
+        chain that could only reach the fixed frame through one (fixed_frame set to the
+        odometry frame); the others are dropped.
+        """
+        if not self._held or (self.base_frame is None and self._wrong_chain is None):
+            return []
+        held, self._held = self._held, {}
+        return [('tf_frames', text) for child, text in held.items()
+                if self._on_our_chain(child) or child in (self._wrong_chain or ())]
+
+    def _on_our_chain(self, frame: str) -> bool:
+        """
+        Return whether ``frame`` lies on our robot's chain (localizer, its base frame known).
+
+        A transform fixed frame -> it is then another localizer's over our robot, or
+        fixed_frame is set wrong; another robot's odometry frame under a shared map frame is
+        not on it.
+        """
+        try:
+            return frame in self._chain(self.base_frame)
+        except TransformLookupError:
+            return False
 
     def _refuse_odometry(self, frame: str) -> None:
         """Count an odometry message refused for its frame while none has been taken."""
@@ -1693,11 +1754,13 @@ class MappingSession:
                     if exc.curable and not give_up:
                         break       # keep the order: later scans wait behind this one
                     self._waiting.popleft()
+                    notes.extend(self.poses.held_notes())
                     notes.append(self._skip('no pose', exc.cause,
                                             f'frame {scan.frame_id!r} at {scan.stamp:.3f}: '
                                             f'{exc}'))
                     continue
                 self._waiting.popleft()
+                notes.extend(self.poses.held_notes())
                 notes.extend(self._convert(scan, pose, arrived))
             if opts.max_queue is not None:
                 while len(self._ready) > opts.max_queue:

@@ -236,3 +236,15 @@ def test_scans_only_localize_from_the_initial_pose(office_map, tmp_path, capsys)
         laser = np.asarray(rec.drive.poses)[::2]        # no mount: the robot is the laser
     assert len(traj) == len(laser)
     assert np.max(np.hypot(*(traj[:, 1:3] - laser[:, :2]).T)) < 0.05
+
+
+def test_odom_frame_is_checked_and_handed_to_the_session():
+    from polyline_mapper.ros.node import session_options
+    values = defaults()
+    assert session_options(settings_from(values)[0]).odom_frame is None     # found
+    values.update(scan_matching=True, odom_frame=' robot1/odom ')
+    assert session_options(settings_from(values)[0]).odom_frame == 'robot1/odom'
+    for bad, why in (('/robot1/odom', "must not start with '/'"), ('map', 'must differ')):
+        values.update(odom_frame=bad)
+        with pytest.raises(ValueError, match=why):
+            settings_from(values)

@@ -341,3 +341,51 @@ def test_a_bag_played_again_is_searched_for_where_it_started_not_placed_by_the_o
     assert len(jumps) == 1 and 'searching for its scans where the first scan was' in jumps[0]
     segments = session.map_value().segments
     assert office_drive.world.distance(sample_segments(segments, 0.05)[0]).max() < 0.1
+
+
+def _two_robots(office_drive, odom_frame=None, world=None, other=None, after=0) -> tuple:
+    """Map robot1's first 40 scans (frames robot1/...) beside another robot's transforms."""
+    warned = []
+    session = MappingSession(None, SessionOptions(scan_matching=True, fixed_frame='map',
+                                                  odom_frame=odom_frame),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    session.add(tf(0.0, 'robot1/base_link', 'laser', MOUNT, static=True))
+    if world is not None:                  # a frame above the robot's odometry frame
+        session.add(tf(0.0, 'world', world, (0.0, 0.0, 0.0), static=True))
+    truth = _base(office_drive)
+    odoms = []
+    for i in range(40):
+        session.add(tf(float(i), 'robot1/odom', 'robot1/base_link', truth[i]))
+        if other is not None and i >= after:   # another robot's localizer on the same /tf
+            session.add(tf(float(i), *other, (5.0, 1.0, 0.3)))
+        session.add(scan_of(office_drive, i, float(i)))
+        session.step()
+        odoms.append(session.poses.odom_frame)
+    session.flush()
+    return session, warned, odoms
+
+
+def test_another_robots_map_to_odom_is_not_a_fight_and_never_our_odometry_frame(office_drive):
+    # Two robots localize on one map frame: map -> robot2/odom from the other node is legal,
+    # yet each of its transforms was warned as 'two localizers fight' (a new-user audit).
+    session, warned, odoms = _two_robots(office_drive, other=('map', 'robot2/odom'))
+    assert not warned and set(odoms) == {'robot1/odom'} and session.used == 40
+    # A frame above the robot's odometry ('world' -> robot1/odom): its root ('world') is taken
+    # as the odometry frame. When the other robot's node later put its map above 'world',
+    # ours followed the tree up and broadcast map -> robot2/map. The odometry frame found
+    # once stays, and the conflict is named instead (the scans are not placed through it).
+    session, warned, odoms = _two_robots(office_drive, world='robot1/odom',
+                                         other=('robot2/map', 'world'), after=10)
+    assert set(odoms) == {'world'} and session.used == 10
+    assert session.stats()['skipped'] == {'no pose: tf_frames': 30}
+    assert "the odometry frame 'world' has the parent 'robot2/map'" in warned[-1][1]
+    # odom_frame names the odometry frame: that tree is refused from the first scan (map ->
+    # robot1/odom would give it a second parent) ...
+    session, warned, odoms = _two_robots(office_drive, odom_frame='robot1/odom',
+                                         world='robot1/odom')
+    assert session.used == 0 and "Put 'map' under 'world' instead" in warned[0][1], warned
+    # ... and one with the map frame under 'world' localizes, whatever else is on /tf
+    session, warned, odoms = _two_robots(office_drive, odom_frame='robot1/odom', world='map',
+                                         other=('robot2/map', 'world'))
+    assert not warned and set(odoms) == {'robot1/odom'} and session.used == 40
+    assert session.localization.odom_frame == 'robot1/odom'

@@ -250,10 +250,17 @@ class PolylineMapperNode(Node):
         self.session.add_many(transforms_from_msg(msg, False))
 
     def _check_localizers(self, msg) -> None:
-        """Warn (throttled) when another node broadcasts fixed_frame -> X as this one does."""
+        """
+        Warn (throttled) when another node broadcasts fixed_frame -> X as this one does.
+
+        X: the odometry frame this node broadcasts to (once it is known); another robot's
+        fixed_frame -> its own odometry frame, on a shared map frame, is not a fight.
+        """
         frame = self.settings.fixed_frame
+        odom = self.session.poses.odom_frame
         for t in msg.transforms:
-            if (t.header.frame_id.lstrip('/') == frame
+            if (t.header.frame_id.lstrip('/') == frame and odom is not None
+                    and t.child_frame_id.lstrip('/') == odom
                     and (t.header.stamp.sec, t.header.stamp.nanosec) not in self._sent):
                 forced = (' (scan_matching is on because map_input_path is given)'
                           if self.settings.input_path else '')
@@ -511,7 +518,7 @@ def session_options(settings) -> SessionOptions:
         max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
         max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution,
         scan_matching=settings.scan_matching, mapping=settings.mapping,
-        chord_knots=settings.chord_knots)
+        chord_knots=settings.chord_knots, odom_frame=settings.odom_frame or None)
 
 
 def _cm(sigma) -> str:
