@@ -248,3 +248,14 @@ def test_odom_frame_is_checked_and_handed_to_the_session():
         values.update(odom_frame=bad)
         with pytest.raises(ValueError, match=why):
             settings_from(values)
+
+
+def test_a_namespaced_node_that_cannot_start_says_which_one():
+    # Its one line was logged as [polyline_mapper_node] whatever its namespace or name: with
+    # one node per robot, which robot's failed could not be told (a new-user audit).
+    from rosnode import assert_refused_in_one_line, start_refusals
+    argvs = [['-r', '__ns:=/robot1', '-p', 'fixed_frame:=/map'],
+             ['-r', '__node:=mapper2', '-p', 'odom_frame:=map']]
+    outcomes = start_refusals(argvs, timeout=20.0)
+    assert_refused_in_one_line(outcomes[0], ['[robot1.polyline_mapper_node]', "'/map'"])
+    assert_refused_in_one_line(outcomes[1], ['[mapper2]', 'odom_frame must differ'])

@@ -540,6 +540,23 @@ def _while_closing(signum, frame):
                                    '(finishing the map; SIGKILL stops the node at once)')
 
 
+def _named_logger():
+    """
+    Return the logger of the node as it would run (its namespace and name remaps applied).
+
+    A node that could not start leaves none: a stand-in of the same name is made for the
+    line, so /robot1's failure says [robot1.polyline_mapper_node], not [polyline_mapper_node].
+    """
+    try:
+        stand_in = rclpy.create_node(NODE_NAME, start_parameter_services=False,
+                                     enable_rosout=False)
+    except Exception:                   # noqa: B902 (the plain name is the fallback)
+        return get_logger(NODE_NAME)
+    logger = stand_in.get_logger()
+    stand_in.destroy_node()
+    return logger
+
+
 def main(args=None) -> int:
     """
     Run the node until SIGINT / SIGTERM; exit code 1 with one line on bad parameters.
@@ -561,7 +578,7 @@ def main(args=None) -> int:
     try:
         node = PolylineMapperNode()
     except ConfigError as exc:
-        get_logger(NODE_NAME).fatal(f'cannot start: {exc}')
+        _named_logger().fatal(f'cannot start: {exc}')
         rclpy.try_shutdown()
         return 1
     except KeyboardInterrupt:
