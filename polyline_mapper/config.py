@@ -85,15 +85,64 @@ def typed_value(spec, value, origin: str):
     return out
 
 
+NODE_BLOCK = 'polyline_mapper_node'
+"""The node's name: the block of a parameter file with several nodes' that is read."""
+
+
+def _node_blocks(data: dict, prefix: str = '', depth: int = 0) -> list:
+    """Return (name, ros__parameters) of every node block, namespaces nested or in the key."""
+    out = []
+    for key, value in data.items():
+        if not isinstance(value, dict) or depth > 16:
+            continue
+        name = f'{prefix}/{str(key).strip("/")}'
+        if 'ros__parameters' in value:
+            out.append((name, value['ros__parameters']))
+        else:
+            out.extend(_node_blocks(value, name, depth + 1))
+    return out
+
+
 def _ros_parameters(data: dict, path: str):
-    """Return the ``ros__parameters`` of a ROS 2 parameter file's node block, else None (flat)."""
-    for node in data.values():
-        if isinstance(node, dict) and 'ros__parameters' in node:
-            params = node['ros__parameters'] or {}
-            if not isinstance(params, dict):
-                raise ConfigError(f'{path}: ros__parameters must be a mapping')
-            return params
-    return None
+    """
+    Return the ``ros__parameters`` of a ROS 2 parameter file's node block, else None (flat).
+
+    A file with several nodes' blocks (a whole robot's, Nav2's style) gives this node's:
+    the one block named ``polyline_mapper_node`` (in any namespace) or ``/**``, both merged
+    when there are both (the named one wins, as for the node). Several robots' blocks
+    (/robot1/polyline_mapper_node, /robot2/...) are refused, naming them: which one is meant
+    cannot be told.
+    """
+    blocks = _node_blocks(data)
+    if not blocks:
+        return None
+    ours = [(n, p) for n, p in blocks if n.rsplit('/', 1)[-1] in ('**', NODE_BLOCK)]
+    if len(blocks) == 1:
+        ours = blocks
+    wild = [b for b in ours if b[0] == '/**']
+    named = [b for b in ours if b[0] != '/**']
+    if len(named) > 1 or not ours:
+        names = ', '.join(n for n, _ in (named if named else blocks))
+        why = (f'{len(named)} blocks for this node' if named
+               else f'{len(blocks)} node blocks, none named {NODE_BLOCK} or /**')
+        raise ConfigError(f'{path}: {why} ({names}): keep the one to read in a file of its own')
+    params = {}
+    for _, block in wild + named:
+        block = block or {}
+        if not isinstance(block, dict):
+            raise ConfigError(f'{path}: ros__parameters must be a mapping')
+        _merge(params, block)
+    return params
+
+
+def _merge(into: dict, block: dict) -> None:
+    """Merge parameter block ``block`` into ``into``, nested groups key by key."""
+    for key, value in block.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            into[key] = dict(into[key])
+            _merge(into[key], value)
+        else:
+            into[key] = value
 
 
 def _file_values(data: dict, keys: dict, path: str) -> dict:

@@ -79,3 +79,29 @@ def test_automatic_settings_take_none_and_every_core_entry_is_readable():
     values = read_values(None, [f'{n}={s.default}' for n, s in zip(names, [
         s for s in all_params() if s.name.startswith(('smemsf.', 'incremental.'))])])
     assert set(values) == set(names)
+
+
+def test_a_parameter_file_with_several_nodes_gives_this_nodes_block(tmp_path):
+    # A whole robot's file (Nav2's style): the first block was read, whichever node it was
+    # for (here AMCL's: its sigma_hit never reached the mapper, nor did smemsf.kappa). Now the
+    # polyline_mapper_node block, in any namespace, merged over a /** one; several robots'
+    # blocks are refused by name (a new-user audit: robot1's sigma was used for robot2).
+    path = tmp_path / 'robot.yaml'
+    path.write_text('amcl:\n  ros__parameters:\n    sigma: 0.2\n'
+                    '/**:\n  ros__parameters:\n    smemsf:\n      sigma: 0.03\n'
+                    'robot1:\n  polyline_mapper_node:\n    ros__parameters:\n'
+                    '      smemsf:\n        kappa: 2.5\n')
+    config = load_mapper_config(str(path))
+    assert (config.smemsf.sigma, config.smemsf.kappa) == (0.03, 2.5)
+    path.write_text('/robot1/polyline_mapper_node:\n  ros__parameters:\n    sigma: 0.05\n'
+                    'robot2:\n  polyline_mapper_node:\n    ros__parameters:\n      sigma: 0.01\n')
+    with pytest.raises(ConfigError, match=r'2 blocks for this node \(/robot1/polyline_mapper_'
+                                          r'node, /robot2/polyline_mapper_node\)'):
+        load_mapper_config(str(path))
+    path.write_text('amcl:\n  ros__parameters:\n    sigma: 0.2\n'
+                    'map_server:\n  ros__parameters:\n    yaml_filename: x.yaml\n')
+    with pytest.raises(ConfigError, match='2 node blocks, none named polyline_mapper_node'):
+        load_mapper_config(str(path))
+    # one block, whatever its name (a renamed node), is still read
+    path.write_text('mapper:\n  ros__parameters:\n    smemsf.sigma: 0.04\n')
+    assert load_mapper_config(str(path)).smemsf.sigma == 0.04
