@@ -5,6 +5,8 @@ Launch polyline_mapper_node with the installed parameter file.
     ros2 launch polyline_mapper polyline_mapper.launch.py params_file:=/path/my.yaml \
         scan_topic:=/base_scan use_sim_time:=true
     ros2 launch polyline_mapper polyline_mapper.launch.py pose_source:=odom scan_matching:=true
+    ros2 launch polyline_mapper polyline_mapper.launch.py namespace:=robot1 \
+        params_file:=/path/robot1.yaml
 
 The parameter file is keyed /** (it applies under any namespace); copy the installed one
 (share/polyline_mapper/config/polyline_mapper.yaml) to change the frames, the mount or the fit.
@@ -46,6 +48,7 @@ def _node(context, *args, **kwargs):
         package='polyline_mapper',
         executable='polyline_mapper_node',
         name='polyline_mapper_node',
+        namespace=LaunchConfiguration('namespace').perform(context),
         output='screen',
         emulate_tty=True,
         parameters=[LaunchConfiguration('params_file').perform(context), overrides],
@@ -60,6 +63,10 @@ def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=config,
                               description='ROS 2 parameter file for polyline_mapper_node'),
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='Namespace of the node and its topics (one per '
+                                          'robot); frames are parameters (fixed_frame, '
+                                          'odom_frame)'),
         DeclareLaunchArgument('use_sim_time', default_value='false',
                               description='Use /clock (bag playback, simulation)'),
         DeclareLaunchArgument('scan_topic', default_value='scan',

@@ -203,6 +203,9 @@ def test_launch_arguments_override_the_parameter_file_only_when_given(monkeypatc
     # By default the file's pose_source and scan_matching rule: only use_sim_time is set.
     assert node['parameters'] == [config, {'use_sim_time': False}]
     assert node['remappings'] == [('scan', 'scan'), ('odom', 'odom')]
+    assert node['namespace'] == ''
+    _, node = launch_node(monkeypatch, namespace='robot1')       # one node per robot
+    assert node['namespace'] == 'robot1' and node['remappings'][0] == ('scan', 'scan')
     # A robot with only odometry: one switch (issue 19), then the node's own check.
     _, node = launch_node(monkeypatch, pose_source='odom', scan_matching='True',
                           use_sim_time='true', params_file='/my.yaml', scan_topic='/base_scan')
