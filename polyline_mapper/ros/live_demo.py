@@ -98,7 +98,8 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
 
             def on_diagnostics(msg):
                 for status in msg.status:
-                    if status.name.startswith('polyline_mapper_node'):
+                    # '/polyline_mapper_node: mapping' (the node's full name)
+                    if status.name.lstrip('/').startswith('polyline_mapper_node'):
                         diag.clear()
                         diag.update({kv.key: kv.value for kv in status.values})
                         diag['_at'] = time.monotonic()
