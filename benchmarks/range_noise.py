@@ -17,10 +17,12 @@ wide) at 0.2 m/s, turning at 1 rad/s, once per range-noise seed (``LaserSpec.noi
 is mapped through the session (``replay_records``) with its true poses (TF), four ways: the
 noise scale estimated (the default), fixed at 2.5 cm (``config/lds01.yaml``), fixed at 5 cm, and
 estimated with ``range_noise`` 0.01 (each point's noise scale hypot(sigma, 0.01 x its range)).
-The rplidar drives are also mapped with scan matching from drifting odometry (``OdometryDrift``
-seed = the noise seed), estimated against range_noise. Scores, both ways: segments (shorter
-than 0.5 m), the map against the true points (mean distance, coverage within 0.10 m), the share
-of the map's length its own beams contradict (``free_space_stats``), and the walls' F1
+The rplidar drives are also mapped with scan matching from drifting odometry
+(``OdometryDrift`` seed = the noise seed), estimated against range_noise, with the chords'
+knots 'arc' (the default) and 'median' (what the README advises for such a lidar). Scores,
+both ways: segments (shorter than 0.5 m), the map against the true points (mean distance,
+coverage within 0.10 m), the share of the map's length its own beams contradict
+(``free_space_stats``), and the walls' F1
 (``baselines.walls.wall_scores``); with scan matching also the trajectory's RMS.
 
 Writes the table into benchmarks/README.md (between the ``range-noise`` markers) and the rows to
@@ -77,7 +79,7 @@ def make(lidar: str, name: str, seed: int):
                           turn=TURN_RATE / rate, scan_time=1.0 / rate)
 
 
-def one(drive, sigma, range_noise: float, drift=None) -> dict:
+def one(drive, sigma, range_noise: float, drift=None, knots: str = 'arc') -> dict:
     """Map ``drive`` (true poses, or scan matching from odometry drift seed ``drift``)."""
     config = IncrementalConfig()
     config = dataclasses.replace(config, smemsf=dataclasses.replace(
@@ -85,12 +87,13 @@ def one(drive, sigma, range_noise: float, drift=None) -> dict:
     matching = drift is not None
     records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
     session = replay_records(records, config, options=SessionOptions(
-        pose_source='tf', scan_matching=matching, keep_points=True))
+        pose_source='tf', scan_matching=matching, keep_points=True, chord_knots=knots))
     value = session.map_value()
     segs = np.asarray(value.segments, dtype=np.float64).reshape(-1, 2, 2)
     pts, w = drive.points(), drive.world
     raw = map_metrics(pts, segs)
-    row = {'matching': matching, 'drift_seed': drift, 'sigma_m': round(float(
+    row = {'matching': matching, 'drift_seed': drift, 'chord_knots': knots,
+           'sigma_m': round(float(
                session.mapper.sigma), 4), 'range_noise': range_noise,
            'segments': int(len(segs)),
            'short': int(np.count_nonzero(np.hypot(*(segs[:, 1] - segs[:, 0]).T) < 0.5)),
@@ -118,13 +121,14 @@ def main() -> int:
         for name in ('office', 'corridors'):
             for seed in args.seeds:
                 drive = make(lidar, name, seed)
-                runs = [(label, sigma, k, None) for label, sigma, k in SETTINGS]
+                runs = [(label, sigma, k, None, 'arc') for label, sigma, k in SETTINGS]
                 if lidar == 'rplidar':
-                    runs += [('estimated', None, 0.0, seed),
-                             ('range_noise 0.01', None, NOISE_SHARE, seed)]
-                for label, sigma, k, drift in runs:
-                    rows.append(dict(one(drive, sigma, k, drift), lidar=lidar, world=name,
-                                     noise_seed=seed, setting=label))
+                    runs += [(label, None, k, seed, knots) for knots in ('arc', 'median')
+                             for label, k in (('estimated', 0.0),
+                                              ('range_noise 0.01', NOISE_SHARE))]
+                for label, sigma, k, drift, knots in runs:
+                    rows.append(dict(one(drive, sigma, k, drift, knots), lidar=lidar,
+                                     world=name, noise_seed=seed, setting=label))
                     print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     write_results('range_noise', meta, rows)
     lines = table_header(meta, ['lidar', 'drive', 'poses', 'noise scale', 'segments (< 0.5 m)',
@@ -132,24 +136,25 @@ def main() -> int:
                                 'contradicted (% of length)', 'walls F1', 'trajectory RMS (m)'])
     for lidar in LIDARS:
         for name in ('office', 'corridors'):
-            for matching in (False, True):
+            for matching, knots in ((False, 'arc'), (True, 'arc'), (True, 'median')):
                 for label, _, _ in SETTINGS:
                     mine = [r for r in rows if r['lidar'] == lidar and r['world'] == name
-                            and r['setting'] == label and r['matching'] == matching]
+                            and r['setting'] == label and r['matching'] == matching
+                            and r['chord_knots'] == knots]
                     if not mine:
                         continue
-                    lines.append(_line(lidar, name, matching, label, mine))
+                    lines.append(_line(lidar, name, knots if matching else None, label, mine))
     write_readme('range-noise', '\n'.join(lines) + '\n')
     return 0
 
 
-def _line(lidar: str, name: str, matching: bool, label: str, rows: list) -> str:
+def _line(lidar: str, name: str, knots, label: str, rows: list) -> str:
     """Return one table row: the means over the noise seeds (F1: and its range)."""
     def mean(key):
         return float(np.mean([r[key] for r in rows]))
     f1 = [r['f1'] for r in rows]
-    rms = f"{mean('rms_m'):.3f}" if matching else '-'
-    poses = 'odometry drift, scan matching' if matching else 'true'
+    rms = '-' if knots is None else f"{mean('rms_m'):.3f}"
+    poses = 'true' if knots is None else f'odometry drift, scan matching ({knots} knots)'
     return (f'| {lidar} | {name} | {poses} | {label} | {mean("segments"):.1f} '
             f'({mean("short"):.1f}) | {mean("mean_cm"):.2f} / {mean("coverage"):.1f} | '
             f'{mean("contradicted"):.2f} | {np.mean(f1):.2f} ({min(f1):.2f}-{max(f1):.2f}) | '
