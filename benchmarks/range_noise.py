@@ -35,6 +35,7 @@ import json
 import sys
 
 from baselines.walls import wall_scores
+from cheap_lidar import world
 from common import contradicted, drive_truth, stamp, table_header, write_readme, write_results
 from matching import flat
 import numpy as np
@@ -45,7 +46,6 @@ from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 from polyline_mapper.sim import LaserSpec
 from polyline_mapper.sim.laser import simulate_drive
-from polyline_mapper.sim.world import corridor_loop, office_floor
 
 SPEED, TURN_RATE = 0.2, 1.0
 """m/s and rad/s of the drives."""
@@ -61,15 +61,6 @@ LIDARS = {
 SETTINGS = (('estimated', None, 0.0), ('fixed 2.5 cm', 0.025, 0.0), ('fixed 5 cm', 0.05, 0.0),
             ('range_noise 0.01', None, NOISE_SHARE))
 """Label, smemsf.sigma (None: estimated), smemsf.range_noise."""
-
-
-def world(name: str):
-    """Return the office (its first 12 waypoints) or the 10 m corridor loop."""
-    if name == 'office':
-        w = office_floor()
-        w.path = w.path[:12]
-        return w
-    return corridor_loop(width=2.0, side=10.0)
 
 
 def make(lidar: str, name: str, seed: int):
