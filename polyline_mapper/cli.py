@@ -25,6 +25,7 @@ the beams pass through (``core.freespace``); a bare point file says "no beams".
 """
 
 import argparse
+import dataclasses
 import io
 import math
 import os
@@ -98,7 +99,8 @@ def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True, ori
     Fit with a progress bar over iterations (shown on a terminal only).
 
     ``origins`` (N, 2) and ``free_space_window`` > 0: fit with the beams' free-space evidence
-    (and ``free_space_hit_margin``).
+    (and ``free_space_hit_margin``); ``origins`` and ``config.range_noise``: the ranges give
+    the points their noise scales (with the window 0, without the evidence).
     """
     bar = None
     if progress:
@@ -111,10 +113,10 @@ def run_fit(points: np.ndarray, config: SMEMSFConfig, progress: bool = True, ori
             bar.update(1)
             bar.set_postfix(segments=info['segments'], sigma=f"{info['sigma'] * 100:.1f}cm")
     try:
-        if origins is None or free_space_window <= 0:
+        if origins is None or (free_space_window <= 0 and not config.range_noise):
             return fit(points, config, progress=tick)
         return fit(points, config, progress=tick, origins=origins,
-                   free_space_window=free_space_window,
+                   free_space_window=max(int(free_space_window), 0),
                    free_space_hit_margin=free_space_hit_margin)
     finally:
         if bar is not None:
@@ -244,6 +246,11 @@ def cmd_fit(args) -> int:
         print(f'polyline-mapper: warning: {args.input}: free_space_window={window} cannot be '
               'applied: a point file has no beams (laser positions); fitting the bare points',
               file=sys.stderr)
+    if config.range_noise and origins is None:
+        print(f'polyline-mapper: warning: {args.input}: range_noise={config.range_noise:g} '
+              'cannot be applied: a point file has no ranges (laser positions); fitting at '
+              'one noise scale (stored as range_noise 0)', file=sys.stderr)
+        config = dataclasses.replace(config, range_noise=0.0)
     result = run_fit(points, config, not args.quiet, origins, **extra)
     used = window if result.beams else 0
     stats = write_outputs(result, points, config, args.output, args.plot, args.frame_id,

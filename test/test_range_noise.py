@@ -90,3 +90,29 @@ def test_a_point_of_its_own_noise_is_cut_off_at_kappa_times_it():
         PointIndex(pts, extra=np.array([0.0, np.nan, 0.1]))
     with pytest.raises(ValueError, match='range_noise'):
         SMEMSFConfig(range_noise=-0.01)
+
+
+def test_fit_uses_the_ranges_without_the_evidence_and_says_when_it_has_none(tmp_path, capsys):
+    # fit passed the beams' origins only with the free-space evidence on: with
+    # free_space_window=0 the setting was dropped, while MAP.json stored it as applied; a point
+    # file (no ranges) dropped it without a word (a new-user audit).
+    import json
+    from polyline_mapper.cli import main
+
+    def segments(name, *sets):
+        out = tmp_path / name
+        argv = ['fit', 'sim:hall', '-o', str(out), '-q', '--set', 'free_space_window=0']
+        assert main(argv + [a for s in sets for a in ('--set', s)]) == 0
+        data = json.loads(out.read_text())
+        return data['segments'], data['config']['range_noise']
+    plain, noise = segments('plain.json')
+    ranged, stored = segments('ranged.json', 'range_noise=0.01')
+    assert noise == 0.0 and stored == 0.01 and ranged != plain
+    points = tmp_path / 'points.txt'
+    np.savetxt(points, simulate_drive(corridor_loop(width=2.0, side=10.0), RPLIDAR, step=1.0,
+                                      rng=2).points()[::4])
+    out = tmp_path / 'points.json'
+    assert main(['fit', str(points), '--set', 'range_noise=0.01', '-o', str(out), '-q']) == 0
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'range_noise=0.01 cannot be applied' in err
+    assert json.loads(out.read_text())['config']['range_noise'] == 0.0

@@ -380,7 +380,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         None (bare points): nothing changes, and ``FitResult.beams`` is 0.
     free_space_window : int
         With ``origins``: the looks at a square over which its evidence decays (>= 1; the
-        incremental mapper's ``free_space_window``), by default ``split.EVIDENCE_WINDOW``.
+        incremental mapper's ``free_space_window``), by default ``split.EVIDENCE_WINDOW``; 0:
+        no evidence (the origins then only give ``config.range_noise`` its ranges).
     free_space_hit_margin : float
         With ``origins``: the incremental mapper's ``free_space_hit_margin`` (>= 0; 0, the
         default, counts only crossing beams as a square's hits).
@@ -414,8 +415,10 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     config = config or SMEMSFConfig()
     pts, weights = check_fit_input(points, weights)
     origins = as_origins(origins, len(pts))
-    if origins is not None and not free_space_window >= 1:
-        raise ValueError(f'free_space_window must be >= 1 with origins, got {free_space_window!r}')
+    if origins is not None and not (free_space_window >= 1 or free_space_window == 0):
+        raise ValueError(f'free_space_window must be >= 1 (or 0: no evidence) with origins, '
+                         f'got {free_space_window!r}')
+    evidence = origins is not None and free_space_window >= 1
     if not (np.isfinite(free_space_hit_margin) and free_space_hit_margin >= 0):
         raise ValueError('free_space_hit_margin must be a finite number >= 0, got '
                          f'{free_space_hit_margin!r}')
@@ -451,7 +454,7 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         sigma = max(floor, target)
     r = config.r_over_sigma * sigma
     cut = 0
-    if origins is not None:
+    if evidence:
         def cut_free(segments, support):
             return free_space_cut(segments, support, pts, origins, r, config.kappa * sigma,
                                   config.min_support, free_space_window, free_space_hit_margin)
@@ -465,7 +468,7 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
                 progress(it + k, info)
     segments, support, _ = emsf_step(index, segments, sigma, config.kappa, config.min_support,
                                      0.0, r, config.tail_fraction)
-    if origins is not None:
+    if evidence:
         segments, support, cut = cut_free(segments, support)
     # Pieces the refit made collinear are joined before chaining.
     segments, support, _ = merge_segments(
@@ -475,4 +478,4 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     return FitResult(segments=geo.segments, support=geo.support, polylines=geo.polylines,
                      closed=geo.closed, iterations=it, converged=converged, sigma=sigma, r=r,
                      seconds=time.perf_counter() - t0, history=history,
-                     beams=0 if origins is None else len(pts), free_squares=cut)
+                     beams=len(pts) if evidence else 0, free_squares=cut)
