@@ -493,12 +493,13 @@ contradict (8.5 and 5.0 % in a new-user audit) but that leaves a third and a qua
 points off it (coverage 66 and 74 %); consistent indoor replays cover 91-98 %."""
 
 
-def _seen_through(stats: dict, args) -> str:
+def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
     """
     Return a warning when the scans disagree with each other, else ''.
 
     The beams pass through much of the map (``SEEN_THROUGH_WARN``) or the map leaves many of
-    the points off (``UNCOVERED_WARN``).
+    the points off (``UNCOVERED_WARN``). ``range_noise`` (the config's): named among the
+    things to check when set (too high, it coarsens the map as bad poses do).
     """
     share = stats.get('contradicted_share')
     coverage = stats.get('coverage_0_10m')
@@ -511,6 +512,9 @@ def _seen_through(stats: dict, args) -> str:
     if args.pose_source == 'odom':
         check.insert(0, "the laser's mount (--laser-mount: a laser facing backwards has yaw 180, "
                         'one upside down flip)')
+    if range_noise:
+        check.append(f"range_noise ({range_noise:g}: the lidar's range error as a share of the "
+                     'range; too high, it coarsens the map)')
     what = [f"the beams pass through {share * 100:.0f}% of the map's length"] if through else []
     what += [f'the map leaves {(1 - coverage) * 100:.0f}% of the points more than 0.10 m off']\
         if off else []
@@ -555,7 +559,7 @@ def cmd_replay(args) -> int:
         if line:
             print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     value = res.map_value
-    disagree = _seen_through(value.stats, args)
+    disagree = _seen_through(value.stats, args, config.smemsf.range_noise)
     if disagree:
         print(f'polyline-mapper: warning: {disagree}', file=sys.stderr)
     value.stats.update(total_seconds=round(time.perf_counter() - t0, 3),
