@@ -259,3 +259,20 @@ def test_a_namespaced_node_that_cannot_start_says_which_one():
     outcomes = start_refusals(argvs, timeout=20.0)
     assert_refused_in_one_line(outcomes[0], ['[robot1.polyline_mapper_node]', "'/map'"])
     assert_refused_in_one_line(outcomes[1], ['[mapper2]', 'odom_frame must differ'])
+
+
+def test_a_text_value_for_a_number_is_refused_even_beside_a_params_file():
+    # Beside a --params-file that sets the parameter, rcl kept the file's value for
+    # -p smemsf.range_noise:=abc (or :='0.01') and the node started with 0.0 without a word;
+    # alone, the node refused it. Now both refuse it in one line, before rcl.
+    from conftest import REPO
+    from rosnode import assert_refused_in_one_line, start_refusals
+    shipped = ['--params-file', str(REPO / 'config' / 'polyline_mapper.yaml')]
+    argvs = [shipped + ['-p', 'smemsf.range_noise:=abc'],
+             shipped + ['-p', "smemsf.range_noise:='0.01'"],
+             ['-p', 'publish_markers:=maybe']]
+    outcomes = start_refusals(argvs, timeout=20.0)
+    assert_refused_in_one_line(outcomes[0], ['smemsf.range_noise takes a number, got the text '
+                                             "'abc'"])
+    assert_refused_in_one_line(outcomes[1], ["got the text '0.01'"])
+    assert_refused_in_one_line(outcomes[2], ['publish_markers takes true or false'])

@@ -60,6 +60,8 @@ def check_ros_args(argv: Sequence[str]) -> None:
 
 def _check_rule(rule: str, specs: dict) -> None:
     name, sep, value = rule.partition(':=')
+    if sep and value:
+        _check_type(name.rpartition(':')[2], value, rule, specs)
     if not sep or value:
         return                                  # rcl's checks (and the node's) apply
     name = name.rpartition(':')[2]              # '-p node_name:param:=' names a node
@@ -77,6 +79,36 @@ def _check_rule(rule: str, specs: dict) -> None:
         raise StartupError(f'{name} must not be empty (-p {rule})')
     kind = f' ({name} takes a {type(spec.default).__name__})' if spec is not None else ''
     raise StartupError(f'-p {rule}: no value after ":="{kind}')
+
+
+def _check_type(name: str, value: str, rule: str, specs: dict) -> None:
+    """
+    Refuse a value of the wrong kind for a number or a switch: ``-p smemsf.range_noise:=abc``.
+
+    The node refuses it alone, but beside a ``--params-file`` that sets the parameter rcl
+    keeps the file's value without a word (a new-user audit lost its setting that way).
+    """
+    spec = specs.get(name)
+    if spec is None or isinstance(spec.default, (str, list, tuple)):
+        return
+    text = value.strip()
+    if text[:1] == '[':
+        kind = 'a list'
+    elif len(text) >= 2 and text[0] == text[-1] and text[0] in '"\'':
+        kind = 'the text ' + text
+    elif text.lower() in ('true', 'false', 'yes', 'no', 'on', 'off'):
+        kind = 'a switch'
+    else:
+        try:
+            float(text)
+            kind = 'a number'
+        except ValueError:
+            kind = f'the text {text!r}'
+    want = 'a switch' if isinstance(spec.default, bool) else 'a number'
+    if kind != want:
+        need = 'true or false' if want == 'a switch' else 'a number'
+        raise StartupError(f'{name} takes {need}, got {kind} (-p {rule}; beside a '
+                           "--params-file rcl would keep the file's value)")
 
 
 def check_params_file(path: str) -> None:
