@@ -501,6 +501,8 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
     the points off (``UNCOVERED_WARN``). ``range_noise`` (the config's): named among the
     things to check when set (too high, it coarsens the map as bad poses do).
     """
+    if not stats.get('segments'):
+        return ''           # an empty map: its own warning says why (no segment), not the poses
     share = stats.get('contradicted_share')
     coverage = stats.get('coverage_0_10m')
     through = share is not None and share > SEEN_THROUGH_WARN
