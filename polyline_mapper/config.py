@@ -19,7 +19,7 @@ from typing import Iterable
 
 from .core.incremental import IncrementalConfig
 from .core.smemsf import SMEMSFConfig
-from .params import all_params, check_value
+from .params import all_params, check_value, NODE_NAME
 
 GROUPS = ('smemsf', 'incremental')
 _EXPECTED = {bool: 'true or false', int: 'an integer', float: 'a finite number',
@@ -85,10 +85,6 @@ def typed_value(spec, value, origin: str):
     return out
 
 
-NODE_BLOCK = 'polyline_mapper_node'
-"""The node's name: the block of a parameter file with several nodes' that is read."""
-
-
 def _node_blocks(data: dict, prefix: str = '', depth: int = 0) -> list:
     """Return (name, ros__parameters) of every node block, namespaces nested or in the key."""
     out = []
@@ -116,7 +112,7 @@ def _ros_parameters(data: dict, path: str):
     blocks = _node_blocks(data)
     if not blocks:
         return None
-    ours = [(n, p) for n, p in blocks if n.rsplit('/', 1)[-1] in ('**', NODE_BLOCK)]
+    ours = [(n, p) for n, p in blocks if n.rsplit('/', 1)[-1] in ('**', NODE_NAME)]
     if len(blocks) == 1:
         ours = blocks
     wild = [b for b in ours if b[0] == '/**']
@@ -124,7 +120,7 @@ def _ros_parameters(data: dict, path: str):
     if len(named) > 1 or not ours:
         names = ', '.join(n for n, _ in (named if named else blocks))
         why = (f'{len(named)} blocks for this node' if named
-               else f'{len(blocks)} node blocks, none named {NODE_BLOCK} or /**')
+               else f'{len(blocks)} node blocks, none named {NODE_NAME} or /**')
         raise ConfigError(f'{path}: {why} ({names}): keep the one to read in a file of its own')
     params = {}
     for _, block in wild + named:

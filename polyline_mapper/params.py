@@ -53,6 +53,9 @@ class ParamSpec:
     with 0."""
 
 
+NODE_NAME = 'polyline_mapper_node'
+"""The node's name (its parameter file block, its logger)."""
+
 NODE_PARAMS = (
     ParamSpec('fixed_frame', 'map',
               'Frame of the map and of everything published. In tf mode, poses of the scan '

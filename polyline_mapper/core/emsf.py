@@ -66,7 +66,7 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
         pairs = index.pairs(segments, kappa * index.widest(sigma))
     scale = index.sigmas(sigma)
     if scale is not None:               # each point's own cut-off, kappa times its noise scale
-        pairs = _within(pairs, pairs.dist <= kappa * scale.take(pairs.pt))
+        pairs = pairs.where(pairs.dist <= kappa * scale.take(pairs.pt))
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
     # Kernel and outlier class relative to each point's nearest segment, so nothing underflows
@@ -90,14 +90,6 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     support = np.full(n, -1, dtype=np.intp)
     support[pt.take(win)] = pairs.seg.take(win)
     return EStep(pairs, w, support)
-
-
-def _within(p: Pairs, keep: np.ndarray) -> Pairs:
-    """Return the pairs of ``p`` where ``keep`` (all of them: ``p`` itself)."""
-    if keep.all():
-        return p
-    ids = np.flatnonzero(keep)
-    return Pairs(*(np.take(a, ids) for a in (p.pt, p.seg, p.dist, p.along, p.normal)))
 
 
 def weighted_lines(points: np.ndarray, seg: np.ndarray, w: np.ndarray, k: int,

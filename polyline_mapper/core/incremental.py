@@ -92,7 +92,7 @@ from .index import near_points, PointIndex, SegmentGrid
 from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
-from .smemsf import smemsf_iteration, SMEMSFConfig
+from .smemsf import range_noise_of, smemsf_iteration, SMEMSFConfig
 from .split import (accumulate_evidence, carry_evidence, cut_squares, free_squares,
                     square_centres, square_layout)
 from ..scan import scan_to_points
@@ -574,8 +574,7 @@ class IncrementalMapper:
         share = self.config.smemsf.range_noise
         if origins is None or not share:
             return np.zeros(len(pts))
-        rel = pts - origins
-        return share * np.hypot(rel[:, 0], rel[:, 1])
+        return range_noise_of(pts, origins, share)
 
     def _thin(self, pts: np.ndarray, origins) -> tuple:
         """Thin each run of one origin to ``max_scan_points`` (every k-th point, in order)."""

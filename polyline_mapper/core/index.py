@@ -86,6 +86,14 @@ class Pairs:
     along: np.ndarray
     normal: np.ndarray
 
+    def where(self, keep: np.ndarray) -> 'Pairs':
+        """Return the pairs where ``keep`` (bool, one per pair) is True; all: these pairs."""
+        if keep.all():
+            return self
+        ids = np.flatnonzero(keep)
+        return Pairs(*(np.take(a, ids) for a in (self.pt, self.seg, self.dist, self.along,
+                                                 self.normal)))
+
 
 class PointIndex:
     """

@@ -232,6 +232,12 @@ def _noise_floor(points: np.ndarray, config: SMEMSFConfig, rng) -> float:
     return max(est if np.isfinite(est) else config.sigma_min, config.sigma_min)
 
 
+def range_noise_of(points: np.ndarray, origins: np.ndarray, share: float) -> np.ndarray:
+    """Return each point's noise beyond sigma (m): ``share`` x its range from its origin."""
+    rel = points - origins
+    return share * np.hypot(rel[:, 0], rel[:, 1])
+
+
 def check_fit_input(points, weights=None) -> tuple:
     """Validate points (and optional weights) for fitting; raise ValueError saying why."""
     pts = as_points(points)
@@ -423,10 +429,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         raise ValueError('free_space_hit_margin must be a finite number >= 0, got '
                          f'{free_space_hit_margin!r}')
     rng = np.random.default_rng(config.seed)
-    extra = None
-    if origins is not None and config.range_noise:
-        rel = pts - origins
-        extra = config.range_noise * np.hypot(rel[:, 0], rel[:, 1])
+    extra = (range_noise_of(pts, origins, config.range_noise)
+             if origins is not None and config.range_noise else None)
     index = PointIndex(pts, weights, extra=extra)
     floor = _noise_floor(pts, config, rng)
     diag = float(np.hypot(*(pts.max(axis=0) - pts.min(axis=0))))

@@ -234,9 +234,7 @@ def split_segments(index: PointIndex, segments: np.ndarray, r: float,
     queried = index.pairs(segments, max(own, query_radius))
     p = queried
     if query_radius > own:
-        near = np.flatnonzero(queried.dist <= own)
-        p = Pairs(*(np.take(a, near) for a in (
-            queried.pt, queried.seg, queried.dist, queried.along, queried.normal)))
+        p = queried.where(queried.dist <= own)
     sq = np.flatnonzero((p.along >= 0) & (p.along <= length.take(p.seg))
                         & (np.abs(p.normal) <= r))
     seg = p.seg.take(sq)

@@ -28,6 +28,7 @@ import numpy as np
 from ..core import map_metrics
 from ..core.mapvalue import MapValue
 from ..formats.records import Scan
+from ..params import NODE_NAME
 
 
 @dataclass
@@ -99,7 +100,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
             def on_diagnostics(msg):
                 for status in msg.status:
                     # '/polyline_mapper_node: mapping' (the node's full name)
-                    if status.name.lstrip('/').startswith('polyline_mapper_node'):
+                    if status.name.lstrip('/').startswith(NODE_NAME):
                         diag.clear()
                         diag.update({kv.key: kv.value for kv in status.values})
                         diag['_at'] = time.monotonic()

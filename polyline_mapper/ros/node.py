@@ -76,10 +76,9 @@ from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
 from .qos import check_input_qos, MAP_QOS, sensor_data, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
-from ..params import all_params, settings_from
+from ..params import all_params, NODE_NAME, settings_from
 from ..session import MappingSession, SessionOptions, WarningThrottle
 
-NODE_NAME = 'polyline_mapper_node'
 GROUP_IDLE = 1.0
 """Seconds without a new scan after which a partial update group is mapped."""
 

@@ -60,11 +60,11 @@ def check_ros_args(argv: Sequence[str]) -> None:
 
 def _check_rule(rule: str, specs: dict) -> None:
     name, sep, value = rule.partition(':=')
-    if sep and value:
-        _check_type(name.rpartition(':')[2], value, rule, specs)
-    if not sep or value:
-        return                                  # rcl's checks (and the node's) apply
     name = name.rpartition(':')[2]              # '-p node_name:param:=' names a node
+    if sep and value:
+        _check_type(name, value, rule, specs)   # then rcl's checks (and the node's) apply
+    if not sep or value:
+        return
     spec = specs.get(name)
     if spec is not None and spec.choices:
         raise StartupError(f'{name} must be one of {", ".join(spec.choices)}, got an empty '
