@@ -2044,10 +2044,13 @@ class MappingSession:
                   max(abs(math.remainder(float(step[2]), 2.0 * math.pi)), SCAN_PRIOR[1]))
             prior = np.diag([sd[0] ** 2, sd[0] ** 2, sd[1] ** 2])
             guard = 0.0                 # the prior keeps weak directions near the start
+        last = self._last_match         # where the newest chords were placed (its covariance)
         terms = {'prediction_cov': cov, 'prediction_prior': prior,     # both matches' terms
                  'established': np.concatenate([support >= ESTABLISHED_SUPPORT,
                                                 np.zeros(len(recent), dtype=bool)]),
-                 'transient': np.concatenate([np.zeros(len(segs), dtype=bool), transient])}
+                 'transient': np.concatenate([np.zeros(len(segs), dtype=bool), transient]),
+                 'chords': np.arange(len(near)) >= len(segs),
+                 'chord_cov': None if last is None else last.covariance}
         m = match_scan(local, prediction, near, sigma, degenerate=guard, starts=starts,
                        relocalize=RELOCALIZE, relocalize_share=self._relocalize_share(),
                        relocalize_near=prior is not None, **terms)

@@ -1,6 +1,7 @@
 """Scan-to-map registration: recovery, robustness, the degeneracy guard, refusals."""
 
 import numpy as np
+from polyline_mapper.core.index import nearest_distance
 from polyline_mapper.core.register import (match_scan, odometry_covariance,
                                            predict_constant_velocity, scan_chords, transform)
 from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
@@ -427,3 +428,51 @@ def test_a_person_ahead_does_not_pull_a_corridor_match_back():
     assert pulled.pose[0] < now[0] - 0.04, pulled      # the person's pull, without the mark
     assert abs(held.pose[0] - now[0]) < 0.005 and held.held >= 1, held
     assert abs(held.pose[1]) < 0.005 and abs(held.pose[2]) < 0.003
+
+
+def _spread_and_reported(chords_flag, chord_cov=None, placement=0.0, trials=150):
+    """Match fresh scans to fresh earlier scans' chords; return (empirical, mean reported)."""
+    truth, before = np.array([2.0, 3.0, 0.3]), np.array([2.15, 2.9, 0.25])
+    rng = np.random.default_rng(7)
+    # sigma as the mapper estimates it: the RMS distance of points to their walls (1 cm of
+    # range noise, less across walls seen at an angle)
+    sigma = np.sqrt(np.mean(nearest_distance(transform(cast(ROOM, truth, rng=99), truth),
+                                             ROOM)[0] ** 2))
+    errors, reported = [], []
+    for k in range(trials):
+        placed = before + rng.normal(0.0, placement, 3) * [1.0, 1.0, 0.5]
+        chords = scan_chords(transform(cast(ROOM, before, rng=2 * k), placed))
+        pts = cast(ROOM, truth, rng=2 * k + 1)
+        m = match_scan(pts, truth + [0.03, -0.02, 0.01], chords, sigma=sigma,
+                       chords=np.full(len(chords), chords_flag), chord_cov=chord_cov)
+        assert m.ok, m.reason
+        errors.append(m.pose - truth)
+        reported.append(m.covariance)
+    return np.cov(np.array(errors).T), np.mean(reported, axis=0)
+
+
+def test_the_covariance_counts_the_error_of_the_last_scans_chords():
+    # A scan matched to an earlier scan's chords (as the session matches each scan to the last
+    # scans' chords beside the map): each chord runs between two noisy readings, so the pose
+    # inherits their noise, shared by every point on a chord. Over many noise draws the spread
+    # of the matched poses is what the covariance reports once the chords are named, and well
+    # above it when they are taken for exact lines.
+    spread, exact = _spread_and_reported(False)
+    _, counted = _spread_and_reported(True)
+    # (x, y, yaw; measured: spread 2.0, 2.6, 1.4 times the exact lines' variance, 0.8, 1.0, 0.7
+    # times the counted one)
+    assert np.all(np.diag(spread) > [1.8, 1.8, 1.25] * np.diag(exact)), (spread, exact)
+    assert np.all(np.abs(np.log(np.diag(spread) / np.diag(counted))) < np.log(1.6)), counted
+    # and the chords' placement (the earlier scan's own match error) adds its share: 100 times
+    # the exact lines' variance here, counted within 0.8-1.0
+    cov = np.diag([0.01 ** 2, 0.01 ** 2, 0.005 ** 2])
+    spread, counted = _spread_and_reported(True, cov, placement=0.01)
+    assert np.all(np.abs(np.log(np.diag(spread) / np.diag(counted))) < np.log(1.6)), counted
+    # the match itself does not change with the flag
+    pts = cast(ROOM, np.array([2.0, 3.0, 0.3]), rng=1)
+    chords = scan_chords(cast(ROOM, np.array([2.0, 3.0, 0.3]), rng=2))
+    chords = transform(chords.reshape(-1, 2), np.array([2.0, 3.0, 0.3])).reshape(-1, 2, 2)
+    a = match_scan(pts, np.array([2.03, 2.98, 0.31]), chords, sigma=0.01)
+    b = match_scan(pts, np.array([2.03, 2.98, 0.31]), chords, sigma=0.01,
+                   chords=np.ones(len(chords), dtype=bool), chord_cov=cov)
+    assert np.array_equal(a.pose, b.pose) and np.all(np.diag(b.covariance) > np.diag(a.covariance))

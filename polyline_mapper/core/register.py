@@ -21,8 +21,10 @@ the scan's points to the lines of their nearest segments:
   range, so a radian and a metre weigh alike) is split into eigen-directions; directions whose
   eigenvalue is below ``degenerate`` x the largest (a featureless corridor along its axis) keep
   the prediction, and only the others are corrected;
-- a covariance of the result: sigma^2 (J^T W J)^-1 over the constrained directions, and
-  ``prior_std`` (the prediction's uncertainty) along the degenerate ones;
+- a covariance of the result: sigma^2 (J^T W J)^-1 over the constrained directions, plus what
+  the last scans' chords add when they are named (``chords``: each runs between two noisy
+  readings and sits at its scan's matched pose, ``chord_cov``), and ``prior_std`` (the
+  prediction's uncertainty) along the degenerate ones;
 - or, with ``prediction_prior`` (the covariance of a constant-velocity prediction), a Gaussian
   prior on the pose instead of the hard guard: each step minimises the weighted squared
   distances plus sigma^2 times the prior's Mahalanobis term, so a weakly constrained direction
@@ -317,7 +319,8 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
                spacing: float = 0.05, relocalize: float = 0.0,
                relocalize_share: float = RELOCALIZE_SHARE,
                prediction_cov=None, established=None, starts=None, transient=None,
-               prediction_prior=None, relocalize_near: bool = False) -> ScanMatch:
+               prediction_prior=None, relocalize_near: bool = False, chords=None,
+               chord_cov=None) -> ScanMatch:
     """
     Refine a scan's pose against map segments.
 
@@ -398,6 +401,15 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         constant-velocity prediction a turn that starts or speeds up between two scans can
         leave the first result in a wrong basin within the gate, and the search's pose puts
         ``RELOCALIZE_GAIN`` times more points on the map.
+    chords : (K,) bool array, optional
+        Per segment, whether it is one of the last scans' chords (``scan_chords``: between two
+        of that scan's readings, placed at its matched pose) rather than a map segment fitted
+        to many scans. The covariance then includes their error (``_chord_share``): each knot
+        off by ``sigma``, and the chords' placement by ``chord_cov``. The match itself is the
+        same. None: every segment is exact, as the covariance has always taken them.
+    chord_cov : (3, 3) float array, optional
+        Covariance (m^2, rad^2) of the pose the chords were placed at (the last matched scan's),
+        with ``chords``. None: the knots' noise only.
 
     Returns
     -------
@@ -432,6 +444,9 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     segs, u, length = segs[keep], u[keep], length[keep]
     est = None if established is None else np.asarray(established, dtype=bool).reshape(-1)[keep]
     tra = None if transient is None else np.asarray(transient, dtype=bool).reshape(-1)[keep]
+    own = None if chords is None else np.asarray(chords, dtype=bool).reshape(-1)[keep]
+    if chord_cov is not None:
+        chord_cov = np.asarray(chord_cov, dtype=np.float64).reshape(3, 3)
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1) / length[:, None]
     near = _SegmentSamples(segs, spacing=float(spacing))
     scale = max(median(np.hypot(pts[:, 0], pts[:, 1])), 1.0)   # metres per radian
@@ -445,7 +460,8 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         scaled = np.array([1.0, 1.0, scale])
         anchor = float(sigma) ** 2 * np.linalg.inv(prediction_prior * scaled[:, None] * scaled)
     problem = _Problem(pts, lines, near, float(sigma), gate, gate_min, kernel, need,
-                       scale, prior, int(iterations), float(degenerate), est, anchor, tra)
+                       scale, prior, int(iterations), float(degenerate), est, anchor, tra,
+                       own, chord_cov, segs)
     m = _refine(problem, pred, turns, max_shift, max_turn, prediction_cov)
     if not relocalize or m.share >= relocalize_share:
         return m
@@ -490,6 +506,12 @@ class _Problem(NamedTuple):
     """(3, 3) sigma^2 times the prior's information (scaled coordinates), or None."""
     transient: Optional[np.ndarray] = None
     """(K,) bool per segment, or None (see ``match_scan``)."""
+    chords: Optional[np.ndarray] = None
+    """(K,) bool per segment, or None (see ``match_scan``)."""
+    chord_cov: Optional[np.ndarray] = None
+    """(3, 3) covariance of the chords' placement (see ``match_scan``), or None."""
+    segments: Optional[np.ndarray] = None
+    """(K, 2, 2) the segments of ``lines`` (with ``chords``)."""
 
 
 def _search(near: _SegmentSamples, pts: np.ndarray, pose: np.ndarray, radius: float,
@@ -536,7 +558,8 @@ class _Steps(NamedTuple):
     pairs: int
     """Points paired in the last iteration."""
     last: tuple = ()
-    """(jacobian, weights, segment ids) of the last iteration's pairs (all directions)."""
+    """(jacobian, weights, segment ids, point ids) of the last iteration's pairs (all
+    directions)."""
 
 
 def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
@@ -594,7 +617,7 @@ def _gauss_newton(p: _Problem, pose: np.ndarray, free: np.ndarray = None,
         w = 1.0 / (1.0 + (res / k) ** 2)
         info = jac.T @ (w[:, None] * jac)
         grad = -jac.T @ (w * res)
-        last = (jac, w, sg)
+        last = (jac, w, sg, pt)
         top = None
         if free is not None:            # the problem restricted to the free directions
             top = np.linalg.eigvalsh(info)[-1]
@@ -667,17 +690,61 @@ def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> 
     weak = st.vals < WEAK_SHARE * max(st.vals[-1], 1e-12)
     out = weak & (along > WEAK_SIGMAS * sd)
     if out.any() and p.established is not None:
-        jac, w, sg = st.last
+        jac, w, sg, _ = st.last
         e = p.established[sg]
         est = _along(st.vecs, jac[e].T @ (w[e, None] * jac[e]))
         out &= est < ESTABLISHED_SHARE * np.maximum(st.vals, 1e-12)
     if weak.any() and p.transient is not None:
-        jac, w, sg = st.last
+        jac, w, sg, _ = st.last
         t = p.transient[sg]
         if t.any():
             moving = _along(st.vecs, jac[t].T @ (w[t, None] * jac[t]))
             out |= weak & (moving >= TRANSIENT_SHARE * np.maximum(st.vals, 1e-12))
     return out
+
+
+def _chord_share(p: _Problem, st: _Steps, pose: np.ndarray) -> np.ndarray:
+    """
+    Return the covariance (scaled coordinates) the last scans' chords add to a match: (3, 3).
+
+    ``sigma^2 (J^T W J)^-1`` holds when every line a point is matched to is exact. The chords
+    are not: each runs between two of an earlier scan's readings (``scan_chords``' knots),
+    each off by the noise, and that scan sits where its own match put it (``chord_cov``). The
+    match moves by ``H^-1 sum_i w_i J_i e_i`` for line errors ``e_i`` (the estimating
+    equations). With knot errors ``e = (1 - t) e_a + t e_b`` (t: where the point falls along
+    its chord between knots a and b) and the chords' placement error ``delta`` (every chord
+    moved with it, ``e_i = -J_i delta``, their scans being near this one), it adds
+    ``H^-1 B H^-1`` with ``B = sigma^2 sum_k s_k s_k^T + H_c P H_c``: per knot k, ``s_k``
+    sums ``(1 - t_i) w_i J_i`` over the pairs on chords starting there and ``t_i w_i J_i``
+    over those ending there (two chords of a run share a knot); ``H_c`` is the information of
+    the chords' pairs and ``P`` their placement's covariance. ``H^-1`` over the corrected
+    directions only (the held or degenerate ones keep the prior's variance).
+    """
+    jac, w, sg, pt = st.last
+    on = p.chords[sg]
+    if not on.any():
+        return np.zeros((3, 3))
+    jac, w, sg = jac[on], w[on], sg[on]
+    wj = jac * w[:, None]
+    a, b = p.segments[sg, 0], p.segments[sg, 1]
+    d = b - a
+    t = np.clip(np.einsum('ij,ij->i', transform(p.pts[pt[on]], pose) - a, d)
+                / np.maximum(np.einsum('ij,ij->i', d, d), 1e-18), 0.0, 1.0)
+    # per knot (a reading; two chords of a run share the one between them), sum_i share_i w_i J_i
+    at = np.concatenate([a, b])
+    _, knot = np.unique(at[:, 0] + 1j * at[:, 1], return_inverse=True)
+    share = np.concatenate([1.0 - t, t])[:, None] * np.concatenate([wj, wj])
+    n = int(knot.max()) + 1
+    s_k = np.stack([np.bincount(knot, weights=share[:, k], minlength=n) for k in range(3)])
+    noise = p.sigma ** 2 * (s_k @ s_k.T)
+    placed = 0.0
+    if p.chord_cov is not None:
+        scaled = np.array([1.0, 1.0, p.scale])
+        h_c = jac.T @ wj
+        placed = h_c @ (p.chord_cov * scaled[:, None] * scaled) @ h_c
+    good = st.vecs[:, st.good]
+    inv = (good / np.linalg.eigvalsh(st.info)[st.good]) @ good.T
+    return inv @ (noise + placed) @ inv
 
 
 def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
@@ -737,7 +804,10 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
     var = np.where(good, sigma ** 2 / np.maximum(vals, 1e-12),
                    _along(vecs, prior_scaled))
     unscale = np.diag([1.0, 1.0, 1.0 / scale])
-    cov = unscale @ ((vecs * var) @ vecs.T) @ unscale
+    cov_scaled = (vecs * var) @ vecs.T
+    if p.chords is not None:
+        cov_scaled = cov_scaled + _chord_share(p, st, pose)
+    cov = unscale @ cov_scaled @ unscale
     if n_held:                          # the prior's variance along the held directions too
         vals_h = _along(hold_dirs, prior_scaled)
         cov += unscale @ ((hold_dirs * vals_h) @ hold_dirs.T) @ unscale
