@@ -264,7 +264,7 @@ def test_a_namespaced_node_that_cannot_start_says_which_one():
     assert_refused_in_one_line(outcomes[1], ['[mapper2]', 'odom_frame must differ'])
 
 
-def test_a_text_value_for_a_number_is_refused_even_beside_a_params_file():
+def test_a_value_of_the_wrong_kind_is_refused_even_beside_a_params_file():
     # Beside a --params-file that sets the parameter, rcl kept the file's value for
     # -p smemsf.range_noise:=abc (or :='0.01') and the node started with 0.0 without a word;
     # alone, the node refused it. Now both refuse it in one line, before rcl.
@@ -273,9 +273,13 @@ def test_a_text_value_for_a_number_is_refused_even_beside_a_params_file():
     shipped = ['--params-file', str(REPO / 'config' / 'polyline_mapper.yaml')]
     argvs = [shipped + ['-p', 'smemsf.range_noise:=abc'],
              shipped + ['-p', "smemsf.range_noise:='0.01'"],
-             ['-p', 'publish_markers:=maybe']]
+             ['-p', 'publish_markers:=maybe'],
+             # a double for an integer: rcl kept the file's 3 and the node mapped with it
+             shipped + ['-p', 'incremental.buffer_scans:=5.0']]
     outcomes = start_refusals(argvs, timeout=20.0)
     assert_refused_in_one_line(outcomes[0], ['smemsf.range_noise takes a number, got the text '
                                              "'abc'"])
     assert_refused_in_one_line(outcomes[1], ["got the text '0.01'"])
     assert_refused_in_one_line(outcomes[2], ['publish_markers takes true or false'])
+    assert_refused_in_one_line(outcomes[3], ['incremental.buffer_scans takes a whole number, '
+                                             'got 5.0'])

@@ -83,7 +83,8 @@ def _check_rule(rule: str, specs: dict) -> None:
 
 def _check_type(name: str, value: str, rule: str, specs: dict) -> None:
     """
-    Refuse a value of the wrong kind for a number or a switch: ``-p smemsf.range_noise:=abc``.
+    Refuse a value of the wrong kind for a number or a switch: ``-p smemsf.range_noise:=abc``,
+    or ``-p incremental.buffer_scans:=5.0`` for an integer.
 
     The node refuses it alone, but beside a ``--params-file`` that sets the parameter rcl
     keeps the file's value without a word (a new-user audit lost its setting that way).
@@ -109,6 +110,17 @@ def _check_type(name: str, value: str, rule: str, specs: dict) -> None:
         need = 'true or false' if want == 'a switch' else 'a number'
         raise StartupError(f'{name} takes {need}, got {kind} (-p {rule}; beside a '
                            "--params-file rcl would keep the file's value)")
+    # rcl types a number by its spelling: with a point or an exponent a double, which an
+    # integer parameter drops without a word beside a params file (alone the node refuses it;
+    # an integer for a double parameter the node refuses either way, with the remedy)
+    if (want == 'a number' and isinstance(spec.default, int)
+            and _INTEGER.fullmatch(text) is None):
+        raise StartupError(f'{name} takes a whole number, got {text} (-p {rule}; beside a '
+                           "--params-file rcl would keep the file's value)")
+
+
+_INTEGER = re.compile(r'[+-]?(0[xX][0-9a-fA-F]+|[0-9]+)')
+"""How rcl's parameter parser tells an integer from a double (strtol over the whole text)."""
 
 
 def check_params_file(path: str) -> None:
