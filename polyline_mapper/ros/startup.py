@@ -83,10 +83,10 @@ def _check_rule(rule: str, specs: dict) -> None:
 
 def _check_type(name: str, value: str, rule: str, specs: dict) -> None:
     """
-    Refuse a value of the wrong kind for a number or a switch: ``-p smemsf.range_noise:=abc``,
-    or ``-p incremental.buffer_scans:=5.0`` for an integer.
+    Refuse a value of the wrong kind for a number, a whole number or a switch.
 
-    The node refuses it alone, but beside a ``--params-file`` that sets the parameter rcl
+    E.g. ``-p smemsf.range_noise:=abc``, or ``-p incremental.buffer_scans:=5.0`` for an
+    integer. The node refuses it alone, but beside a ``--params-file`` that sets the parameter rcl
     keeps the file's value without a word (a new-user audit lost its setting that way).
     """
     spec = specs.get(name)
