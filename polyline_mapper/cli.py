@@ -354,13 +354,16 @@ def cmd_record_map(args) -> int:
     # recording ends, unlike `play`, which exits 128 + signal because it did not finish). A
     # second signal while the map is being written aborts it: exit 130, nothing written.
     with stop_on_signals(stops.append):
-        value, grid = run_record_map(args.topic, once=args.once, idle=args.idle,
-                                     timeout=args.timeout, ros_args=_ros_args(args),
-                                     should_stop=lambda: bool(stops),
-                                     grid_topic=args.grid_topic)
+        value, grid, config, no_config = run_record_map(
+            args.topic, once=args.once, idle=args.idle, timeout=args.timeout,
+            ros_args=_ros_args(args), should_stop=lambda: bool(stops),
+            grid_topic=args.grid_topic)
         st = value.stats
-        save_map(value, None, args.output, args.plot, grid=grid,
+        save_map(value, None, args.output, args.plot, grid=grid, config=config,
                  title=f"{st['segments']} segments from {st['topic']}")
+    if config is None:
+        print(f'polyline-mapper: warning: {args.output} has no config block (the mapper '
+              f'settings the map was made with): {no_config}', file=sys.stderr)
     if args.grid_topic and grid is None:
         print(f'polyline-mapper: warning: no planner map (nav_msgs/OccupancyGrid) of frame '
               f"{value.frame_id} on {st['grid_topic']}: {args.output} has no grid, so `export` "

@@ -405,13 +405,22 @@ def settings_from(values: dict) -> tuple:
                  'map_publish_period', 'marker_width', 'warning_period', 'stats_period',
                  'grid_resolution', 'grid_publish_period'):
         node[name] = float(node[name])
+    return NodeSettings(**node), mapper_config(values)
+
+
+def mapper_config(values: dict) -> IncrementalConfig:
+    """
+    Return the IncrementalConfig of parameter values (``smemsf.*``, ``incremental.*``).
+
+    Other names are ignored; a missing one keeps its default. Raises ValueError with a
+    one-line reason naming the parameter.
+    """
     smemsf = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('smemsf.')}
     inc = {k.split('.', 1)[1]: v for k, v in values.items() if k.startswith('incremental.')}
     try:
-        config = IncrementalConfig(smemsf=SMEMSFConfig.from_dict(smemsf), **inc)
+        return IncrementalConfig(smemsf=SMEMSFConfig.from_dict(smemsf), **inc)
     except ValueError as exc:
         group = 'incremental' if any(str(exc).startswith(k) for k in inc) else 'smemsf'
         raise ValueError(f'{group}.{exc}') from None
     except TypeError as exc:
         raise ValueError(f'bad mapper configuration: {exc}') from None
-    return NodeSettings(**node), config

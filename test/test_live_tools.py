@@ -343,3 +343,41 @@ def test_record_map_keeps_the_planner_map_of_the_map_frame_only():
     quiet = MapRecorder(Node(), grid_topic='')
     quiet._on_map(map_to_msg(value, 'map', Time(sec=5)))
     assert 'grid' not in quiet.to_dict() and 'grid_topic' not in quiet.to_value().stats
+
+
+def test_record_map_of_another_publisher_says_its_file_has_no_config(tmp_path):
+    # record-map stores the mapper settings of the node that published the map (read from its
+    # parameters); a publisher that is not such a node answers with none set, and the file is
+    # written without a config block, with a warning naming why.
+    import threading
+    import rclpy
+    from geometry_msgs.msg import Point
+    from polyline_mapper.ros.qos import MAP_QOS
+    from polyline_mapper_msgs.msg import Polyline, PolylineMap, Segment
+    from rclpy.executors import SingleThreadedExecutor
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('someone_elses_mapper', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinning = threading.Thread(target=executor.spin, daemon=True)
+    try:
+        pub = node.create_publisher(PolylineMap, 'elsewhere_map', MAP_QOS)
+        msg = PolylineMap()
+        msg.header.frame_id = 'map'
+        pts = [Point(x=0.0, y=0.0), Point(x=2.0, y=0.0)]
+        msg.segments = [Segment(start=pts[0], end=pts[1], support=10)]
+        msg.polylines = [Polyline(points=pts, closed=False)]
+        pub.publish(msg)
+        spinning.start()
+        out = tmp_path / 'elsewhere.json'
+        rec = cli('record-map', 'elsewhere_map', '-o', out, '--once', '--timeout', 20,
+                  '--grid-topic', '')
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert rec.returncode == 0, rec.stderr
+    assert read_map(out).config is None
+    assert (f'{out} has no config block (the mapper settings the map was made with): '
+            'someone_elses_mapper is not a polyline_mapper node') in rec.stderr, rec.stderr

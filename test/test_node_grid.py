@@ -41,7 +41,10 @@ def grid_run(office_drive, tmp_path_factory):
     folder = tmp_path_factory.mktemp('node_grid')
     node = NodeProcess(folder, {'map_output_path': str(folder / 'map.json'),
                                 'map_publish_period': 0.1, 'grid_resolution': RES,
-                                'grid_publish_period': 0.3, 'transform_timeout': 0.3})
+                                'grid_publish_period': 0.3, 'transform_timeout': 0.3,
+                                # off its default, where the drive's 541 beams never reach it:
+                                # record-map must store the node's value
+                                'incremental.max_scan_points': 6000})
     peer = Peer('test_peer_grid')
     late = None
     try:
@@ -123,7 +126,8 @@ def test_occupied_cells_are_the_polylines_and_free_cells_the_traced_beams(grid_r
 def test_record_map_stores_the_grid_the_node_publishes(grid_run, tmp_path):
     # record-map took only the polylines: its file exported for map_server had no free cell
     # (the node's ~/save_map stored the grid). Now it keeps the newest grid with the map.
-    from polyline_mapper.formats.mapjson import read_map
+    from polyline_mapper.formats.mapjson import config_dict, read_map
+    from polyline_mapper.params import mapper_config
     from test_planner_export import load_like_map_server
     _, _, _, grids, _, last, _ = grid_run
     out = tmp_path / 'recorded.json'
@@ -131,7 +135,11 @@ def test_record_map_stores_the_grid_the_node_publishes(grid_run, tmp_path):
                           str(out), '--once', '--timeout', '20'], capture_output=True,
                          text=True, timeout=120)
     assert rec.returncode == 0 and 'with its planner map' in rec.stdout, rec.stderr
+    assert 'warning' not in rec.stderr, rec.stderr
     saved = read_map(out)
+    # the mapper settings the node mapped with, read from the node (the file had none)
+    want = config_dict(mapper_config({'incremental.max_scan_points': 6000}))
+    assert saved.config == want and saved.config['max_scan_points'] == 6000
     assert saved['stats']['stamp'] == pytest.approx(last, abs=1e-6)
     assert saved['stats']['grid_stamp'] == pytest.approx(last, abs=1e-6)
     assert np.array_equal(saved.grid.data, _cells(grids[0]))

@@ -9,7 +9,10 @@ beams saw, not only the segments). It stops after the first map (``once``), afte
 seconds without a new map, when ``should_stop()`` says so (the command line sets that from
 SIGINT / SIGTERM, see ``ros.player.stop_on_signals``) or on KeyboardInterrupt, then waits up to
 ``GRID_WAIT`` s for a grid as new as the map (the node publishes it at most every
-``grid_publish_period``), and returns the newest map as a ``MapValue`` with the grid. No map
+``grid_publish_period``), and returns the newest map as a ``MapValue`` with the grid and the
+mapper configuration of the node that published it (its ``smemsf.*`` and ``incremental.*``
+parameters, read through its ``get_parameters`` service as the node's ``~/save_map`` writes its
+own ``config``; None, with the reason, when the publisher is not such a node). No map
 within ``timeout`` seconds, a stop before any map, or a map whose polylines disagree with its
 segments (``read_map`` would refuse the file) is an error (ValueError, one line).
 """
@@ -28,6 +31,9 @@ from ..core.grid import GridMap
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import check_edges, map_value_to_dict
 
+PARAMS_WAIT = 3.0
+"""Seconds ``run_record_map`` waits for the publishing node's parameters."""
+
 GRID_WAIT = 3.0
 """Seconds ``run_record_map`` waits, once it stops, for a planner map as new as the map (the
 node publishes one at most every ``grid_publish_period``, 1 s by default)."""
@@ -38,6 +44,10 @@ class RecordedMap(NamedTuple):
 
     value: MapValue
     grid: Optional[GridMap]
+    config: Optional[dict] = None
+    """The publishing node's mapper configuration (``formats.mapjson.config_dict``), or None."""
+    no_config: str = ''
+    """Why ``config`` is None ('' when it is not)."""
 
 
 def _resolved(node, topic: str) -> str:
@@ -174,7 +184,54 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
             pass
         value = rec.to_value()
         grid = rec.grid()
+        config, why = publisher_config(node, executor, rec.topic, should_stop)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
-    return RecordedMap(value, grid)
+    return RecordedMap(value, grid, config, why)
+
+
+def publisher_config(node, executor, topic: str, should_stop=None) -> tuple:
+    """
+    Read the mapper settings of the node publishing ``topic``: (config, '') or (None, why).
+
+    The publisher's ``get_parameters`` service is asked for every ``smemsf.*`` and
+    ``incremental.*`` parameter (``params.all_params``), within ``PARAMS_WAIT`` s. A publisher
+    without them (another mapper, a bag being played) gives None.
+    """
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+    from ..formats.mapjson import config_dict
+    from ..params import all_params, mapper_config
+    infos = node.get_publishers_info_by_topic(topic)
+    nodes = sorted({(i.node_namespace, i.node_name) for i in infos})
+    if len(nodes) != 1:
+        return None, (f'{len(nodes)} nodes publish {topic}' if nodes
+                      else f'the publisher of {topic} has left')
+    ns, name = nodes[0]
+    service = f"{ns.rstrip('/')}/{name}/get_parameters"
+    names = [p.name for p in all_params() if p.name.startswith(('smemsf.', 'incremental.'))]
+    client = node.create_client(GetParameters, service)
+    try:
+        end = time.monotonic() + PARAMS_WAIT
+        future = None
+        while future is None or not future.done():
+            if should_stop is not None and should_stop():
+                return None, f'stopped before {service} answered'
+            if time.monotonic() >= end:
+                return None, f'{service} did not answer within {PARAMS_WAIT:g} s'
+            if future is None and client.service_is_ready():
+                future = client.call_async(GetParameters.Request(names=names))
+            executor.spin_once(timeout_sec=0.05)
+        values = future.result().values
+        got = {n: parameter_value_to_python(v) for n, v in zip(names, values)}
+        if not values or all(v is None for v in got.values()):
+            return None, f'{name} is not a polyline_mapper node (it has none of its parameters)'
+        if len(values) != len(names) or any(v is None for v in got.values()):
+            return None, (f'{name} has {sum(v is not None for v in got.values())} of the '
+                          f'{len(names)} mapper parameters of this version')
+        return config_dict(mapper_config(got)), ''
+    except (ValueError, TypeError) as exc:
+        return None, f'{name} has parameters this version cannot read ({exc})'
+    finally:
+        node.destroy_client(client)
