@@ -1442,8 +1442,13 @@ class MappingSession:
         there is one. With mapping True the scans are mapped into it. ``reset`` goes back to
         it.
 
-        Raises ValueError (one line) when the map or the pose cannot be used.
+        Raises ValueError (one line) when the map or the pose cannot be used (a map without a
+        segment with mapping False: there is nothing to localize on, and nothing would be
+        mapped).
         """
+        if not self.options.mapping and not len(value.segments):
+            raise ValueError('the saved map holds no segment: nothing to localize on (with '
+                             'mapping false it would stay empty)')
         pose = None
         if initial_pose is not None:
             pose = np.asarray(initial_pose, dtype=np.float64)

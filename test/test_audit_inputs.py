@@ -189,6 +189,14 @@ def test_localizing_on_a_saved_map_without_a_segment_is_refused(empty_map, tmp_p
     outcome = start_refusals([['-p', f'map_input_path:={empty_map}', '-p', 'mapping:=false']],
                              timeout=20.0)[0]
     assert_refused_in_one_line(outcome, ['map_input_path', 'the saved map holds no segment'])
+    # and the session API the node and replay drive (it took the map and mapped nothing)
+    from polyline_mapper.formats.mapjson import read_map
+    from polyline_mapper.session import MappingSession, SessionOptions
+    session = MappingSession(None, SessionOptions(mapping=False))
+    with pytest.raises(ValueError, match='the saved map holds no segment: nothing to localize'):
+        session.load_map(read_map(empty_map).value)
+    assert session.options.scan_matching is False     # nothing changed
+    MappingSession(None, SessionOptions()).load_map(read_map(empty_map).value)   # mapping on
 
 
 def test_a_saved_map_makes_the_node_a_localizer():
