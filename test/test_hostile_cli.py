@@ -767,7 +767,8 @@ def test_record_map_writes_the_map_on_sigterm(tmp_path):
     assert not temp_files(str(tmp_path))
     # a signal does not wait for the publisher's parameters: the file says it has none
     assert data.config is None and 'has no config block' in stderr, stderr
-    assert 'stopped before /hostile_map_publisher/get_parameters answered' in stderr, stderr
+    assert "stopped before the parameters of /hostile_map's publisher were read" in stderr, \
+        stderr
 
 
 # -- 9. the API the node, replay and the live demo use ---------------------------------------

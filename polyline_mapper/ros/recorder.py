@@ -203,17 +203,27 @@ def publisher_config(node, executor, topic: str, should_stop=None) -> tuple:
     from rclpy.parameter import parameter_value_to_python
     from ..formats.mapjson import config_dict
     from ..params import all_params, mapper_config
-    infos = node.get_publishers_info_by_topic(topic)
-    nodes = sorted({(i.node_namespace, i.node_name) for i in infos})
-    if len(nodes) != 1:
-        return None, (f'{len(nodes)} nodes publish {topic}' if nodes
+    end = time.monotonic() + PARAMS_WAIT
+    while True:
+        # (the publisher's endpoint is discovered before its node's name: '_NODE_NAME_UNKNOWN_'
+        # until the participant's data comes)
+        infos = node.get_publishers_info_by_topic(topic)
+        nodes = sorted({(i.node_namespace, i.node_name) for i in infos})
+        known = all('_UNKNOWN_' not in n for _, n in nodes)
+        if should_stop is not None and should_stop():
+            return None, f"stopped before the parameters of {topic}'s publisher were read"
+        if (nodes and known) or time.monotonic() >= end:
+            break
+        executor.spin_once(timeout_sec=0.05)
+    if len(nodes) != 1 or not known:
+        return None, (f'the node publishing {topic} did not make itself known' if nodes
+                      and not known else f'{len(nodes)} nodes publish {topic}' if nodes
                       else f'the publisher of {topic} has left')
     ns, name = nodes[0]
     service = f"{ns.rstrip('/')}/{name}/get_parameters"
     names = [p.name for p in all_params() if p.name.startswith(('smemsf.', 'incremental.'))]
     client = node.create_client(GetParameters, service)
     try:
-        end = time.monotonic() + PARAMS_WAIT
         future = None
         while future is None or not future.done():
             if should_stop is not None and should_stop():
