@@ -617,12 +617,20 @@ def test_true_odometry_matched_holds_a_turtlebot_class_lidar_along_its_corridors
     # 10 m corridor loop, 2 m wide, a 3.5 m lidar: along each side the scans barely constrain
     # the axis. Corrections along it under the kernel scale (about 3 cm) were taken although
     # 5 sigma of a 4 cm step's odometry error is 1 cm: the matched pose lagged the true one
-    # (16 cm along an 8 m side with range-noise seed 2), here 0.095 m RMS, walls F1 0.62. Held
-    # now: 0.047 m, F1 0.96.
-    drive = lds_drive(corridors=True)
-    s = score(drive, replay_records(records(drive), options=SessionOptions(
-        scan_matching=True, keep_points=True, chord_knots='median')))
-    assert s['rms'] < 0.065 and s['walls']['f1'] >= 0.9, (s['rms'], s['walls'])
+    # (16 cm along an 8 m side with range-noise seed 2). One drive is chaotic across CPUs:
+    # seed 1 gave 0.047 m RMS, walls F1 0.96 on an AMD EPYC VM and 0.039 m, F1 0.83 on an Intel
+    # Xeon one (its walls cut by stubs), so the claim is judged over drives 1-10. On the Xeon:
+    # RMS 0.032-0.103 m (median 0.052), F1 0.72-1.00 (median 0.92); with every correction
+    # taken (register.WEAK_SIGMAS infinite, as before the hold) 0.119-0.260 m (median 0.183),
+    # F1 0.21-0.76 (median 0.44).
+    rms, f1 = [], []
+    for seed in range(1, 11):
+        drive = lds_drive(seed, corridors=True)
+        s = score(drive, replay_records(records(drive), options=SessionOptions(
+            scan_matching=True, keep_points=True, chord_knots='median')))
+        rms.append(s['rms'])
+        f1.append(s['walls']['f1'])
+    assert np.median(rms) < 0.065 and max(rms) < 0.15 and np.median(f1) >= 0.9, (rms, f1)
 
 
 def test_the_lds01_preset_maps_a_turtlebot_class_lidar_without_stubs_across_its_walls():
