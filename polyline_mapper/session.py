@@ -68,7 +68,8 @@ from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, match_scan, odometry_
                             transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
-from .poses import (mount_quaternion, PlanarPose, TransformBuffer2D, TransformLookupError)
+from .poses import (mount_quaternion, planar_pose, PlanarPose, quaternion_matrix,
+                    TransformBuffer2D, TransformLookupError)
 from .scan import (beams_to_points, check_scan, scan_to_points, ScanError, usable_beams,
                    valid_ranges)
 
@@ -739,6 +740,10 @@ class RecordSkipped(ValueError):
         self.cause = cause
 
 
+SCAN_TREE_FRAMES = 256
+"""Scan mode: frames whose parent edge is kept (``PoseSource.scan_root``); junk frame names on
+/tf cannot grow it beyond this."""
+
 TIME_JUMP_BACK = 1.0
 """Seconds one transform edge's (or the odometry's) own stamps may step back before that is
 taken as the clock jumping back (a bag or simulation restarted) and the stored dynamic transforms
@@ -788,6 +793,9 @@ class PoseSource:
         self._odom_refused = None
         """(frame, count) of the odometry refused for its frame, while none was taken."""
         self._odom_taken = False
+        self._tree = {}
+        """Scan mode: child frame -> (parent, static, (x, y, yaw) of the edge or None when not
+        planar) from the transforms seen (``scan_root``)."""
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -799,7 +807,11 @@ class PoseSource:
         odom_mode = self.options.pose_source == 'odom'
         note = None
         if self.options.pose_source == 'scan':
-            return None             # scan mode: poses come from the scans alone
+            # scan mode: poses come from the scans alone; transforms only say where the laser
+            # hangs and who owns the root of its tree (``scan_root``)
+            if isinstance(record, Transform):
+                self._note_edge(record)
+            return None
         if isinstance(record, Transform):
             if odom_mode and not record.static:
                 return None         # odom mode: the odometry topic is the only moving edge
@@ -876,6 +888,50 @@ class PoseSource:
                                if stamp == last[0] else
                                f'{last[0] - stamp:.3f} s before the previous one')
                             + ' (pose data must come in stamp order)')
+
+    def _note_edge(self, record: Transform) -> None:
+        """Scan mode: keep a transform's edge for ``scan_root`` (not our own fixed-frame one)."""
+        if record.parent == (self.fixed_frame or self.options.fixed_frame or 'map'):
+            return                  # our own broadcast read back (or another's: see scan_root)
+        if record.child not in self._tree and len(self._tree) >= SCAN_TREE_FRAMES:
+            return
+        xyz = None
+        try:
+            q = np.asarray(record.rotation, dtype=np.float64)
+            rot = quaternion_matrix(q / np.linalg.norm(q))
+            trans = np.asarray(record.translation, dtype=np.float64)
+            if np.isfinite(rot).all() and np.isfinite(trans).all():
+                flat = planar_pose(rot, trans)
+                xyz = None if flat.flip else flat.xyz
+        except (TransformLookupError, ValueError):
+            pass
+        self._tree[record.child] = (record.parent, bool(record.static), xyz)
+
+    def scan_root(self, frame: str, laser_pose) -> tuple:
+        """
+        Scan mode: the root of ``frame``'s tree and its pose in the fixed frame: (root, pose, '').
+
+        From the laser pose the scans placed, up the static transforms (the mounts on
+        /tf_static) to the frame without a static parent: what the node broadcasts under the
+        fixed frame (as hector_mapping broadcasts map -> base_link), so RViz and tf2 place the
+        laser and the robot. (None, None, why) when a transform on /tf already gives that root
+        a parent (odometry: tf2 would then see two parents; use ``pose_source`` tf or odom with
+        ``scan_matching`` there), or a mount is not planar.
+        """
+        pose, seen = np.asarray(laser_pose, dtype=np.float64), {frame}
+        while frame in self._tree:
+            parent, static, mount = self._tree[frame]
+            if not static:
+                return None, None, (f'{frame} already has a parent on /tf ({parent} -> {frame}); '
+                                    'with odometry use pose_source tf or odom and scan_matching')
+            if mount is None:
+                return None, None, f'the mount {parent} -> {frame} is not planar'
+            if parent in seen:
+                return None, None, f'the static transforms above {frame} form a loop'
+            pose = _compose(pose, _inverse(np.asarray(mount)))
+            frame = parent
+            seen.add(frame)
+        return frame, pose, ''
 
     def _set(self, parent, child, stamp, translation, rotation, static) -> None:
         self._last_lookup = None
@@ -1187,6 +1243,8 @@ class Localization(NamedTuple):
     the scans carried their own poses."""
     base_frame: Optional[str]
     """The frame whose pose ``pose`` is (None: the laser's)."""
+    scan_frame: Optional[str] = None
+    """The laser frame of the scan."""
 
 
 _PRIOR = match_scan(np.zeros((0, 2)), np.zeros(3), np.zeros((0, 2, 2)), 1.0).covariance
@@ -1478,6 +1536,19 @@ class MappingSession:
         with self._map_lock:
             self.grid.reset()
             self.grid.seed(self._loaded[1])
+
+    def scan_root(self, loc: 'Localization') -> tuple:
+        """
+        Scan mode: what to broadcast under the fixed frame for ``loc``: (frame, pose, why).
+
+        The root of the scan frame's tree (the frame its static mounts hang from; the laser
+        frame without one) at the pose the scan put it, why '' (``PoseSource.scan_root``); or
+        (None, None, why).
+        """
+        if loc.scan_frame is None:
+            return None, None, 'no scan frame'
+        with self._cv:
+            return self.poses.scan_root(loc.scan_frame, loc.pose)
 
     def set_pose(self, pose, spread=(0.0, 0.0)) -> None:
         """
@@ -1830,7 +1901,7 @@ class MappingSession:
                         if self._deskew is not None:    # placed again from the match's motion
                             local = self._deskew.local()
                         notes += [note] if note is not None else []
-                        notes += self._localize(scan.stamp, given, xyz, before)
+                        notes += self._localize(scan.stamp, given, xyz, before, scan.frame_id)
                         m = self._last_match
                         if self._gap is not None and (m is None or not m.ok):
                             where = (f'after a gap in the scans since {self._gap.since:.3f} s'
@@ -2238,7 +2309,7 @@ class MappingSession:
         return again._replace(relocalized=True)
 
     def _localize(self, stamp: float, given: np.ndarray, laser: np.ndarray,
-                  before: np.ndarray) -> list:
+                  before: np.ndarray, scan_frame: str = None) -> list:
         """
         Set ``localization`` after ``_match`` placed a scan; return jump warnings (cause, text).
 
@@ -2260,7 +2331,8 @@ class MappingSession:
         residual = float(m.residual) if matched else math.nan
         self.localization = Localization(
             float(stamp), pose, cov, np.array(self._correction, dtype=np.float64), matched,
-            residual, self.poses.odom_frame, self.poses.base_frame if base is not None else None)
+            residual, self.poses.odom_frame, self.poses.base_frame if base is not None else None,
+            scan_frame)
         notes = []
         if matched:
             if (len(self._residuals) >= 10

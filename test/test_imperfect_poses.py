@@ -505,6 +505,44 @@ def test_scan_only_needs_no_pose_data_and_starts_at_the_origin():
         SessionOptions(pose_source='lidar')
 
 
+def test_scans_alone_put_the_root_of_the_laser_tree_under_the_map():
+    # Scan mode broadcast nothing, so RViz had no transform from the map to the laser and
+    # showed neither the scans nor the robot. The session now names what the node broadcasts
+    # under the map frame: the frame the laser's static mounts hang from, at its matched pose,
+    # unless a transform on /tf already gives that frame a parent (odometry: tf2 would see two).
+    from test_session import tf
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    mount = np.array([0.2, -0.05, 0.3])
+    scans = records(drive, scans_only=True)[:30]
+    for odometry in (False, True):
+        session = MappingSession(options=SessionOptions(pose_source='scan'))
+        session.add(tf(0.0, 'base_link', 'laser', mount, static=True))
+        session.add(tf(0.0, 'map', 'base_link', (5.0, 5.0, 1.0)))   # our own, read back
+        for k, scan in enumerate(scans):
+            if odometry:
+                session.add(tf(scan.stamp, 'odom', 'base_link', (0.1 * k, 0.0, 0.0)))
+            session.add(scan)
+            session.step()
+        loc = session.localization
+        assert loc.scan_frame == 'laser' and loc.matched
+        frame, pose, why = session.scan_root(loc)
+        if odometry:
+            assert frame is None and why.startswith('base_link already has a parent on /tf '
+                                                    '(odom -> base_link)'), why
+        else:
+            assert frame == 'base_link' and why == ''
+            assert np.allclose(se2_compose(pose, mount), loc.pose, atol=1e-12)
+            truth = se2_compose(se2_inverse(drive.poses[0]), drive.poses[len(scans) - 1])
+            assert np.hypot(*(se2_compose(pose, mount)[:2] - truth[:2])) < 0.05
+    # a scan frame without a mount is its own root
+    session = MappingSession(options=SessionOptions(pose_source='scan'))
+    for scan in scans[:3]:
+        session.add(scan)
+        session.step()
+    frame, pose, _ = session.scan_root(session.localization)
+    assert frame == 'laser' and np.array_equal(pose, session.localization.pose)
+
+
 def test_replay_pose_source_scan_from_the_command_line(tmp_path):
     from polyline_mapper.cli import main
     from polyline_mapper.formats.mapjson import read_map
@@ -523,23 +561,39 @@ def test_replay_pose_source_scan_from_the_command_line(tmp_path):
 @pytest.mark.slow
 @pytest.mark.dds
 def test_the_node_maps_scans_alone(tmp_path):
-    # Over DDS: pose_source scan subscribes to the scans only (no /tf, no odometry) and
-    # publishes a map whose walls, seen from the first scan's laser pose, are the world's.
+    # Over DDS: pose_source scan places the scans by themselves (no odometry; /tf and
+    # /tf_static only to learn where the laser hangs) and publishes a map whose walls, seen from
+    # the first scan's laser pose, are the world's; it broadcasts map -> base_link (the frame
+    # the laser's mount hangs from) at each matched pose, so RViz shows the scans and the robot.
     pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+    from polyline_mapper.ros.messages import transform_msg
+    from polyline_mapper.ros.qos import TF_QOS
     from rosnode import map_segments, NodeProcess, Peer, stamp_of
     drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
     node = NodeProcess(tmp_path, {'pose_source': 'scan', 'map_publish_period': 0.0,
                                   'stats_period': 0.0})
     peer = Peer('test_peer_scan_only')
+    broadcast = []
+    peer.node.create_subscription(
+        peer.TFMessage, '/tf', lambda m: broadcast.extend(
+            t for t in m.transforms if t.header.frame_id == 'map'), TF_QOS)
     try:
         assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
+                               and peer.static_pub.get_subscription_count() > 0
                                and peer.node.count_publishers('/polyline_map') > 0, 60.0)
         peer.spin_for(0.5)
-        assert peer.tf_pub.get_subscription_count() == 0
         assert peer.odom_pub.get_subscription_count() == 0
-        last = peer.play(list(drive_messages(drive)), 25.0, mode='scan')
+        messages = list(drive_messages(drive))
+        static = [r for _, topic, r in messages if topic == '/tf_static']
+        mount = np.array(SIM_MOUNT)
+        assert static[0][0].child == 'laser' and static[0][0].parent == 'base_link'
+        peer.static_pub.publish(peer.TFMessage(transforms=[transform_msg(t) for t in static[0]]))
+        peer.spin_for(0.5)
+        last = peer.play(messages, 25.0, mode='scan')
         assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
             last, abs=1e-6), 60.0), node.stderr()[-3000:]
+        peer.spin_until(lambda: broadcast and stamp_of(broadcast[-1]) == pytest.approx(
+            last, abs=1e-6), 10.0)
         msg = peer.maps[-1]
         assert msg.header.frame_id == 'map'
         segs = map_segments(msg)
@@ -550,6 +604,21 @@ def test_the_node_maps_scans_alone(tmp_path):
     finally:
         peer.close()
         assert node.stop() == 0
+    assert {t.child_frame_id for t in broadcast} == {'base_link'}
+    assert len(broadcast) >= 0.9 * len(drive.poses), (len(broadcast), len(drive.poses))
+    # each is the robot base where its scan's matched laser pose puts it, in the first scan's
+    # laser frame (the map's origin)
+    # (the peer stamps scan k at last - (n - 1 - k) / rate)
+    k = (np.array([stamp_of(t) for t in broadcast]) - last) * 25.0 + len(drive.poses) - 1
+    assert np.allclose(k, np.rint(k), atol=1e-3) and len(set(np.rint(k))) == len(k)
+    k = np.rint(k).astype(int)
+    got = np.array([[t.transform.translation.x, t.transform.translation.y,
+                     2 * np.arctan2(t.transform.rotation.z, t.transform.rotation.w)]
+                    for t in broadcast])
+    truth = se2_compose(se2_inverse(drive.poses[0]),
+                        se2_compose(drive.poses[k], se2_inverse(mount)))
+    err = np.hypot(*(got[:, :2] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05, err
 
 
 def test_scan_consistency_tells_the_true_steps_from_noisy_ones():

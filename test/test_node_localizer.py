@@ -157,11 +157,13 @@ def test_a_second_localizer_on_tf_is_warned_about(office_drive, tmp_path):
     assert len(warned) == 1 and 'map -> odom on /tf' in warned[0], warned
 
 
-def test_scans_alone_publish_the_pose_and_no_transform(tmp_path):
+def test_scans_alone_publish_the_pose_and_the_laser_under_the_map(tmp_path):
     # pose_source scan without scan_matching set: the node matched the scans (the session's
     # scan mode implies it) but published no pose and took no pose estimate, and with it set
     # it warned "not broadcasting map -> None" on every scan (a new-user audit). The
-    # diagnostics' name is the node's full name, so two robots' nodes are told apart.
+    # diagnostics' name is the node's full name, so two robots' nodes are told apart. It
+    # broadcast no transform either, so RViz could not place the scans; now map -> laser (no
+    # mount on /tf_static here: the laser frame is the root of its tree), at each pose.
     from diagnostic_msgs.msg import DiagnosticArray
     from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
     drive = simulate_drive(office_floor(), LaserSpec(noise=0.01), step=0.1, turn=0.1, rng=3)
@@ -187,5 +189,8 @@ def test_scans_alone_publish_the_pose_and_no_transform(tmp_path):
     k = [round((stamp_of(p) - stamp_of(poses[-1])) * RATE) + 79 for p in poses]
     got = np.array([_planar(p.pose.pose) for p in poses])
     assert np.hypot(*(got[:, :2] - want[k, :2]).T).max() < 0.1
-    assert not tfs and not node.lines('not broadcasting'), node.stderr()[-2000:]
+    assert not node.lines('not broadcasting'), node.stderr()[-2000:]
+    assert {(t.header.frame_id, t.child_frame_id) for t in tfs} == {('map', 'laser')}
+    assert [stamp_of(t) for t in tfs] == [stamp_of(p) for p in poses]
+    assert np.array_equal([_planar(t.transform) for t in tfs], got)
     assert {s.name for d in diags for s in d.status} == {'/polyline_mapper_node: mapping'}

@@ -158,7 +158,10 @@ class PolylineMapperNode(Node):
             self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, 'pose', MAP_QOS)
             self.create_subscription(PoseWithCovarianceStamped, 'initialpose',
                                      self._on_initial_pose, 10)
-        if self.settings.pose_source == 'tf':
+        if self.settings.pose_source in ('tf', 'scan'):
+            # scan mode places the scans by themselves: /tf_static says where the laser hangs
+            # and /tf whether another node already gives the root of its tree a parent
+            # (``MappingSession.scan_root``: what it broadcasts under fixed_frame)
             self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      TF_STATIC_QOS)
@@ -187,8 +190,9 @@ class PolylineMapperNode(Node):
         log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
                  f'poses from {s.pose_source}, update every {s.update_every_n_scans} scan(s)'
                  + (f'; scan matching: pose on {self.resolve_topic_name("pose")}'
-                    + ('' if s.pose_source == 'scan' else
-                       f', broadcasting {s.fixed_frame} -> odometry frame')
+                    + f', broadcasting {s.fixed_frame} -> '
+                    + ("the root of the laser frame's tree" if s.pose_source == 'scan'
+                       else 'odometry frame')
                     if s.scan_matching else ''))
 
     # -- parameters ----------------------------------------------------------------------------
@@ -377,7 +381,15 @@ class PolylineMapperNode(Node):
         frame = self.settings.fixed_frame
         self.pose_pub.publish(pose_msg(frame, time_msg(loc.stamp), loc.pose, loc.covariance))
         if loc.odom_frame is None and self.settings.pose_source == 'scan':
-            return                          # scans alone: no odometry frame to correct
+            # scans alone: no odometry frame to correct; the robot itself goes under the map
+            # frame (hector_mapping's map -> base_link), at its scan's stamp
+            child, pose, why = self.session.scan_root(loc)
+            if child is None:
+                self.warnings.warn('tf_frames', f'not broadcasting {frame} -> the laser: {why}')
+                return
+            self.tf_pub.publish(self._tf_message(transforms=[planar_transform_msg(
+                frame, child, time_msg(loc.stamp), pose)]))
+            return
         if loc.odom_frame is None or loc.odom_frame == frame:
             self.warnings.warn('tf_frames', f'not broadcasting {frame} -> {loc.odom_frame}: the '
                                'odometry frame must differ from fixed_frame with scan matching')
