@@ -239,3 +239,46 @@ def test_a_log_skips_bad_records_with_reasons_a_person_reads(tmp_path):
         'line 7: FLASER record has a field that is not a number (invalid literal for int() '
         "with base 10: '4.5')",
         'line 8: ROBOTLASER1 record is shorter than its counts say']
+
+
+@pytest.mark.parametrize('count', [3, 1])
+def test_a_flaser_count_below_its_readings_is_a_malformed_record(tmp_path, count):
+    """A FLASER whose count is lower than its readings is skipped, not read as other fields."""
+    # FLASER n holds n readings, the laser pose, the odometry pose and 1-3 times: with a count
+    # too low the next readings were taken for the pose and the time (a map of nonsense and
+    # 'log times do not increase'); a count too high was already refused.
+    from polyline_mapper.formats.carmen import read_carmen
+    good = 'FLASER 4 1.0 1.0 1.0 1.0 0 0 0 0 0 0 1.0 host 1.0\n'
+    short = good.replace('FLASER 4 ', f'FLASER {count} ')
+    bare = 'FLASER 4 1.0 1.0 1.0 1.0 0 0 0 0 0 0 1.0\n'       # no host, no logger time
+    log = read_carmen(write(tmp_path, 'count.log', good * 3 + short + bare + good))
+    assert len(log.records) == 5 and log.skipped == 1
+    assert log.skipped_examples == [
+        f'line 4: FLASER announces {count} readings but the line has 15 fields']
+
+
+@pytest.mark.parametrize('glitch', ['100.0', '1e300'])
+def test_one_glitched_reading_does_not_hide_the_no_return_code(tmp_path, glitch):
+    """A single reading above a log's no-return code leaves the no-returns dropped."""
+    # The code was the largest reading when it occurred more than once: one glitch above it
+    # (a corrupt reading) made the log have none, and every 81.83 m no-return became a point
+    # (Intel: 4172 points 81 m out, mean distance 2.39 -> 8.09 cm, 0.8 -> 21.6 % contradicted;
+    # a 1e300 glitch made fit refuse the whole log).
+    from polyline_mapper.formats.carmen import read_carmen
+    rng = np.random.default_rng(0)
+    lines = []
+    for i in range(20):
+        ranges = np.round(rng.uniform(1.0, 8.0, 180), 2)
+        ranges[::9] = 81.83                                   # the no-returns
+        if i == 7:
+            ranges = ranges.astype(object)
+            ranges[50] = glitch
+        vals = ' '.join(str(v) for v in ranges)
+        lines.append(f'FLASER 180 {vals} {0.1 * i} 0 0 {0.1 * i} 0 0 {i} host {i}\n')
+    path = write(tmp_path, 'glitch.log', ''.join(lines))
+    log = read_carmen(path)
+    assert log.no_return == 81.83
+    points = log.points()
+    assert len(points) == 20 * 160 - 1 and np.abs(points).max() < 11.0
+    out = str(tmp_path / 'map.json')
+    assert main(['fit', path, '-o', out, '-q']) == 0

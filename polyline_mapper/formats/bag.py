@@ -73,9 +73,18 @@ def _read_errors() -> tuple:
         from apsw import Error as ApswError          # rosbags' sqlite3 storage
     except ImportError:                               # pragma: no cover
         ApswError = sqlite3.Error
+    try:                                              # rosbags' zstd: rosbag2 compression, mcap
+        from compression.zstd import ZstdError       # chunks (Python >= 3.14)
+    except ImportError:
+        try:
+            from backports.zstd import ZstdError
+        except ImportError:                           # pragma: no cover
+            ZstdError = ValueError
+    # lz4.frame (mcap lz4 chunks, ROS 1 lz4 chunks) raises a bare RuntimeError on damaged data
     return (AnyReaderError, Reader1Error, Reader2Error, ApswError, sqlite3.Error, OSError,
             EOFError, struct.error, ValueError, IndexError, KeyError, TypeError,
-            UnicodeDecodeError, AssertionError, ArithmeticError, MemoryError, RecursionError)
+            UnicodeDecodeError, AssertionError, ArithmeticError, MemoryError, RuntimeError,
+            ZstdError)
 
 
 def _stamp(header) -> float:

@@ -7,8 +7,9 @@ pose x, y, theta, the odometry pose, and time stamps; beam i is at -pi/2 + i*pi/
 resolution and maximum range, and the laser pose after the remissions.
 
 No-return readings: FLASER does not state the sensor's maximum range, and logs encode a missing
-echo as that maximum (50, 51.2, 81.83, 81.91 m ...). When the largest reading of a log occurs more
-than once, it is taken as that code and every reading >= 0.99 x it is dropped. ROBOTLASER1 records
+echo as that maximum (50, 51.2, 81.83, 81.91 m ...). The largest reading of a log that occurs more
+than once is taken as that code, when at most 1 in 1000 readings lie above it (single glitches,
+dropped with it), and every reading >= 0.99 x it is dropped. ROBOTLASER1 records
 use their own maximum range.
 
 For bags and the replay, a log also gives its laser mount (``robot_frontlaser_offset``, metres
@@ -133,7 +134,7 @@ def _check_pose(pose: np.ndarray) -> None:
 
 def _parse_flaser(tok: list) -> LaserRecord:
     n = int(tok[1])
-    if n < 1 or len(tok) < n + 9:
+    if n < 1 or not n + 9 <= len(tok) <= n + 11:     # the host and logger time are optional
         raise ValueError(f'FLASER announces {n} readings but the line has {len(tok)} fields')
     vals = np.array(tok[2:n + 9], dtype=np.float64)
     ranges, pose, odom, stamp = vals[:n], vals[n:n + 3], vals[n + 3:n + 6], vals[n + 6]
@@ -199,6 +200,8 @@ def _lines(fh, limit: int = MAX_LINE_BYTES):
         yield line, True
 
 
+NO_RETURN_GLITCHES = 1e-3
+"""Share of a log's readings that may lie above its no-return code as single glitches."""
 MIN_PERIOD = 1e-6
 """Seconds: made-up stamps closer than this would be one (maps and bags keep 1 us / 1 ns)."""
 ROS_TIME_END = 2.0 ** 31
@@ -224,10 +227,9 @@ def read_carmen(path: str) -> CarmenLog:
 
     lineno = 0
     try:
-        with open(path, 'rb') as fh:
-            head = fh.read(2)
-        opener = gzip.open if head == b'\x1f\x8b' else open
-        with opener(path, 'rb') as fh:
+        with open(path, 'rb') as plain:      # opened once: a pipe (/dev/stdin) is read once
+            gzipped = plain.peek(2)[:2] == b'\x1f\x8b'
+            fh = gzip.GzipFile(fileobj=plain, mode='rb') if gzipped else plain
             for lineno, (raw, over_long) in enumerate(_lines(fh), 1):
                 if over_long:
                     skip(lineno, f'longer than {MAX_LINE_BYTES:,} bytes')
@@ -273,8 +275,11 @@ def read_carmen(path: str) -> CarmenLog:
     if flaser:
         allr = np.concatenate(flaser)
         allr = allr[np.isfinite(allr)]
-        if allr.size:
-            top = allr.max()
-            if np.count_nonzero(allr == top) > 1:
-                no_return = float(top)
+        values, counts = np.unique(allr, return_counts=True)
+        repeated = values[counts > 1]
+        # the largest repeated reading; a few single ones above it (at most 1 in 1000) are
+        # glitches, which must not hide the code and turn every no-return into a point
+        if repeated.size and (np.count_nonzero(allr > repeated[-1])
+                              <= NO_RETURN_GLITCHES * allr.size):
+            no_return = float(repeated[-1])
     return CarmenLog(records, skipped, examples, no_return, _offset(robotlaser, front))
