@@ -387,6 +387,18 @@ def _frame(text: str) -> str:
     return text
 
 
+XY_YAW_BOUNDS = '|X|, |Y| <= 1e6, |YAW_DEG| <= 360'
+"""What --laser-mount and --initial-pose take: a yaw of 1e300 degrees ran to the end (its
+radians meaningless after the wrap) with only a warning that the scans disagree."""
+
+
+def _check_xy_yaw(x: float, y: float, yaw_deg: float) -> None:
+    """Raise ValueError unless x, y (m) and yaw (deg) are finite and within XY_YAW_BOUNDS."""
+    if not (np.isfinite([x, y, yaw_deg]).all() and max(abs(x), abs(y)) <= 1e6
+            and abs(yaw_deg) <= 360.0):
+        raise ValueError
+
+
 def _mount(text: str) -> tuple:
     """Parse ``X,Y,YAW_DEG[,flip]`` into ((x, y, yaw rad) or None, upside_down)."""
     if text is None:
@@ -397,11 +409,10 @@ def _mount(text: str) -> tuple:
         if len(parts) != (4 if flip else 3):
             raise ValueError
         x, y, yaw = (float(v) for v in parts[:3])
-        if not np.isfinite([x, y, yaw]).all():
-            raise ValueError
+        _check_xy_yaw(x, y, yaw)
     except ValueError:
         raise CliError('--laser-mount expects X,Y,YAW_DEG or X,Y,YAW_DEG,flip (metres, '
-                       f'degrees), got {text!r}') from None
+                       f'degrees; {XY_YAW_BOUNDS}), got {text!r}') from None
     return (x, y, float(np.deg2rad(yaw))), flip
 
 
@@ -436,11 +447,11 @@ def _initial_pose(text: str) -> tuple:
         if len(parts) != 3:
             raise ValueError
         x, y, yaw = (float(v) for v in parts)
-        if not np.isfinite([x, y, yaw]).all():
-            raise ValueError
+        _check_xy_yaw(x, y, yaw)
     except ValueError:
         raise CliError('--initial-pose expects X,Y,YAW_DEG (metres, metres, degrees: the '
-                       f'robot in the map at the first scan), got {text!r}') from None
+                       f'robot in the map at the first scan; {XY_YAW_BOUNDS}), got {text!r}'
+                       ) from None
     return x, y, float(np.deg2rad(yaw))
 
 

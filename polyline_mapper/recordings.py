@@ -65,8 +65,12 @@ SIM_OPTIONS = {
     'beams': 'beams per scan (default 541 over 270 degrees)',
 }
 """Options of a ``sim:`` drive, ``sim:WORLD,KEY=VALUE,...``; none given: today's drive."""
-SIM_LOWEST = {'step': 0.01, 'turn': 0.01}
-"""Smallest step (m) and turn (rad) per scan: the drive's scans grow as their inverse."""
+SIM_LOWEST = {'step': 0.01, 'turn': 0.01, 'rate': 0.01}
+"""Smallest step (m) and turn (rad) per scan: the drive's scans grow as their inverse; smallest
+rate (scans a second): the stamps grow as its inverse (1e-300 made them infinite, which no map
+file holds)."""
+SIM_HIGHEST = {'step': 10.0, 'rate': 1000.0}
+"""Largest step (m) and rate (scans a second; beyond it stamps would crowd a clock's 1 ns)."""
 SIM_START = 1000.0
 """Stamp of a simulated drive's first scan, seconds (non-zero: ROS reads time 0 as unset)."""
 SIM_MOUNT = (0.2, 0.0, 0.0)
@@ -325,13 +329,15 @@ def sim_options(name: str) -> tuple:
             else:
                 v = float(value)
                 low = SIM_LOWEST.get(key, 0.0)      # a drive of 1e-9 m steps: 15 GB
-                ok = math.isfinite(v) and v > 0 and v >= low and (key != 'step' or v <= 10)
+                ok = (math.isfinite(v) and v > 0 and v >= low
+                      and v <= SIM_HIGHEST.get(key, math.inf))
         except (KeyError, ValueError):
             ok = False
         if not ok:
             want = {'odom_drift': 'an integer seed >= 0', 'beams': 'an integer >= 2',
                     'moving_sensor': '0 or 1', 'step': 'a number of metres in [0.01, 10]',
-                    'turn': 'a number of radians >= 0.01'}
+                    'turn': 'a number of radians >= 0.01',
+                    'rate': 'a number of scans per second in [0.01, 1000]'}
             raise ValueError(f'{text}: {key} must be {want.get(key, "a number > 0")}, got '
                              f'{value!r}')
         out[key] = v

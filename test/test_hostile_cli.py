@@ -575,6 +575,14 @@ OPTION_CASES = [
      'step must be a number of metres in [0.01, 10]'),
     ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
      'turn must be a number of radians >= 0.01'),
+    # stamps 1e300 s apart: 12 s of work, then 'Out of range float values are not JSON
+    # compliant', naming neither the file nor the cause (a bad-input audit)
+    ('sim rate 1e-300', ['replay', 'sim:office,rate=1e-300', '-o', '{out}'],
+     'rate must be a number of scans per second in [0.01, 1000]'),
+    ('laser mount yaw 1e300 deg', ['replay', '{bag}', '-o', '{out}', '--pose-source', 'odom',
+                                   '--laser-mount', '0,0,1e300'],
+     '--laser-mount expects X,Y,YAW_DEG or X,Y,YAW_DEG,flip (metres, degrees; |X|, |Y| <= 1e6, '
+     '|YAW_DEG| <= 360)'),
     # read with the odometry pose source only: given with another, they changed nothing
     ('replay --laser-mount, tf', ['replay', '{bag}', '-o', '{out}', '--laser-mount', '5,5,90'],
      '--laser-mount applies with --pose-source odom only (given: tf)'),
@@ -844,6 +852,9 @@ SAVED_MAPS = {
     'sigma 1e300': (_saved(sigma=1e300), 'no noise scale (stats.sigma, in (0, 10] m; got 1e+300)'),
     'sigma 11 m': (_saved(sigma=11.0), 'no noise scale'),
     'empty frame_id': (_map(frame_id=''), '"frame_id" must name a frame, got an empty string'),
+    # export wrote it into an SVG that did not parse as XML (a bad-input audit)
+    'frame_id with NUL': (_map(frame_id='map\x00'),
+                          '"frame_id" must not hold control characters, got ' + repr('map\x00')),
     'segment of 2e7 m': (_saved(segments=((-1e7, 0, 1e7, 0),)),
                          'the map holds 2e+07 m of segments, more than 1e+05 m'),
     # 20000 segments in 0.2 m x 0.2 m: scipy's pairing of their support asked for more memory
@@ -1022,3 +1033,16 @@ def test_a_log_read_from_a_pipe_keeps_its_first_record(gzipped):
     finally:
         os.close(rfd)
     assert len(log.records) == 4 and log.skipped == 0
+
+
+# -- 15. a device given as a log -------------------------------------------------------------
+@pytest.mark.skipif(not os.path.exists('/dev/zero'), reason='needs /dev/zero')
+def test_convert_refuses_a_device_at_once(tmp_path):
+    """``convert /dev/zero`` is one line, exit 2, not a stream read for ever."""
+    # it never ended (killed at 120 s, a bad-input audit): fit and replay refused it already
+    out = tmp_path / 'bag'
+    proc = subprocess.run(CLI + ['convert', '/dev/zero', '-o', str(out)], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
+        'polyline-mapper: error: /dev/zero: a device, not a CARMEN log file (a file or a pipe)']
+    assert not out.exists()

@@ -347,6 +347,8 @@ def _garbage(tmp_path):
     (lambda t, m: ['--map', m, '--initial-pose', '1,2'], '--initial-pose expects X,Y,YAW_DEG'),
     (lambda t, m: ['--map', m, '--initial-pose', 'nan,0,0'], '--initial-pose expects'),
     (lambda t, m: ['--map', m, '--initial-pose', '1,2,x'], '--initial-pose expects'),
+    # a yaw of 1e300 degrees ran to the end (a bad-input audit)
+    (lambda t, m: ['--map', m, '--initial-pose', '0,0,1e300'], '|YAW_DEG| <= 360'),
     (lambda t, m: ['--no-mapping'], '--no-mapping applies to a saved map: give --map'),
     (lambda t, m: ['--initial-pose', '0,0,0'], '--initial-pose applies to a saved map'),
 ])

@@ -20,6 +20,8 @@ in LaserScan form (``CarmenLog.scans``) with stamps from the log times when they
 
 from dataclasses import dataclass, field
 import gzip
+import os
+import stat
 from typing import Optional
 import zlib
 
@@ -228,6 +230,10 @@ def read_carmen(path: str) -> CarmenLog:
     lineno = 0
     try:
         with open(path, 'rb') as plain:      # opened once: a pipe (/dev/stdin) is read once
+            mode = os.fstat(plain.fileno()).st_mode
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
+                # /dev/zero streamed forever (convert never ended); a terminal waits for typing
+                raise ValueError(f'{path}: a device, not a CARMEN log file (a file or a pipe)')
             gzipped = plain.peek(2)[:2] == b'\x1f\x8b'
             fh = gzip.GzipFile(fileobj=plain, mode='rb') if gzipped else plain
             for lineno, (raw, over_long) in enumerate(_lines(fh), 1):

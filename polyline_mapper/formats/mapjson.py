@@ -328,6 +328,10 @@ def map_value_from_dict(data) -> MapValue:
         raise ValueError('"frame_id" must be a string')
     if not data['frame_id'].strip():        # the map's frame: published, broadcast on /tf
         raise ValueError('"frame_id" must name a frame, got an empty string')
+    if any(ord(c) < 32 or ord(c) == 127 for c in data['frame_id']):
+        # (export wrote it into the SVG, which then did not parse as XML)
+        raise ValueError(f'"frame_id" must not hold control characters, got '
+                         f'{data["frame_id"]!r}')
     segs = _coords(data['segments'], 4, '"segments"')
     polys = data['polylines']
     if not isinstance(polys, list):
