@@ -898,7 +898,8 @@ class PoseSource:
         xyz = None
         try:
             q = np.asarray(record.rotation, dtype=np.float64)
-            rot = quaternion_matrix(q / np.linalg.norm(q))
+            with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+                rot = quaternion_matrix(q / np.linalg.norm(q))      # (a zero one: NaN)
             trans = np.asarray(record.translation, dtype=np.float64)
             if np.isfinite(rot).all() and np.isfinite(trans).all():
                 flat = planar_pose(rot, trans)
@@ -925,7 +926,8 @@ class PoseSource:
                 return None, None, (f'{frame} already has a parent on /tf ({parent} -> {frame}); '
                                     'with odometry use pose_source tf or odom and scan_matching')
             if mount is None:
-                return None, None, f'the mount {parent} -> {frame} is not planar'
+                return None, None, (f'the mount {parent} -> {frame} is not planar (tilted, '
+                                    'flipped or invalid)')
             if parent in seen:
                 return None, None, f'the static transforms above {frame} form a loop'
             pose = _compose(pose, _inverse(np.asarray(mount)))
