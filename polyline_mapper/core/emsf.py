@@ -20,6 +20,18 @@ import numpy as np
 from .geometry import directions, group_minmax, lengths
 from .index import Pairs, PointIndex
 
+END_SIGMAS = 2.0
+"""Trimming with the beams known (``PointIndex.beams``): each supporting point bounds its
+segment's extent only up to its position moved inwards by this many times its error along the
+line, its noise scale x |cos| of the angle between its beam and the line. A range error moves a
+point along its beam; at grazing incidence that is along the wall, and the extreme projection
+of a wall's points, which the old map's virtual points then hold for good, lay beyond its end
+by the largest such error of the whole drive. The incremental mapper passes the beams only with
+``SMEMSFConfig.range_noise`` > 0 (the per-point noise model this rides on), so the default maps
+are untouched. A constant, not a config field: 2 noise scales is a property of the noise model,
+not of a site or a lidar (those go in range_noise), and a field would need the node's parameter
+descriptors and the config files for no tuning anyone needs."""
+
 
 @dataclass
 class EStep:
@@ -32,7 +44,7 @@ class EStep:
 
 
 def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
-           extend: float = 0.0, pairs: Pairs = None) -> EStep:
+           extend: float = 0.0, pairs: Pairs = None, grow: float = None) -> EStep:
     """
     Compute responsibilities of the segments for the points.
 
@@ -53,6 +65,11 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     pairs : Pairs
         The pairs of the (extended) segments within ``kappa * sigma``, when the caller already
         has them (see ``index.piece_pairs``); queried from ``index`` when None.
+    grow : float
+        With the beams known (``index.beams``) and ``extend`` beyond it: a point past an end
+        pairs with the segment only within ``grow`` plus ``END_SIGMAS`` times its error along
+        the line (``_along_error``), the most trimming moves it back, so the segment grows by
+        up to ``grow`` however grazing the beams, and no farther for the points seen head-on.
 
     """
     n = len(index)
@@ -67,6 +84,12 @@ def e_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: float,
     scale = index.sigmas(sigma)
     if scale is not None:               # each point's own cut-off, kappa times its noise scale
         pairs = pairs.where(pairs.dist <= kappa * scale.take(pairs.pt))
+    if grow is not None and extend > grow and index.beams is not None and len(pairs.pt):
+        u, length = directions(segments)
+        t = pairs.along - extend
+        past = np.maximum(-t, t - length.take(pairs.seg))
+        pairs = pairs.where(past <= grow + END_SIGMAS * _along_error(index, pairs.pt, u,
+                                                                     pairs.seg, sigma))
     if len(pairs.pt) == 0:
         return EStep(pairs, np.zeros(0), np.full(n, -1, dtype=np.intp))
     # Kernel and outlier class relative to each point's nearest segment, so nothing underflows
@@ -145,7 +168,34 @@ def _lines(px, py, seg, w, k, return_thickness=False):
     return centre, direction, mass
 
 
-def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, fraction):
+def _extent(t, seg, k, spread=None):
+    """
+    Per-group [lo, hi] of the positions ``t``, each first moved inwards by its ``spread``.
+
+    A group whose moved positions leave no interval keeps the plain one (its points are all
+    too uncertain along the line to say more).
+    """
+    lo, hi = group_minmax(t, seg, k)
+    if spread is None:
+        return lo, hi
+    lo2, _ = group_minmax(t + spread, seg, k)
+    _, hi2 = group_minmax(t - spread, seg, k)
+    ok = hi2 > lo2
+    return np.where(ok, lo2, lo), np.where(ok, hi2, hi)
+
+
+def _along_error(index: PointIndex, pt: np.ndarray, direction: np.ndarray, seg: np.ndarray,
+                 sigma: float) -> np.ndarray:
+    """Each point's range error along the line of ``seg`` (m): noise scale x |beam . u|."""
+    b = index.beams
+    cos = np.abs(np.take(b[:, 0], pt) * np.take(direction[:, 0], seg)
+                 + np.take(b[:, 1], pt) * np.take(direction[:, 1], seg))
+    scale = index.sigmas(sigma)
+    return cos * (sigma if scale is None else scale.take(pt))
+
+
+def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, fraction,
+                        spread=None):
     """
     Move each group's [lo, hi] inwards past end bins where it owns too few of the nearby points.
 
@@ -153,7 +203,7 @@ def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, frac
     seg_near, w_near``: the same for every point near the segment. Bins are ``width`` long from
     lo. An end bin is kept when the owned weight is at least ``fraction`` of the nearby weight.
     A group that owns less than that in every bin is a redundant twin of others: its interval
-    comes back empty (lo == hi), so it is dropped.
+    comes back empty (lo == hi), so it is dropped. ``spread``: see ``_extent``.
     """
     k = len(lo)
     ok = hi > lo
@@ -181,7 +231,8 @@ def _trim_foreign_tails(t, seg, w, t_near, seg_near, w_near, lo, hi, width, frac
     np.maximum.at(last, owner_g, pos_g)
     b = b_own - off.take(seg)
     keep = (b >= first.take(seg)) & (b <= last.take(seg))
-    new_lo, new_hi = group_minmax(t.compress(keep), seg.compress(keep), k)
+    new_lo, new_hi = _extent(t.compress(keep), seg.compress(keep), k,
+                             None if spread is None else spread.compress(keep))
     gone = ~np.isfinite(new_lo)
     new_lo[gone] = new_hi[gone] = 0.0
     return new_lo, new_hi
@@ -237,9 +288,22 @@ def redundant_segments(est: EStep, segments: np.ndarray, r: float,
     return cand & longer
 
 
-def extend_for(index: PointIndex, r: float) -> float:
-    """How far (m) the E-step extends segments at both ends: r with an old map present, else 0."""
-    return r if index.n_real < len(index) else 0.0
+def extend_for(index: PointIndex, r: float, sigma: float = None) -> float:
+    """
+    How far (m) the E-step extends segments at both ends: 0 without an old map, else r.
+
+    With the beams known and ``sigma`` given, r plus ``END_SIGMAS`` times the largest noise
+    scale of a point: trimming moves each point that far inwards at most (``_along_error``), so
+    a wall still grows by up to r an update where only grazing beams see its continuation
+    (with r alone its end stalled there and the points beyond seeded a second segment, apart).
+    ``e_step(grow=r)`` keeps of the points past an end only those within r plus their own
+    share of that.
+    """
+    if index.n_real >= len(index):
+        return 0.0
+    if sigma is not None and index.beams is not None and END_SIGMAS > 0:
+        return r + END_SIGMAS * index.widest(sigma)
+    return r
 
 
 def _along(index: PointIndex, pt: np.ndarray, centre: np.ndarray, direction: np.ndarray,
@@ -284,7 +348,8 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     # Incremental mapping (an old map present as virtual points): walls grow as they come into
     # view, so distances are measured to segments extended by r. A batch fit grows walls by
     # going coarse to fine, and extending there would overshoot shallow corners.
-    est = e_step(index, segments, sigma, kappa, extend=extend_for(index, r), pairs=pairs)
+    est = e_step(index, segments, sigma, kappa, extend=extend_for(index, r, sigma), pairs=pairs,
+                 grow=r)
     if k == 0 or len(est.pairs.pt) == 0:
         est.kept = np.zeros(0, dtype=np.intp)
         return np.zeros((0, 2, 2)), np.zeros(0), est
@@ -295,6 +360,8 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
     sup_seg = est.support.take(sup_pts)
     sup_mass = np.bincount(sup_seg, weights=index.weights.take(sup_pts), minlength=k)
     t = _along(index, sup_pts, centre, direction, sup_seg)
+    spread = (END_SIGMAS * _along_error(index, sup_pts, direction, sup_seg, sigma)
+              if index.beams is not None and END_SIGMAS > 0 else None)
     lo, hi = group_minmax(t, sup_seg, k)
     if tail_fraction > 0:
         # Points near a segment that count against its ends: its own, and those of segments
@@ -309,7 +376,10 @@ def emsf_step(index: PointIndex, segments: np.ndarray, sigma: float, kappa: floa
         pn, sn = pt.compress(near), est.pairs.seg.compress(near)
         t_near = _along(index, pn, centre, direction, sn)
         lo, hi = _trim_foreign_tails(t, sup_seg, index.weights.take(sup_pts), t_near, sn,
-                                     index.weights.take(pn), lo, hi, 2.0 * r, tail_fraction)
+                                     index.weights.take(pn), lo, hi, 2.0 * r, tail_fraction,
+                                     spread)
+    elif spread is not None:
+        lo, hi = _extent(t, sup_seg, k, spread)
     extent = np.where(hi > lo, hi - lo, 0.0)
     keep = ((sup_mass >= min_support) & (sup_mass >= min_density * extent / (2.0 * r))
             & (mass > 0) & (hi > lo))

@@ -92,7 +92,7 @@ from .index import near_points, PointIndex, SegmentGrid
 from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
-from .smemsf import range_noise_of, smemsf_iteration, SMEMSFConfig
+from .smemsf import beams_of, range_noise_of, smemsf_iteration, SMEMSFConfig
 from .split import (accumulate_evidence, carry_evidence, cut_squares, free_squares,
                     square_centres, square_layout)
 from ..scan import scan_to_points
@@ -324,6 +324,7 @@ class IncrementalMapper:
         self._buffer = deque(maxlen=int(self.config.buffer_scans))
         self._cells = deque(maxlen=int(self.config.buffer_scans))   # grid cells of each scan
         self._extra = deque(maxlen=int(self.config.buffer_scans))   # range noise of each point
+        self._beams = deque(maxlen=int(self.config.buffer_scans))   # with range_noise: beams
         self._noise = []
         self._scales = deque(maxlen=int(self.config.sigma_window))
         self._spacings = deque(maxlen=int(self.config.sigma_window))
@@ -433,7 +434,7 @@ class IncrementalMapper:
         """Bytes held by the map arrays and the scan buffer."""
         return (self._seg.nbytes + self._sup.nbytes + self._alive.nbytes + self._box.nbytes
                 + sum(p.nbytes for p in self._buffer) + sum(c.nbytes for c in self._cells)
-                + sum(e.nbytes for e in self._extra)
+                + sum(e.nbytes for e in self._extra) + sum(b.nbytes for b in self._beams)
                 + self._ev_at.nbytes + self._ev_n.nbytes + self._pool.nbytes
                 + sum(g.nbytes for g in self._ghosts)
                 + (self._memory.nbytes if self._memory is not None else 0))
@@ -491,6 +492,7 @@ class IncrementalMapper:
         self._buffer.append(pts)
         self._cells.append(self._grid.cells(pts))
         self._extra.append(self._range_noise(pts, origins))
+        self._beams.append(self._beam_directions(pts, origins))
         self._note_spacing(pts, ordered)
         window = np.concatenate(self._buffer)
         if not self._sigma_ready(window):
@@ -511,7 +513,9 @@ class IncrementalMapper:
                            np.concatenate([np.ones(len(window)), vw]), virtual=len(virt),
                            sample_spacing=8.0,
                            extra=np.concatenate([extra, np.zeros(len(virt))]) if extra.any()
-                           else None)
+                           else None,
+                           beams=np.concatenate([*self._beams, np.zeros((len(virt), 2))])
+                           if self.config.smemsf.range_noise else None)
         segs = old
         for _ in range(int(self.config.iterations)):
             segs, sup, info = smemsf_iteration(index, segs, sigma, cfg, incremental=True)
@@ -575,6 +579,20 @@ class IncrementalMapper:
         if origins is None or not share:
             return np.zeros(len(pts))
         return range_noise_of(pts, origins, share)
+
+    def _beam_directions(self, pts: np.ndarray, origins) -> np.ndarray:
+        """
+        Return each point's beam direction (``PointIndex.beams``; 0 bare), with range noise only.
+
+        Trimming each end by its points' errors along the wall (``emsf.END_SIGMAS``) is part of
+        the range-noise model (``SMEMSFConfig.range_noise`` > 0): without it, no beams (an empty
+        array per scan), so the maps stay exactly those of the plain sigma model.
+        """
+        if not self.config.smemsf.range_noise:
+            return np.zeros((0, 2))
+        if origins is None:
+            return np.zeros((len(pts), 2))
+        return beams_of(pts, origins)
 
     def _thin(self, pts: np.ndarray, origins) -> tuple:
         """Thin each run of one origin to ``max_scan_points`` (every k-th point, in order)."""

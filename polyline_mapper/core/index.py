@@ -104,7 +104,8 @@ class PointIndex:
     """
 
     def __init__(self, points: np.ndarray, weights: np.ndarray = None, virtual: int = 0,
-                 sample_spacing: float = 3.0, extra: np.ndarray = None):
+                 sample_spacing: float = 3.0, extra: np.ndarray = None,
+                 beams: np.ndarray = None):
         """
         Index points with optional multiplicities.
 
@@ -119,6 +120,13 @@ class PointIndex:
         that grows with the range: ``SMEMSFConfig.range_noise`` x the range; 0 for virtual
         points). A point's own noise scale is then hypot(sigma, extra) (``sigmas``); None: every
         point has the map's sigma.
+
+        ``beams`` (N, 2): the unit vector of each point's beam, from the laser to the point (0
+        for virtual points and bare points). With it, a laser's range error, which moves a
+        point along its beam, counts along a line as much as the beam runs along it: trimming
+        takes each end from the supporting points' positions moved inwards by ``END_SIGMAS``
+        times that error (``emsf.emsf_step``). None: ends from the positions as they are (the
+        incremental mapper passes beams only with ``SMEMSFConfig.range_noise`` > 0).
         """
         self.points = as_points(points)
         self.weights = (np.ones(len(self.points)) if weights is None
@@ -137,6 +145,13 @@ class PointIndex:
                 raise ValueError(f'extra must be {len(self.points)} finite values >= 0')
             if extra.size and extra.max() > 0:
                 self.extra = extra
+        self.beams = None
+        if beams is not None:
+            beams = np.asarray(beams, dtype=np.float64)
+            if beams.shape != (len(self.points), 2) or not np.isfinite(beams).all():
+                raise ValueError(f'beams must be ({len(self.points)}, 2) finite values')
+            if beams.size and np.abs(beams).max() > 0:
+                self.beams = beams
 
     def __len__(self) -> int:
         return len(self.points)
