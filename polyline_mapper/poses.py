@@ -499,6 +499,17 @@ def planar_pose(rot: np.ndarray, trans: np.ndarray, max_tilt: float = math.radia
     return PlanarPose(float(trans[0]), float(trans[1]), yaw, zz < 0.0)
 
 
+def planar_edge(translation, quaternion) -> PlanarPose:
+    """
+    Return one transform, checked as ``TransformBuffer2D.set_transform`` checks it, as planar.
+
+    Raises ValueError (not finite, beyond MAX_TRANSLATION, a quaternion not normalised) or
+    TransformLookupError('tilted') as ``planar_pose``.
+    """
+    t, q = _check_transform(translation, quaternion)
+    return planar_pose(quaternion_matrix(q), t)
+
+
 def _frame(name: str) -> str:
     """Frame ids as tf2 keeps them: no leading slash."""
     return str(name).lstrip('/')

@@ -68,8 +68,8 @@ from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, match_scan, odometry_
                             transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
-from .poses import (mount_quaternion, planar_pose, PlanarPose, quaternion_matrix,
-                    TransformBuffer2D, TransformLookupError)
+from .poses import (mount_quaternion, planar_edge, PlanarPose, TransformBuffer2D,
+                    TransformLookupError)
 from .scan import (beams_to_points, check_scan, scan_to_points, ScanError, usable_beams,
                    valid_ranges)
 
@@ -895,17 +895,11 @@ class PoseSource:
             return                  # our own broadcast read back (or another's: see scan_root)
         if record.child not in self._tree and len(self._tree) >= SCAN_TREE_FRAMES:
             return
-        xyz = None
         try:
-            q = np.asarray(record.rotation, dtype=np.float64)
-            with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-                rot = quaternion_matrix(q / np.linalg.norm(q))      # (a zero one: NaN)
-            trans = np.asarray(record.translation, dtype=np.float64)
-            if np.isfinite(rot).all() and np.isfinite(trans).all():
-                flat = planar_pose(rot, trans)
-                xyz = None if flat.flip else flat.xyz
+            flat = planar_edge(record.translation, record.rotation)
+            xyz = None if flat.flip else flat.xyz
         except (TransformLookupError, ValueError):
-            pass
+            xyz = None
         self._tree[record.child] = (record.parent, bool(record.static), xyz)
 
     def scan_root(self, frame: str, laser_pose) -> tuple:
