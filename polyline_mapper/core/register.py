@@ -703,7 +703,7 @@ def _disagreeing(p: _Problem, pred: np.ndarray, st: _Steps, cov: np.ndarray) -> 
     return out
 
 
-def _chord_share(p: _Problem, st: _Steps, pose: np.ndarray) -> np.ndarray:
+def _chord_share(p: _Problem, st: _Steps, pose: np.ndarray, vals: np.ndarray) -> np.ndarray:
     """
     Return the covariance (scaled coordinates) the last scans' chords add to a match: (3, 3).
 
@@ -718,7 +718,8 @@ def _chord_share(p: _Problem, st: _Steps, pose: np.ndarray) -> np.ndarray:
     sums ``(1 - t_i) w_i J_i`` over the pairs on chords starting there and ``t_i w_i J_i``
     over those ending there (two chords of a run share a knot); ``H_c`` is the information of
     the chords' pairs and ``P`` their placement's covariance. ``H^-1`` over the corrected
-    directions only (the held or degenerate ones keep the prior's variance).
+    directions only (the held or degenerate ones keep the prior's variance); ``vals``: the
+    eigenvalues of ``st.info``, as ``_refine`` has them.
     """
     jac, w, sg, pt = st.last
     on = p.chords[sg]
@@ -743,7 +744,7 @@ def _chord_share(p: _Problem, st: _Steps, pose: np.ndarray) -> np.ndarray:
         h_c = jac.T @ wj
         placed = h_c @ (p.chord_cov * scaled[:, None] * scaled) @ h_c
     good = st.vecs[:, st.good]
-    inv = (good / np.linalg.eigvalsh(st.info)[st.good]) @ good.T
+    inv = (good / vals[st.good]) @ good.T
     return inv @ (noise + placed) @ inv
 
 
@@ -806,7 +807,7 @@ def _refine(p: _Problem, pred: np.ndarray, turns, max_shift: float,
     unscale = np.diag([1.0, 1.0, 1.0 / scale])
     cov_scaled = (vecs * var) @ vecs.T
     if p.chords is not None:
-        cov_scaled = cov_scaled + _chord_share(p, st, pose)
+        cov_scaled = cov_scaled + _chord_share(p, st, pose, vals)
     cov = unscale @ cov_scaled @ unscale
     if n_held:                          # the prior's variance along the held directions too
         vals_h = _along(hold_dirs, prior_scaled)
