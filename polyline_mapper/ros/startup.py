@@ -119,8 +119,9 @@ def _check_type(name: str, value: str, rule: str, specs: dict) -> None:
                            "--params-file rcl would keep the file's value)")
 
 
-_INTEGER = re.compile(r'[+-]?(0[xX][0-9a-fA-F]+|[0-9]+)')
-"""How rcl's parameter parser tells an integer from a double (strtol over the whole text)."""
+_INTEGER = re.compile(r'[+-]?[0-9]+')
+"""A whole number as rcl's parameter parser reads one (a number without a point or an exponent;
+hexadecimal never gets here: float() refused it as text above)."""
 
 
 def check_params_file(path: str) -> None:
