@@ -3,6 +3,7 @@
 import math
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -112,12 +113,12 @@ class Peer:
         ``reliable_scans``: publish scans reliably, with a history of ``RELIABLE_DEPTH``
         (``polyline-mapper play`` keeps 10), instead of sensor-data QoS, for a node whose /scan
         subscription the QoS overrides make reliable with as deep a history: then no scan is
-        lost in transport once both sides have matched (``wait_for_node`` waits longer for
-        that).
+        lost in transport once both sides have matched (``wait_for_node`` waits for that).
         """
         _check_alone('Peer')
         self.reliable_scans = bool(reliable_scans)
         import rclpy
+        from rclpy.event_handler import PublisherEventCallbacks
         from rclpy.executors import SingleThreadedExecutor
         from nav_msgs.msg import Odometry
         from polyline_mapper.ros.qos import MAP_QOS
@@ -133,12 +134,19 @@ class Peer:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         n = self.node
-        self.scan_pub = n.create_publisher(LaserScan, 'scan', QoSProfile(
+        self.readers = {}           # our writer ('/scan', '/tf', '/odom') -> readers it matched
+
+        def writer(msg_type, topic, qos):
+            key = '/' + topic.lstrip('/')
+            events = PublisherEventCallbacks(
+                matched=lambda info: self.readers.__setitem__(key, info.current_count))
+            return n.create_publisher(msg_type, topic, qos, event_callbacks=events)
+        self.scan_pub = writer(LaserScan, 'scan', QoSProfile(
             depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
             if reliable_scans else qos_profile_sensor_data)
-        self.tf_pub = n.create_publisher(TFMessage, '/tf', TF_QOS)
+        self.tf_pub = writer(TFMessage, '/tf', TF_QOS)
         self.static_pub = n.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
-        self.odom_pub = n.create_publisher(Odometry, 'odom', 10)
+        self.odom_pub = writer(Odometry, 'odom', 10)
         self.maps, self.markers = [], []
         n.create_subscription(PolylineMap, 'polyline_map', self.maps.append, MAP_QOS)
         n.create_subscription(MarkerArray, 'polyline_map/markers', self.markers.append, MAP_QOS)
@@ -173,21 +181,39 @@ class Peer:
         self.spin_until(lambda: found(), timeout)
         return found()
 
-    def wait_for_node(self, timeout: float = 30.0, odom: bool = False) -> bool:
-        """Wait until the node's subscriptions and map publisher are discovered."""
+    def wait_for_node(self, timeout: float = 30.0, odom: bool = False,
+                      node: NodeProcess = None) -> bool:
+        """
+        Wait until the node's subscriptions and map publisher are discovered.
+
+        A peer with ``reliable_scans`` must deliver every scan (and the poses for it), so it
+        also waits until both sides of its inputs have matched, each side by its matched
+        event: our writers have matched every reader discovered on their topic, and ``node``
+        (required then) has logged a count of publishers matched that takes in every writer
+        discovered. Discovery is two-sided, and a volatile reader that matches a writer late
+        starts at the writer's newest sample: a fixed wait of 3 s lost 31 of 230 scans once
+        in CI on a loaded Intel Xeon VM (2026-11-29). (Counts, not names: the module's node
+        of test_node.py still runs, and its peer still publishes, during the shutdown test.)
+        """
         pub = self.odom_pub if odom else self.tf_pub
         found = self.spin_until(lambda: self.scan_pub.get_subscription_count() > 0
                                 and pub.get_subscription_count() > 0
                                 and self.node.count_publishers('/polyline_map') > 0, timeout)
-        # Discovery is two-sided: give the node's readers a moment to match our writers too,
-        # so the first scans are not dropped on its side. A peer that must deliver every scan
-        # waits longer: a node held up by three busy loops on two cores missed the first 27
-        # of 230 scans after 0.5 s (none in three runs after 3 s); in CI on an Intel Xeon VM
-        # (2026-11-29, the other worker busy with non-DDS tests) it missed 31 after 3 s, and
-        # none in three runs alone. A volatile reader that matches our writer late starts at
-        # the writer's newest sample: the wait is all that keeps the first ones.
-        self.spin_for(8.0 if self.reliable_scans else 0.5)
-        return found
+        if not self.reliable_scans:
+            self.spin_for(0.5)      # give the node's readers a moment to match our writers
+            return found
+        if node is None:
+            raise ValueError('a peer with reliable_scans waits for the node: pass node=')
+
+        def matched(topic):
+            readers = len(self.node.get_subscriptions_info_by_topic(topic))
+            writers = len(self.node.get_publishers_info_by_topic(topic))
+            said = node.lines(f']: {topic}: ')
+            count = re.search(r': (\d+) publishers? matched$', said[-1]) if said else None
+            return (0 < readers <= self.readers.get(topic, 0)
+                    and count is not None and 0 < writers <= int(count[1]))
+        inputs = ('/scan', '/odom' if odom else '/tf')
+        return found and self.spin_until(lambda: all(matched(t) for t in inputs), timeout)
 
     def play(self, messages, rate: float, mode: str = 'tf', t0: float = None) -> float:
         """

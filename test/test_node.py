@@ -44,7 +44,8 @@ def tf_run(office_drive, tmp_path_factory):
         'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH})
     peer = Peer('test_peer_tf', reliable_scans=True)
     try:
-        assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
+        assert peer.wait_for_node(TIMEOUT, node=node), 'the node did not come up:\n' + \
+            node.stderr()
         msgs = list(drive_messages(office_drive, mount=(0.2, -0.05, 0.3),
                                    map_to_odom=(1.0, -2.0, 0.4)))
         last = peer.play(msgs, RATE)
@@ -250,7 +251,8 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
                                   'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH})
     peer = Peer('test_peer_save', reliable_scans=True)
     try:
-        assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
+        assert peer.wait_for_node(TIMEOUT, node=node), 'the node did not come up:\n' + \
+            node.stderr()
         msgs = list(drive_messages(office_drive, mount=(0.2, -0.05, 0.3),
                                    map_to_odom=(1.0, -2.0, 0.4)))
         scans = sum(topic == '/scan' for _, topic, _ in msgs)

@@ -39,7 +39,7 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
         'qos_overrides./odom.subscription.depth': 50})
     peer = Peer('test_peer_odom', reliable_scans=True)
     try:
-        assert peer.wait_for_node(TIMEOUT, odom=True), node.stderr()
+        assert peer.wait_for_node(TIMEOUT, odom=True, node=node), node.stderr()
         for topic, depth in (('/scan', RELIABLE_DEPTH), ('/odom', 50)):   # the overrides took
             for policy, value in (('reliability', 'reliable'), ('depth', depth)):
                 name = f'qos_overrides.{topic}.subscription.{policy}'
@@ -109,8 +109,57 @@ def test_the_diagnostics_status_says_lost_first():
         1, '10 scans received, none used (see the warnings)')
     assert mapping_status(10, 8, 2, 50, False, '/scan')[0] == 1
     assert mapping_status(0, 0, 0, 0, False, '/scan') == (0, 'waiting for scans on /scan')
+    assert mapping_status(0, 0, 0, 0, False, '/scan', None, 0) == (0, (
+        'waiting for scans on /scan: no publisher matched (none yet, or its QoS cannot match)'))
+    assert mapping_status(0, 0, 0, 0, False, '/scan', None, 2) == (
+        0, 'waiting for scans on /scan: 2 publishers matched, no scan received yet')
     assert mapping_status(10, 10, 0, 50, False, '/scan') == (0, 'mapping')
     # the scans stopped: a node that never used one said OK 'mapping' (node audit)
     assert mapping_status(0, 0, 0, 90, False, '/scan', 0) == (
         1, '90 scans received, none used yet (see the warnings)')
     assert mapping_status(0, 0, 0, 90, False, '/scan', 90) == (0, 'mapping')
+
+
+def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
+    # A laser driver that publishes best effort to a node told to subscribe reliably is never
+    # matched: no scan arrives, and nothing but rclpy's one warning said why. The node now
+    # counts the publishers matched on each input (the middleware's matched event), logs each
+    # change and reports the count on /diagnostics, which also says what it is waiting for.
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import LaserScan
+    node = NodeProcess(tmp_path, {'diagnostics_period': 0.2,
+                                  'qos_overrides./scan.subscription.reliability': 'reliable'})
+    peer = Peer('test_peer_qos')
+    try:
+        diags = []
+        peer.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+
+        def report():
+            """Return the node's last (message, {key: value}) on /diagnostics, or None."""
+            status = [s for d in diags for s in d.status][-1:]
+            return status and (status[0].message, {kv.key: kv.value for kv in status[0].values})
+        best_effort = peer.node.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
+        assert peer.spin_until(lambda: node.lines('offering incompatible QoS'), TIMEOUT), \
+            node.stderr()
+        assert best_effort.get_subscription_count() == 0    # (Fast DDS counts matched readers)
+        del diags[:]
+        assert peer.spin_until(lambda: len(diags) >= 3, TIMEOUT)
+        message, values = report()
+        assert values['publishers_scan'] == '0' and message == (
+            'waiting for scans on /scan: no publisher matched (none yet, or its QoS cannot '
+            'match)')
+        assert not node.lines('/scan: 1 publisher matched')
+        reliable = peer.node.create_publisher(LaserScan, 'scan', QoSProfile(
+            depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        assert node.wait_for_line('/scan: 1 publisher matched', TIMEOUT), node.stderr()
+        del diags[:]
+        assert peer.spin_until(lambda: len(diags) >= 3, TIMEOUT)
+        message, values = report()
+        assert values['publishers_scan'] == '1' and message == (
+            'waiting for scans on /scan: 1 publisher matched, no scan received yet')
+        peer.node.destroy_publisher(reliable)
+        assert node.wait_for_line('/scan: 0 publishers matched', TIMEOUT), node.stderr()
+    finally:
+        peer.close()
+        node.stop()

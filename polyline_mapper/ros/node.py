@@ -30,9 +30,12 @@ Topics (relative names, remappable):
   deviations of it (``session.POSE_ESTIMATE_SIGMAS``, as ``MappingSession.set_pose``).
 
 ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period``: scans received,
-used and dropped, map size, sigma, update time and latency percentiles (ms) over the run; WARN
-when scan matching is lost (``mapping_status``), when scans came in since the last report but
-none could be used, or some were dropped.
+used and dropped, map size, sigma, update time and latency percentiles (ms) over the run, the
+publishers matched on each input (``publishers_scan``, ``publishers_odom``, ``publishers_tf``,
+``publishers_tf_static``: the middleware's matched event, so a publisher whose QoS cannot match
+is not counted); WARN when scan matching
+is lost (``mapping_status``), when scans came in since the last report but none could be used,
+or some were dropped. Each change in an input's matched publishers is logged.
 
 Services: ``~/reset`` and ``~/save_map`` (std_srvs/Trigger). Parameters: see ``params``.
 
@@ -59,6 +62,8 @@ from polyline_mapper_msgs.msg import PolylineMap
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 import rclpy
+from rclpy.event_handler import (EventHandler, QoSSubscriptionEventType,
+                                 SubscriptionEventCallbacks, UnsupportedEventTypeError)
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
@@ -99,6 +104,32 @@ def descriptor(spec) -> ParameterDescriptor:
     if spec.choices:
         d.additional_constraints = 'one of: ' + ', '.join(spec.choices)
     return d
+
+
+class _MatchedEvents(SubscriptionEventCallbacks):
+    """
+    rclpy's default QoS event callbacks plus ``matched``, where the middleware has that event.
+
+    rclpy creates the other events' handlers only where the middleware supports them, but a
+    ``matched`` callback on one without it raises; here the count is then left unknown.
+    """
+
+    def __init__(self, matched, supported):
+        super().__init__()
+        self._on_matched = matched
+        self._supported = supported     # called once the event's handler is made
+
+    def create_event_handlers(self, callback_group, subscription, topic_name: str) -> list:
+        handlers = super().create_event_handlers(callback_group, subscription, topic_name)
+        try:
+            handlers.append(EventHandler(
+                callback_group=callback_group, callback=self._on_matched,
+                event_type=QoSSubscriptionEventType.RCL_SUBSCRIPTION_MATCHED,
+                parent_impl=subscription))
+        except UnsupportedEventTypeError:
+            return handlers
+        self._supported()
+        return handlers
 
 
 class PolylineMapperNode(Node):
@@ -142,6 +173,7 @@ class PolylineMapperNode(Node):
         self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
         self.grid_pub = self.create_publisher(OccupancyGrid, 'map', MAP_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.publishers_matched = {}        # input ('scan', 'tf', ...) -> publishers matched
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_map', self._on_save_map)
         if self.settings.pose_source == 'tf' or self.settings.scan_matching:
@@ -162,9 +194,10 @@ class PolylineMapperNode(Node):
             # scan mode places the scans by themselves: /tf_static says where the laser hangs
             # and /tf whether another node already gives the root of its tree a parent
             # (``MappingSession.scan_root``: what it broadcasts under fixed_frame)
-            self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
-            self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
-                                     TF_STATIC_QOS)
+            for topic, callback, qos in (('/tf', self._on_tf, TF_QOS),
+                                         ('/tf_static', self._on_tf_static, TF_STATIC_QOS)):
+                self.create_subscription(TFMessage, topic, callback, qos,
+                                         event_callbacks=self._matched_events(topic))
         elif self.settings.pose_source == 'odom':
             self.odometry_received = 0      # counted for the summary (a lossy odometry input)
             self._sensor_input(Odometry, 'odom', self._on_odom)
@@ -230,16 +263,32 @@ class PolylineMapperNode(Node):
         depth below 1, a value of the wrong type) raises ConfigError naming it.
         """
         options = QoSOverridingOptions.with_default_policies(callback=check_input_qos)
+        events = self._matched_events(topic)
         try:
             with warnings.catch_warnings():     # rclpy's own about a depth of 0: refused below
                 warnings.simplefilter('ignore', UserWarning)
                 self.create_subscription(msg_type, topic, callback, sensor_data(),
-                                         qos_overriding_options=options)
+                                         qos_overriding_options=options, event_callbacks=events)
         except (RuntimeError, ParameterException, InvalidQosOverridesError) as exc:
             name = f'qos_overrides.{self.resolve_topic_name(topic)}.subscription'
             raise ConfigError(f"{name}: {' '.join(str(exc).split())}") from None
 
     # -- callbacks -----------------------------------------------------------------------------
+    def _matched_events(self, topic: str) -> SubscriptionEventCallbacks:
+        """Return the event callbacks of an input: rclpy's defaults plus ``_on_matched``."""
+        key = topic.lstrip('/')         # 'scan', 'odom', 'tf', 'tf_static'
+        return _MatchedEvents(lambda info: self._on_matched(topic, info),
+                              lambda: self.publishers_matched.setdefault(key, 0))
+
+    def _on_matched(self, topic: str, info) -> None:
+        """Count (and log) the publishers an input's subscription has matched."""
+        count = int(info.current_count)
+        key = topic.lstrip('/')
+        if self.publishers_matched.get(key) != count:
+            self.get_logger().info(f'{self.resolve_topic_name(topic)}: {count} publisher'
+                                   f'{"" if count == 1 else "s"} matched')
+        self.publishers_matched[key] = count
+
     def _on_scan(self, msg: LaserScan) -> None:
         if len(msg.intensities) not in (0, len(msg.ranges)):
             self.session.skip('bad scan', 'intensities', f'scan has {len(msg.ranges)} ranges '
@@ -434,11 +483,14 @@ class PolylineMapperNode(Node):
         self._diag_mark = (st['scans'], st['scans_used'], st['dropped'])
         self._last_diag = now
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
-                                        self.resolve_topic_name('scan'), st['scans_used'])
+                                        self.resolve_topic_name('scan'), st['scans_used'],
+                                        self.publishers_matched.get('scan'))
         values = {'segments': self._published_count(), 'sigma_m': p.mapper.sigma or 0.0,
                   'lost': int(p.lost),
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}
+        for topic, count in sorted(self.publishers_matched.items()):
+            values[f'publishers_{topic}'] = count
         for key in ('update_ms', 'latency_ms'):
             for q, v in st.get(key, {}).items():
                 values[f'{key}_{q}'] = v
@@ -493,13 +545,14 @@ class PolylineMapperNode(Node):
 
 
 def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
-                   topic: str, total_used: int = None) -> tuple:
+                   topic: str, total_used: int = None, publishers: int = None) -> tuple:
     """
     Return the /diagnostics (level, message) of one period: 0 OK, 1 WARN.
 
     ``received`` / ``used`` / ``dropped``: scans in the period; ``total``: scans ever
     received; ``lost``: scan matching does not know where the scans are
-    (``MappingSession.lost``); ``total_used``: scans ever used (None: not known).
+    (``MappingSession.lost``); ``total_used``: scans ever used; ``publishers``: publishers
+    matched on the scan topic (None: not known).
     """
     if lost:
         return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
@@ -510,7 +563,12 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     if dropped:
         return 1, f'{dropped} scans dropped: updates fall behind'
     if not total:
-        return 0, f'waiting for scans on {topic}'
+        if publishers is None:
+            return 0, f'waiting for scans on {topic}'
+        return 0, (f'waiting for scans on {topic}: ' + (
+            'no publisher matched (none yet, or its QoS cannot match)' if not publishers
+            else f'{publishers} publisher{"" if publishers == 1 else "s"} matched, no scan '
+            'received yet'))
     if total_used == 0:         # the scans stopped, and not one of them was ever used
         return 1, f'{total} scans received, none used yet (see the warnings)'
     return 0, 'mapping'
