@@ -262,6 +262,31 @@ def all_params() -> tuple:
             + tuple(_core_specs('smemsf', SMEMSFConfig)))
 
 
+ROS_OWN_PARAMS = ('use_sim_time', 'start_type_description_service')
+"""Parameters rclpy declares on every node."""
+
+
+def unknown_params(names) -> list:
+    """
+    Return the names among ``names`` that are no parameter of the node, each with a hint.
+
+    rcl keeps a ``-p`` or params-file value for a name the node never declares without a
+    word, so a misspelt ``scan_matchng`` or fit's short ``sigma`` (the node's ``smemsf.sigma``)
+    is silently not used. Each as 'name' or 'name (did you mean X?)'; ``qos_overrides.*`` and
+    rclpy's own parameters are known.
+    """
+    import difflib
+    known = [spec.name for spec in all_params()]
+    out = []
+    for name in sorted(set(names)):
+        if name in known or name in ROS_OWN_PARAMS or name.startswith('qos_overrides.'):
+            continue
+        near = [k for k in known if k.rpartition('.')[2] == name] or \
+            difflib.get_close_matches(name, known, n=1)
+        out.append(f'{name} (did you mean {near[0]}?)' if near else name)
+    return out
+
+
 def defaults() -> dict:
     """Return {name: default} of every declared parameter."""
     return {p.name: p.default for p in all_params()}

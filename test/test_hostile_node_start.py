@@ -78,3 +78,25 @@ def test_the_shipped_parameter_file_passes_the_start_checks():
         check_ros_args(['node', '--ros-args', '-p', 'polyline_mapper_node:pose_source:='])
     # Arguments outside --ros-args ... -- are not ROS arguments.
     check_ros_args(['node', '-p', 'pose_source:=', '--ros-args', '--', '-p', 'pose_source:='])
+
+
+def test_parameters_the_node_does_not_have_are_named_with_a_hint():
+    # rcl keeps a -p or params-file value for an undeclared name without a word: fit's short
+    # 'sigma' (the node's smemsf.sigma) or a misspelt 'scan_matchng' was silently not used
+    # (new-user audit). The node warns, naming them (test_node_modes starts one).
+    import yaml
+    from polyline_mapper.config import _ros_parameters
+    from polyline_mapper.params import unknown_params
+    assert unknown_params(['sigma', 'scan_matchng', 'smemsf.sigmaa', 'nosuch', 'scan_matching',
+                           'use_sim_time', 'qos_overrides./scan.subscription.depth']) == [
+        'nosuch', 'scan_matchng (did you mean scan_matching?)',
+        'sigma (did you mean smemsf.sigma?)', 'smemsf.sigmaa (did you mean smemsf.sigma?)']
+    def names(tree, prefix=''):
+        for key, value in tree.items():
+            if isinstance(value, dict):
+                yield from names(value, f'{prefix}{key}.')
+            else:
+                yield prefix + key
+    for path in sorted((REPO / 'config').glob('*.yaml')):     # the shipped files: all known
+        params = list(names(_ros_parameters(yaml.safe_load(path.read_text()), str(path))))
+        assert params and unknown_params(params) == [], path

@@ -163,3 +163,15 @@ def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
     finally:
         peer.close()
         node.stop()
+
+
+def test_parameters_the_node_does_not_have_are_warned_of(tmp_path):
+    node = NodeProcess(tmp_path, {'sigma': 0.03, 'scan_matchng': True})
+    try:
+        assert node.wait_for_line('mapping scans on', TIMEOUT), node.stderr()
+    finally:
+        node.stop()
+    warned = node.lines('parameters this node does not have')
+    assert len(warned) == 1 and warned[0].endswith(
+        'not used: scan_matchng (did you mean scan_matching?), sigma (did you mean '
+        'smemsf.sigma?)'), node.stderr()

@@ -81,7 +81,7 @@ from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
 from .qos import check_input_qos, MAP_QOS, sensor_data, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
-from ..params import all_params, NODE_NAME, settings_from
+from ..params import all_params, NODE_NAME, settings_from, unknown_params
 from ..session import MappingSession, SessionOptions, WarningThrottle
 
 GROUP_IDLE = 1.0
@@ -220,6 +220,9 @@ class PolylineMapperNode(Node):
                                         daemon=True)
         self._worker.start()
         s = self.settings
+        unknown = unknown_params(self._parameter_overrides)
+        if unknown:
+            log.warning(f'parameters this node does not have, not used: {", ".join(unknown)}')
         log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
                  f'poses from {s.pose_source}, update every {s.update_every_n_scans} scan(s)'
                  + (f'; scan matching: pose on {self.resolve_topic_name("pose")}'
