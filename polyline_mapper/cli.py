@@ -292,16 +292,38 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def demo_params(items) -> dict:
+    """
+    Return the live demo's ``--set KEY=VALUE`` items as node parameters {name: text}.
+
+    fit's and replay's short keys (``sigma``) name the node's ``smemsf.*`` / ``incremental.*``
+    ones; a key the node does not have is refused (passed on as ``-p``, rcl would keep it
+    unused).
+    """
+    from .params import all_params, unknown_params
+    names = [spec.name for spec in all_params()]
+    params = {}
+    for item in items:
+        key, sep, value = item.partition('=')
+        key = key.strip()
+        if not sep or not key:
+            raise CliError(f'--set expects KEY=VALUE (a node parameter), got {item!r}')
+        if unknown_params([key]):           # (qos_overrides.* and rclpy's own are known)
+            full = [name for name in names if name.rpartition('.')[2] == key]
+            if len(full) != 1:
+                raise CliError(f'--set {item}: the node has no parameter '
+                               f'{unknown_params([key])[0]} (config/polyline_mapper.yaml '
+                               'lists them)')
+            key = full[0]
+        params[key] = value.strip()
+    return params
+
+
 def cmd_live_demo(args) -> int:
     from .ros.live_demo import DemoError, run_live_demo
     check_outputs([args.output, args.plot], [args.config])
     _suffixes(args.output, args.plot)
-    params = {}
-    for item in args.set:
-        key, sep, value = item.partition('=')
-        if not sep or not key.strip():
-            raise CliError(f'--set expects KEY=VALUE (a node parameter), got {item!r}')
-        params[key.strip()] = value.strip()
+    params = demo_params(args.set)
     try:
         res = run_live_demo('sim:office', rate=args.rate, seed=args.seed, noise=args.noise,
                             params=params, params_file=args.config,

@@ -571,6 +571,10 @@ OPTION_CASES = [
      '--clock-hz must be a positive number'),
     ('demo --noise nan', ['demo', '--offline', '-o', '{out}', '--noise', 'nan'],
      '--noise must be a number in [0, 10]'),
+    # passed on to the node as -p, where rcl kept it unused (new-user audit; demo_params below)
+    ('demo --set misspelt', ['demo', '-o', '{out}', '--set', 'scan_matchng=true'],
+     '--set scan_matchng=true: the node has no parameter scan_matchng (did you mean '
+     'scan_matching?)'),
     ('sim step 1e-9 m', ['fit', 'sim:office,step=1e-9', '-o', '{out}'],   # asked for 15 GB
      'step must be a number of metres in [0.01, 10]'),
     ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
@@ -609,6 +613,16 @@ def test_a_bad_option_value_is_one_line(ws, capsys, argv, needle):
     assert code == 2
     assert_one_line(err, needle)
     assert snapshot(ws['dir']) == before
+
+
+def test_the_live_demo_takes_fit_s_short_keys_as_the_node_s():
+    # demo --help's own example, --set sigma=0.02, gave the default map: -p sigma:=0.02 is no
+    # parameter of the node (smemsf.sigma is).
+    from polyline_mapper.cli import demo_params
+    assert demo_params(['sigma=0.02', ' scan_matching = true', 'buffer_scans=5',
+                        'qos_overrides./scan.subscription.depth=10']) == {
+        'smemsf.sigma': '0.02', 'scan_matching': 'true', 'incremental.buffer_scans': '5',
+        'qos_overrides./scan.subscription.depth': '10'}
 
 
 @pytest.mark.parametrize('how', ['--set', 'config file'])
