@@ -91,6 +91,7 @@ def test_parameters_the_node_does_not_have_are_named_with_a_hint():
                            'use_sim_time', 'qos_overrides./scan.subscription.depth']) == [
         'nosuch', 'scan_matchng (did you mean scan_matching?)',
         'sigma (did you mean smemsf.sigma?)', 'smemsf.sigmaa (did you mean smemsf.sigma?)']
+
     def names(tree, prefix=''):
         for key, value in tree.items():
             if isinstance(value, dict):
