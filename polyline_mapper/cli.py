@@ -376,7 +376,7 @@ def cmd_record_map(args) -> int:
     # recording ends, unlike `play`, which exits 128 + signal because it did not finish). A
     # second signal while the map is being written aborts it: exit 130, nothing written.
     with stop_on_signals(stops.append):
-        value, grid, config, no_config = run_record_map(
+        value, grid, config, no_config, noise = run_record_map(
             args.topic, once=args.once, idle=args.idle, timeout=args.timeout,
             ros_args=_ros_args(args), should_stop=lambda: bool(stops),
             grid_topic=args.grid_topic)
@@ -386,6 +386,10 @@ def cmd_record_map(args) -> int:
     if config is None:
         print(f'polyline-mapper: warning: {args.output} has no config block (the mapper '
               f'settings the map was made with): {no_config}', file=sys.stderr)
+    if noise is None:
+        print(f'polyline-mapper: warning: {args.output} has no noise scale (stats.sigma: the '
+              "publisher's /diagnostics did not report one): localizing on it needs one, "
+              "replay --set sigma=M or the node's smemsf.sigma", file=sys.stderr)
     if args.grid_topic and grid is None:
         print(f'polyline-mapper: warning: no planner map (nav_msgs/OccupancyGrid) of frame '
               f"{value.frame_id} on {st['grid_topic']}: {args.output} has no grid, so `export` "

@@ -142,6 +142,13 @@ def test_record_map_stores_the_grid_the_node_publishes(grid_run, tmp_path):
     assert saved.config == want and saved.config['max_scan_points'] == 6000
     assert saved['stats']['stamp'] == pytest.approx(last, abs=1e-6)
     assert saved['stats']['grid_stamp'] == pytest.approx(last, abs=1e-6)
+    # and the noise scale the node's /diagnostics report, as its ~/save_map writes it: without
+    # it the file could not be localized on ('the map has no noise scale', new-user audit)
+    assert grid_run[1].call('/polyline_mapper_node/save_map', Trigger).success
+    by_node = read_map(grid_run[6] / 'map.json')['stats']
+    assert 0 < saved['stats']['sigma'] < 0.05 and 0 < saved['stats']['r']
+    assert (saved['stats']['sigma'], saved['stats']['r']) == pytest.approx(
+        (by_node['sigma'], by_node['r']), rel=1e-6)
     assert np.array_equal(saved.grid.data, _cells(grids[0]))
     assert saved.grid.origin == pytest.approx((grids[0].info.origin.position.x,
                                                grids[0].info.origin.position.y))

@@ -488,7 +488,12 @@ class PolylineMapperNode(Node):
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'), st['scans_used'],
                                         self.publishers_matched.get('scan'))
-        values = {'segments': self._published_count(), 'sigma_m': p.mapper.sigma or 0.0,
+        sigma = p.mapper.sigma or 0.0
+        r = (p.mapper.r or 0.0) if sigma else 0.0
+        # the noise scale to 9 digits, not the 3 decimals of the other floats: record-map
+        # stores it in the map file (stats.sigma, stats.r), as ~/save_map does
+        values = {'segments': self._published_count(), 'sigma_m': f'{sigma:.9g}',
+                  'r_m': f'{r:.9g}',
                   'lost': int(p.lost),
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}

@@ -12,7 +12,9 @@ SIGINT / SIGTERM, see ``ros.player.stop_on_signals``) or on KeyboardInterrupt, t
 ``grid_publish_period``), and returns the newest map as a ``MapValue`` with the grid and the
 mapper configuration of the node that published it (its ``smemsf.*`` and ``incremental.*``
 parameters, read through its ``get_parameters`` service as the node's ``~/save_map`` writes its
-own ``config``; None, with the reason, when the publisher is not such a node). No map
+own ``config``; None, with the reason, when the publisher is not such a node) and its noise
+scale (sigma and r as its /diagnostics report them, the map file's ``stats.sigma`` and
+``stats.r`` that a localization on the map needs, as ``~/save_map`` writes them). No map
 within ``timeout`` seconds, a stop before any map, or a map whose polylines disagree with its
 segments (``read_map`` would refuse the file) is an error (ValueError, one line).
 """
@@ -21,6 +23,7 @@ import math
 import time
 from typing import Callable, NamedTuple, Optional
 
+from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 from polyline_mapper_msgs.msg import PolylineMap
 
@@ -33,6 +36,9 @@ from ..formats.mapjson import check_edges, map_value_to_dict
 
 PARAMS_WAIT = 3.0
 """Seconds ``run_record_map`` waits for the publishing node's parameters."""
+
+NOISE_NODES = 64
+"""Mapping nodes whose noise scale ``MapRecorder`` keeps from /diagnostics (a bound)."""
 
 GRID_WAIT = 3.0
 """Seconds ``run_record_map`` waits, once it stops, for a planner map as new as the map (the
@@ -48,6 +54,8 @@ class RecordedMap(NamedTuple):
     """The publishing node's mapper configuration (``formats.mapjson.config_dict``), or None."""
     no_config: str = ''
     """Why ``config`` is None ('' when it is not)."""
+    noise_scale: Optional[tuple] = None
+    """The publishing node's (sigma, r) in metres (r None when not reported), or None."""
 
 
 def _resolved(node, topic: str) -> str:
@@ -69,9 +77,12 @@ class MapRecorder:
         self.latest_grid: Optional[OccupancyGrid] = None
         self.count = 0
         self.received_at = None
+        self.noise = {}
+        """Per diagnostics status name ('<node>: mapping'): the (sigma, r) it last reported."""
         node.create_subscription(PolylineMap, topic, self._on_map, MAP_QOS)
         if grid_topic:
             node.create_subscription(OccupancyGrid, grid_topic, self._on_grid, MAP_QOS)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
 
     def _on_map(self, msg: PolylineMap) -> None:
         self.latest = msg
@@ -80,6 +91,20 @@ class MapRecorder:
 
     def _on_grid(self, msg: OccupancyGrid) -> None:
         self.latest_grid = msg
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if not status.name.endswith(': mapping'):
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            try:
+                sigma, r = float(values['sigma_m']), float(values.get('r_m', 'nan'))
+            except (KeyError, ValueError):
+                continue
+            if not (math.isfinite(sigma) and sigma > 0):
+                continue                        # (not estimated yet)
+            if status.name in self.noise or len(self.noise) < NOISE_NODES:
+                self.noise[status.name] = (sigma, r if math.isfinite(r) and r > 0 else None)
 
     def grid_current(self) -> bool:
         """Whether the newest grid is of the newest map's frame and at least as new."""
@@ -182,27 +207,44 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
                 executor.spin_once(timeout_sec=0.05)
         except KeyboardInterrupt:
             pass
-        value = rec.to_value()
         grid = rec.grid()
-        config, why = publisher_config(node, executor, rec.topic, should_stop)
+        config, why, publisher = publisher_config(node, executor, rec.topic, should_stop)
+        noise = None if publisher is None else publisher_noise_scale(
+            rec, executor, publisher, should_stop)
+        extra = {} if noise is None else {'sigma': noise[0], 'r': noise[1]}
+        value = rec.to_value(extra)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
-    return RecordedMap(value, grid, config, why)
+    return RecordedMap(value, grid, config, why, noise)
+
+
+def publisher_noise_scale(rec: MapRecorder, executor, publisher: str,
+                          should_stop=None) -> Optional[tuple]:
+    """
+    Return the (sigma, r) node ``publisher`` (its full name) reports on /diagnostics, or None.
+
+    Waits up to ``PARAMS_WAIT`` s for a report (the node sends one every
+    ``diagnostics_period`` s, 1 by default; none while it has not estimated sigma yet).
+    """
+    name = f'{publisher}: mapping'
+    end = time.monotonic() + PARAMS_WAIT
+    while name not in rec.noise and time.monotonic() < end and not (
+            should_stop is not None and should_stop()):
+        executor.spin_once(timeout_sec=0.05)
+    return rec.noise.get(name)
 
 
 def publisher_config(node, executor, topic: str, should_stop=None) -> tuple:
     """
-    Read the mapper settings of the node publishing ``topic``: (config, '') or (None, why).
+    Read the mapper settings of the node publishing ``topic``: (config, why, publisher).
 
     The publisher's ``get_parameters`` service is asked for every ``smemsf.*`` and
     ``incremental.*`` parameter (``params.all_params``), within ``PARAMS_WAIT`` s. A publisher
-    without them (another mapper, a bag being played) gives None.
+    without them (another mapper, a bag being played) gives config None and why, else ''.
+    ``publisher``: the full name of the one node publishing ``topic``, None when there is not
+    one known.
     """
-    from rcl_interfaces.srv import GetParameters
-    from rclpy.parameter import parameter_value_to_python
-    from ..formats.mapjson import config_dict
-    from ..params import all_params, mapper_config
     end = time.monotonic() + PARAMS_WAIT
     while True:
         # (the publisher's endpoint is discovered before its node's name: '_NODE_NAME_UNKNOWN_'
@@ -211,16 +253,28 @@ def publisher_config(node, executor, topic: str, should_stop=None) -> tuple:
         nodes = sorted({(i.node_namespace, i.node_name) for i in infos})
         known = all('_UNKNOWN_' not in n for _, n in nodes)
         if should_stop is not None and should_stop():
-            return None, f"stopped before the parameters of {topic}'s publisher were read"
+            return None, f"stopped before the parameters of {topic}'s publisher were read", None
         if (nodes and known) or time.monotonic() >= end:
             break
         executor.spin_once(timeout_sec=0.05)
     if len(nodes) != 1 or not known:
         return None, (f'the node publishing {topic} did not make itself known' if nodes
                       and not known else f'{len(nodes)} nodes publish {topic}' if nodes
-                      else f'the publisher of {topic} has left')
+                      else f'the publisher of {topic} has left'), None
     ns, name = nodes[0]
-    service = f"{ns.rstrip('/')}/{name}/get_parameters"
+    publisher = f"{ns.rstrip('/')}/{name}"
+    config, why = _mapper_parameters(node, executor, publisher, should_stop, end)
+    return config, why, publisher
+
+
+def _mapper_parameters(node, executor, publisher: str, should_stop, end: float) -> tuple:
+    """Ask node ``publisher`` for its mapper parameters until ``end``: (config, why)."""
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+    from ..formats.mapjson import config_dict
+    from ..params import all_params, mapper_config
+    name = publisher.rpartition('/')[2]
+    service = f'{publisher}/get_parameters'
     names = [p.name for p in all_params() if p.name.startswith(('smemsf.', 'incremental.'))]
     client = node.create_client(GetParameters, service)
     try:
