@@ -253,7 +253,11 @@ def cmd_fit(args) -> int:
         config = dataclasses.replace(config, range_noise=0.0)
     result = run_fit(points, config, not args.quiet, origins, **extra)
     used = window if result.beams else 0
-    stats = write_outputs(result, points, config, args.output, args.plot, args.frame_id,
+    # A bag's or a drive's scans are registered in the replay's fixed frame (the TF tree's
+    # root, 'odom' without a map frame; the odometry frame with --pose-source odom): label
+    # the map with it unless --frame-id says otherwise.
+    frame_id = args.frame_id or posed.get('fixed_frame') or 'map'
+    stats = write_outputs(result, points, config, args.output, args.plot, frame_id,
                           title=f'{os.path.basename(args.input)}: {len(result.segments)} segments',
                           extra={'input': os.path.basename(os.path.normpath(args.input)),
                                  'input_type': desc, **posed,
@@ -650,7 +654,8 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
         raise CliError('--range-max applies to CARMEN logs only')
     res = _register(path, args)
     st = res.map_value.stats
-    posed = {key: st.get(key) for key in ('pose_source', 'scan_topic', 'odom_topic')}
+    posed = {key: st.get(key) for key in ('pose_source', 'scan_topic', 'odom_topic',
+                                          'fixed_frame')}
     return (res.points, res.session.origins(), st.get('input_type', 'scans'),
             {**posed, 'laser_mount': args.laser_mount})
 
@@ -971,8 +976,9 @@ def build_parser() -> argparse.ArgumentParser:
                    'a log, bag or drive is fitted with its beams (what they see through is cut '
                    'out; --set free_space_window=0 fits the bare points)')
     common(f)
-    f.add_argument('--frame-id', default='map', type=_frame,
-                   help='frame of the points (default: map)')
+    f.add_argument('--frame-id', default=None, type=_frame,
+                   help="frame of the map (default: a bag's or drive's fixed frame, as "
+                        "replay's; else map)")
     f.add_argument('--range-max', type=POSITIVE, default=None,
                    help='for logs: ignore readings beyond this range (m)')
     _pose_args(f)

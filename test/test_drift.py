@@ -46,3 +46,22 @@ def test_convert_with_odom_drift_writes_a_robot_without_a_localizer(tmp_path, ca
     d_drift = nearest_distance(drifted.points, drive.world.walls)[0].mean()
     d_true = nearest_distance(true.points, drive.world.walls)[0].mean()
     assert d_drift > 2 * d_true
+
+
+def test_fit_of_a_bag_without_a_map_frame_labels_its_map_with_the_odometry_frame(tmp_path):
+    # fit wrote frame_id 'map' whatever frame it registered the scans in: a bag of odometry
+    # alone (no map frame) gave a map in 'odom' labelled 'map', and exports (map_server's
+    # YAML, GeoJSON) claimed the wrong frame; replay of the same bag said 'odom' (new-user
+    # audit). --frame-id still decides when given.
+    from polyline_mapper.formats.mapjson import read_map
+    log = write_carmen(tmp_path / 'room.log.gz', room_drive(beams=181, fov=180.0))
+    bag = tmp_path / 'drifted'
+    assert main(['convert', str(log), '-o', str(bag), '--odom-drift', '2', '-q']) == 0
+    for extra, frame in (([], 'odom'), (['--pose-source', 'odom', '--laser-mount', '0,0,0'],
+                                        'odom'), (['--frame-id', 'world'], 'world')):
+        out = tmp_path / f'{frame}{len(extra)}.json'
+        assert main(['fit', str(bag), '-o', str(out), '-q'] + extra) == 0
+        assert read_map(out).value.frame_id == frame, extra
+    out = tmp_path / 'log.json'                      # a CARMEN log's poses are of the map
+    assert main(['fit', str(log), '-o', str(out), '-q']) == 0
+    assert read_map(out).value.frame_id == 'map'
