@@ -29,6 +29,7 @@ import dataclasses
 import io
 import math
 import os
+import re
 import signal
 import sys
 import time
@@ -1140,12 +1141,38 @@ def _names_printable() -> None:
             pass
 
 
+_POSE_VALUED = ('--initial-pose', '--laser-mount')
+_NEGATIVE_LIST = re.compile(r'-[0-9.][0-9.eE+-]*(,[^,]*){2,3}$')
+
+
+def _join_negative_poses(argv: list) -> list:
+    """
+    Join a negative pose to its option: ``--laser-mount -0.1,0,180`` -> ``--laser-mount=...``.
+
+    argparse takes a value starting with '-' for an option and stops with 'expected one
+    argument'.
+    """
+    out, it = [], iter(argv)
+    for item in it:
+        if item in _POSE_VALUED:
+            nxt = next(it, None)
+            if nxt is not None and _NEGATIVE_LIST.match(nxt):
+                out.append(f'{item}={nxt}')
+                continue
+            out.append(item)
+            if nxt is not None:
+                out.append(nxt)
+            continue
+        out.append(item)
+    return out
+
+
 def main(argv=None) -> int:
     """Entry point; returns the process exit code."""
     _names_printable()
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(_join_negative_poses(sys.argv[1:] if argv is None else argv))
     except SystemExit as exc:            # usage errors (exit 2) and --help (0), already printed
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     try:

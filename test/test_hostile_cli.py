@@ -587,6 +587,12 @@ OPTION_CASES = [
                                    '--laser-mount', '0,0,1e300'],
      '--laser-mount expects X,Y,YAW_DEG or X,Y,YAW_DEG,flip (metres, degrees; |X|, |Y| <= 1e6, '
      '|YAW_DEG| <= 360)'),
+    # a negative first number (a laser behind the base's centre) was taken for an option:
+    # "argument --laser-mount: expected one argument" (new-user audit); now it is read
+    ('laser mount x -2e6', ['replay', '{bag}', '-o', '{out}', '--pose-source', 'odom',
+                            '--laser-mount', '-2e6,0,180'],
+     '--laser-mount expects X,Y,YAW_DEG or X,Y,YAW_DEG,flip (metres, degrees; |X|, |Y| <= 1e6, '
+     "|YAW_DEG| <= 360), got '-2e6,0,180'"),
     # read with the odometry pose source only: given with another, they changed nothing
     ('replay --laser-mount, tf', ['replay', '{bag}', '-o', '{out}', '--laser-mount', '5,5,90'],
      '--laser-mount applies with --pose-source odom only (given: tf)'),
@@ -613,6 +619,16 @@ def test_a_bad_option_value_is_one_line(ws, capsys, argv, needle):
     assert code == 2
     assert_one_line(err, needle)
     assert snapshot(ws['dir']) == before
+
+
+def test_a_negative_pose_is_the_option_s_value():
+    from polyline_mapper.cli import _join_negative_poses
+    assert _join_negative_poses(['replay', 'b', '--laser-mount', '-0.1,0,180', '--initial-pose',
+                                 '-1,-2,-90', '--laser-mount', '-0.1,0.2,180,flip', '-q']) == [
+        'replay', 'b', '--laser-mount=-0.1,0,180', '--initial-pose=-1,-2,-90',
+        '--laser-mount=-0.1,0.2,180,flip', '-q']
+    # an option after the flag stays an option (argparse then says the value is missing)
+    assert _join_negative_poses(['--laser-mount', '-q']) == ['--laser-mount', '-q']
 
 
 def test_the_live_demo_takes_fit_s_short_keys_as_the_node_s():
