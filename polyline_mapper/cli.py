@@ -61,9 +61,15 @@ def load_fit_options(path: str = None, overrides: list = ()) -> tuple:
 
 
 def fit_window_asked(path: str = None, overrides: list = ()) -> bool:
-    """Whether ``--config`` or ``--set`` gives ``free_space_window`` (not only the default)."""
+    """
+    Whether ``--config`` or ``--set`` gives ``free_space_window`` (not only the default).
+
+    -1 (the shipped config/polyline_mapper.yaml's value) is the default itself: 'by the pose
+    source', which a point file resolves to 0 without a word.
+    """
     from .config import FIT_EXTRA, read_values
-    return 'free_space_window' in read_values(path, overrides, ('smemsf',), FIT_EXTRA)
+    window = read_values(path, overrides, ('smemsf',), FIT_EXTRA).get('free_space_window')
+    return window is not None and window != -1
 
 
 def load_incremental_config(path: str = None, overrides: list = ()):
