@@ -111,6 +111,11 @@ def kind_of(path) -> str:
     if os.path.isdir(name):
         if os.path.isfile(os.path.join(name, 'metadata.yaml')):
             return 'bag'
+        inside = sorted(f for f in os.listdir(name) if f.lower().endswith(('.db3', '.mcap')))
+        if inside:      # a recording stopped before rosbag2 wrote its metadata (SIGKILL)
+            raise ValueError(f'{name}: a folder without metadata.yaml, not a rosbag2 bag; its '
+                             f'storage file can be read alone: give '
+                             f'{os.path.join(name, inside[0])}')
         raise ValueError(f'{name}: a folder without metadata.yaml, not a rosbag2 bag (accepted '
                          f'inputs: {accepted_inputs()})')
     low = name.lower()

@@ -196,6 +196,8 @@ def test_kind_of_names_every_input_and_refuses_the_rest_with_one_line(tmp_path):
     (tmp_path / 'folder').mkdir()
     (tmp_path / 'folder' / 'metadata.yaml').write_text('x')
     (tmp_path / 'plain').mkdir()
+    (tmp_path / 'killed').mkdir()           # a recording stopped before metadata.yaml
+    (tmp_path / 'killed' / 'killed_0.db3').write_text('x')
     (tmp_path / 'p.xyz').write_text('1 2\n')
     os.mkfifo(tmp_path / 'pipe.log')
     os.symlink(tmp_path / 'gone.log', tmp_path / 'dangling.log')
@@ -211,6 +213,8 @@ def test_kind_of_names_every_input_and_refuses_the_rest_with_one_line(tmp_path):
                (tmp_path / 'missing.log', 'no such file or folder'),
                (tmp_path / 'dangling.log', 'no such file or folder'),
                (tmp_path / 'plain', 'a folder without metadata.yaml'),
+               (tmp_path / 'killed', 'its storage file can be read alone: give '
+                f"{tmp_path / 'killed' / 'killed_0.db3'}"),
                (tmp_path / 'pipe.log', 'not a regular file'),
                ('sim:nowhere', 'unknown simulated drive (expected one of sim:office'),
                ('', 'no such file or folder')]
