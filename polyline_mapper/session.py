@@ -1022,8 +1022,9 @@ class PoseSource:
                 raise TransformLookupError(
                     'no_tf', f'frame {frame!r} reaches {target!r} only through static '
                     'transforms: scan matching localizes the odometry frame, and no odometry '
-                    f'transform ({target!r} in it) has come yet (no odometry at all: '
-                    'pose_source scan)')
+                    f'transform ({target!r} in it) has come yet (odometry only as '
+                    'nav_msgs/Odometry, no odom -> base_link on /tf: pose_source odom; no '
+                    'odometry at all: pose_source scan)')
             self.base_frame = chain[-2]
         else:
             target = self.fixed_frame or self._default_fixed(frame)

@@ -311,6 +311,24 @@ def test_odometry_that_starts_after_the_laser_is_waited_for(office_drive):
     assert np.sqrt(np.mean(err ** 2)) < 0.05, err
 
 
+def test_scans_with_a_mount_and_no_odometry_transform_name_both_remedies(office_drive):
+    # A robot whose odometry comes as nav_msgs/Odometry only (no odom -> base_link on /tf):
+    # the warning pointed to scan mode alone, the worse one, not to pose_source odom, the
+    # documented fix (new-user audit, the node with /scan, /odom and /tf_static).
+    warned = []
+    session = MappingSession(None, SessionOptions(scan_matching=True, fixed_frame='map'),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    session.add(tf(0.0, 'base_link', 'laser', MOUNT, static=True))
+    for i in range(5):
+        session.add(scan_of(office_drive, i, float(i)))
+        session.step()
+    session.flush()
+    assert session.used == 0 and {cause for cause, _ in warned} == {'no_tf'}
+    assert all(text.endswith('has come yet (odometry only as nav_msgs/Odometry, no odom -> '
+                             'base_link on /tf: pose_source odom; no odometry at all: '
+                             'pose_source scan)') for _, text in warned), warned
+
+
 def test_a_bag_played_again_is_searched_for_where_it_started_not_placed_by_the_old_drift(
         office_drive):
     # The clock jumps back and the odometry starts again with it (a bag played in a loop, a
