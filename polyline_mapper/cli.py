@@ -275,6 +275,10 @@ def cmd_fit(args) -> int:
                                  'free_squares': result.free_squares},
                           inputs=inputs, origins=origins)
     _warn_if_empty(args.input, stats, config)
+    if origins is not None:
+        disagree = _seen_through(stats, args, config.range_noise)
+        if disagree:
+            print(f'polyline-mapper: warning: {disagree}', file=sys.stderr)
     if not args.quiet:
         print(summary_line(args.output, stats))
     return 0
@@ -560,8 +564,17 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
     off = coverage is not None and np.isfinite(coverage) and coverage < UNCOVERED_WARN
     if not (through or off):
         return ''
-    check = ['the poses (drifting odometry: --scan-matching)' if not args.scan_matching
-             else 'the poses']
+    matched = (getattr(args, 'scan_matching', False) or args.pose_source == 'scan'
+               or getattr(args, 'map', None) is not None)
+    if getattr(args, 'map', None) is not None:
+        check = ['the initial pose (--initial-pose X,Y,YAW_DEG) and that the saved map is of '
+                 'this place']
+    elif matched:
+        check = ['the poses']
+    else:
+        check = ['the poses (drifting odometry: --scan-matching)'
+                 if hasattr(args, 'scan_matching') else 'the poses (drifting odometry: '
+                 'replay --scan-matching)']
     if args.pose_source == 'odom':
         check.insert(0, "the laser's mount (--laser-mount: a laser facing backwards has yaw 180, "
                         'one upside down flip)')

@@ -384,6 +384,34 @@ def test_a_map_the_beams_see_through_warns_of_the_mount_and_the_poses(tmp_path, 
     assert err[0].endswith("check the laser's mount (--laser-mount: a laser facing backwards "
                            'has yaw 180, one upside down flip) and the poses (drifting '
                            'odometry: --scan-matching)')
+    # fit of the same bag warned of nothing (new-user audit: 31 % contradicted, 62.6 %
+    # coverage, no word); it has no --scan-matching, so replay's is named
+    assert main(['fit', bag, '-o', str(out), '--pose-source', 'odom', '--laser-mount',
+                 f'{x:g},{y:g},-90', '-q']) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if 'scans disagree' in line]
+    assert len(err) == 1 and err[0].endswith('(drifting odometry: replay --scan-matching)'), err
+
+
+def test_the_disagreement_warning_names_what_the_user_can_still_change():
+    # It told users already matching (scan mode, a saved map) to add --scan-matching; with a
+    # saved map the likely cause is the initial pose (new-user audit).
+    from argparse import Namespace
+    from polyline_mapper.cli import _seen_through
+    bad = {'segments': 10, 'contradicted_share': 0.3, 'coverage_0_10m': 0.6}
+    hint = {}
+    for name, args in (('tf', Namespace(pose_source='tf', scan_matching=False, map=None)),
+                       ('matched', Namespace(pose_source='tf', scan_matching=True, map=None)),
+                       ('scan', Namespace(pose_source='scan', scan_matching=False, map=None)),
+                       ('saved', Namespace(pose_source='tf', scan_matching=False, map='m.json')),
+                       ('fit', Namespace(pose_source='tf'))):
+        hint[name] = _seen_through(bad, args).partition('; check ')[2]
+    assert hint['tf'] == 'the poses (drifting odometry: --scan-matching)'
+    assert hint['matched'] == hint['scan'] == 'the poses'
+    assert hint['saved'] == ('the initial pose (--initial-pose X,Y,YAW_DEG) and that the saved '
+                             'map is of this place')
+    assert hint['fit'] == 'the poses (drifting odometry: replay --scan-matching)'
+    assert _seen_through({**bad, 'contradicted_share': 0.01, 'coverage_0_10m': 0.97},
+                         Namespace(pose_source='tf', scan_matching=False, map=None)) == ''
 
 
 def test_a_map_of_drifting_odometry_warns_though_the_evidence_cut_what_the_beams_saw(tmp_path,
