@@ -552,6 +552,8 @@ class GapTrack:
         self.given = None
         """The odometry (or TF) pose of the last tracked scan, when there is one."""
         self.why = ''
+        self.paused = True
+        """Whether the scans paused before it (else they came, and did not match)."""
 
     def add(self, stamp: float, local: np.ndarray, sigma: float, degenerate: float,
             given: np.ndarray = None) -> bool:
@@ -1458,6 +1460,9 @@ class MappingSession:
         """Scan mode: seconds between the last posed scans (``GAP_FACTOR``)."""
         self._gap = None
         """Scan mode: the ``GapTrack`` of the scans after a gap until one is found on the map."""
+        self._last_scan = None
+        self._quiet = None
+        """Scan mode: the last scan's stamp, and the seconds from it to this scan's."""
         self._loaded = None
         """(MapValue, planner map or None, initial base pose or None) of ``load_map``."""
         self._place = None
@@ -1880,6 +1885,9 @@ class MappingSession:
                     xyz = self._predict(scan.stamp) if start is None else start
                     if start is None:
                         window = self._gap_window(scan.stamp)
+                    self._quiet = (None if self._last_scan is None
+                                   else scan.stamp - self._last_scan)
+                    self._last_scan = scan.stamp
                 if window is None and self._gap is not None:
                     window = self._gap.window   # searched for still (after a gap, an estimate)
                 motion = self._beam_motion(scan, pose, notes, angles, limit)
@@ -1901,8 +1909,10 @@ class MappingSession:
                         notes += self._localize(scan.stamp, given, xyz, before, scan.frame_id)
                         m = self._last_match
                         if self._gap is not None and (m is None or not m.ok):
-                            where = (f'after a gap in the scans since {self._gap.since:.3f} s'
-                                     if self._gap.estimate is None else 'near the pose estimate')
+                            where = ('near the pose estimate' if self._gap.estimate is not None
+                                     else f'after a gap in the scans since {self._gap.since:.3f} s'
+                                     if self._gap.paused else 'after scans that did not match '
+                                     f'since {self._gap.since:.3f} s')
                             self._skip('not mapped', 'lost', f'the scan at {scan.stamp:.3f} s: '
                                        f'not found {where}')
                             return notes
@@ -1975,6 +1985,13 @@ class MappingSession:
             return _inverse(self._correction)
         return _compose(_inverse(self._correction), extrapolate(self._motion, stamp))
 
+    def _gap_limit(self) -> float:
+        """Scan mode: seconds without a posed scan that make a gap (see ``_gap_window``)."""
+        limit = GAP_SECONDS
+        if self._intervals:
+            limit = max(limit, GAP_FACTOR * _median(self._intervals))
+        return limit
+
     def _gap_window(self, stamp: float) -> Optional[tuple]:
         """
         Scan mode: (m, rad) around the prediction to search when the scan comes after a gap.
@@ -1988,10 +2005,7 @@ class MappingSession:
             return None
         t1 = self._motion[-1][0]
         elapsed = stamp - t1
-        limit = GAP_SECONDS
-        if self._intervals:
-            limit = max(limit, GAP_FACTOR * _median(self._intervals))
-        if not (elapsed > limit or self._gap is not None):
+        if not (elapsed > self._gap_limit() or self._gap is not None):
             return None
         v = motion_velocity(self._motion, t1)
         v = np.zeros(3) if v is None else np.abs(v)
@@ -2181,6 +2195,8 @@ class MappingSession:
             since = self._motion[-1][0] if self._motion and estimate is None else stamp
             track = self._gap = GapTrack(since, stamp, prediction, window, estimate,
                                          self.options.chord_knots)
+            # a gap in the scans themselves, or scans that kept coming and did not match
+            track.paused = self._quiet is None or not 0 <= self._quiet <= self._gap_limit()
             if window[0] > GAP_REACH:
                 track.why = (f'the robot may be anywhere within {window[0]:.1f} m, beyond the '
                              f'{GAP_REACH:g} m scan matching searches')
@@ -2227,9 +2243,14 @@ class MappingSession:
                 f'the scans near the pose estimate ({x:.2f}, {y:.2f}, {yaw:.2f}; within '
                 f'{track.window[0]:.2f} m and {track.window[1]:.2f} rad of the laser)')
             lost = f'has not found {what}'
-        else:
+        elif track.paused:
             cause, what = 'scan_gap', (f'a gap of {track.first - track.since:.1f} s in the '
                                        f'scans (from {track.since:.3f} s)')
+            lost, what = f'lost the track after {what}', f'the scans after {what}'
+        else:       # the scans kept coming, none matched: a jump refused, a turn too fast
+            cause, what = 'scan_gap', (f'{track.first - track.since:.1f} s of scans that did '
+                                       f'not match the map (from {track.since:.3f} s; no gap '
+                                       'in the scans)')
             lost, what = f'lost the track after {what}', f'the scans after {what}'
         if track.final and track.warned < 2:
             track.warned = 2
