@@ -945,17 +945,20 @@ SECONDS = number(0.0)
 POSITIVE = number(0.0, lo_open=True)
 
 
-def _pose_args(sp, plot: bool = False) -> None:
+def _pose_args(sp, plot: bool = False, replay: bool = False) -> None:
+    """Add the options that place a bag's or a drive's scans (``replay``: its own wording)."""
     sp.add_argument('--scan-topic', help='sensor_msgs/LaserScan topic (default: the only one)')
     # plot: None when not given (cmd_plot then takes the map's own, else 'tf')
     sp.add_argument('--pose-source', choices=('tf', 'odom', 'scan'),
                     default=None if plot else 'tf',
-                    help='tf: laser pose in the fixed frame from /tf and /tf_static (default; '
-                    "plot: the map's own with its input, else tf); "
-                    'odom: nav_msgs/Odometry plus the laser mount, map in the odometry frame; '
-                    'scan: no pose data, each scan predicted at constant velocity and refined '
-                    'by scan matching (implies --scan-matching; the first scan at the origin '
-                    "of the map frame, 'map' unless --fixed-frame)")
+                    help='tf: laser pose in the fixed frame from /tf and /tf_static ('
+                    + ("default: the map's own with its input, else tf" if plot else 'default')
+                    + '); odom: nav_msgs/Odometry plus the laser mount, map in the odometry '
+                    'frame; scan: no pose data, each scan predicted at constant velocity and '
+                    'refined by scan matching (' + ('implies --scan-matching' if replay else
+                                                    'as replay --pose-source scan')
+                    + "; the first scan at the origin of the map frame, 'map' unless "
+                    '--fixed-frame)')
     sp.add_argument('--fixed-frame', help="map frame with --pose-source tf (default: 'map' "
                     "when the scan's TF tree has it, else the tree's root; with scan matching "
                     "'map' above that root) or with --pose-source odom and scan matching "
@@ -968,7 +971,8 @@ def _pose_args(sp, plot: bool = False) -> None:
                     "default: the scan frame's mount from /tf_static")
     from .core.register import CHORD_KNOTS
     sp.add_argument('--chord-knots', choices=CHORD_KNOTS, default='arc',
-                    help="scan matching: the last scans' chord knots every 0.15 m of the raw "
+                    help=('scan matching' if replay else 'with --pose-source scan')
+                    + ": the last scans' chord knots every 0.15 m of the raw "
                     "arc (default) or of an arc of median steps ('median': for lidars whose "
                     "noise grows with the range, as a TurtleBot3's, where the default turns "
                     "the heading); the node's chord_knots")
@@ -1008,9 +1012,9 @@ def build_parser() -> argparse.ArgumentParser:
                        'offline with --offline)')
     common(d)
     d.add_argument('--noise', type=number(0.0, 10.0), default=0.01,
-                   help='laser range noise (m)')
+                   help='laser range noise (m, default 0.01)')
     d.add_argument('--seed', type=number(0, 2 ** 32 - 1, kind=int), default=1,
-                   help='simulation seed')
+                   help='simulation seed (default 1)')
     d.add_argument('--rate', type=POSITIVE, default=1.0,
                    help='live: play the drive at this many times real time (default 1)')
     d.add_argument('--domain-id', type=number(0, 232, kind=int), metavar='N',
@@ -1027,7 +1031,7 @@ def build_parser() -> argparse.ArgumentParser:
                    'carried away; the free-space evidence clears them, --set '
                    'free_space_window=0 leaves them)')
     common(r)
-    _pose_args(r)
+    _pose_args(r, replay=True)
     r.add_argument('--every', type=number(1, kind=int), default=1, metavar='N',
                    help='use every N-th scan')
     r.add_argument('--scan-matching', action='store_true',
@@ -1098,11 +1102,11 @@ def build_parser() -> argparse.ArgumentParser:
     py.add_argument('--wait-for-subscriber', type=SECONDS, default=0.0, metavar='SECONDS',
                     help='wait up to this long for a subscriber on the scan topic first')
     py.add_argument('--seed', type=number(0, 2 ** 32 - 1, kind=int), default=1,
-                    help='sim: drives: simulation seed')
+                    help='sim: drives: simulation seed (default 1)')
     py.add_argument('--noise', type=number(0.0, 10.0), default=0.01,
-                    help='sim: drives: range noise (m)')
+                    help='sim: drives: range noise (m, default 0.01)')
     py.add_argument('--period', type=POSITIVE, default=1.0, help='CARMEN logs: seconds between '
-                    'scans when the log times do not increase')
+                    'scans when the log times do not increase (default 1)')
     py.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
     py.add_argument('--ros-args', nargs=argparse.REMAINDER, default=None,
                     help='ROS arguments, e.g. --ros-args -r /scan:=/front/scan')
@@ -1121,7 +1125,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help='stop once no new map came for this long (default: run until Ctrl-C '
                     'or SIGTERM; either writes the newest map and exits 0)')
     rm.add_argument('--timeout', type=SECONDS, default=30.0, metavar='SECONDS',
-                    help='give up (exit 2) if no map arrives within this long; 0: wait forever')
+                    help='give up (exit 2) if no map arrives within this long (default 30); 0: '
+                    'wait forever')
     rm.add_argument('-q', '--quiet', action='store_true', help='no summary')
     rm.add_argument('--ros-args', nargs=argparse.REMAINDER, default=None,
                     help='ROS arguments, e.g. --ros-args -r __ns:=/robot1')
@@ -1133,7 +1138,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3',
                    help='rosbag2 storage (default: sqlite3)')
     c.add_argument('--period', type=POSITIVE, default=1.0,
-                   help='seconds between scans when the log times do not increase')
+                   help='seconds between scans when the log times do not increase (default 1)')
     c.add_argument('--odom-drift', type=number(0, 2 ** 32 - 1, kind=int), metavar='SEED',
                    help='write a robot without a localizer: /odom and /tf odom -> base_link '
                    'drift like wheel odometry (5 %% of each step per axis, 0.02 rad + 1 deg '
