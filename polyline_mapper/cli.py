@@ -938,6 +938,11 @@ class _Parser(argparse.ArgumentParser):
         """Print one line and exit 2 (``--rate must be ...`` for a refused option value)."""
         import re
         message = re.sub(r'^argument (?:[^:/]+/)?([^:]+): must be', r'\1 must be', message)
+        if message.endswith('required: command'):          # (no command given at all)
+            commands = [name for action in self._actions
+                        if isinstance(action, argparse._SubParsersAction)
+                        for name in action.choices]
+            message += f' (one of: {", ".join(commands)}; COMMAND --help says more)'
         self.exit(EXIT_USAGE, f'polyline-mapper: error: {message}\n')
 
 

@@ -571,6 +571,9 @@ OPTION_CASES = [
      '--clock-hz must be a positive number'),
     ('demo --noise nan', ['demo', '--offline', '-o', '{out}', '--noise', 'nan'],
      '--noise must be a number in [0, 10]'),
+    # no command: the commands were not named (new-user audit)
+    ('no command', [], 'the following arguments are required: command (one of: fit, demo, '
+     'replay, plot, export, play, record-map, convert; COMMAND --help says more)'),
     # passed on to the node as -p, where rcl kept it unused (new-user audit; demo_params below)
     ('demo --set misspelt', ['demo', '-o', '{out}', '--set', 'scan_matchng=true'],
      '--set scan_matchng=true: the node has no parameter scan_matchng (did you mean '
