@@ -381,3 +381,13 @@ def test_record_map_of_another_publisher_says_its_file_has_no_config(tmp_path):
     assert read_map(out).config is None
     assert (f'{out} has no config block (the mapper settings the map was made with): '
             'someone_elses_mapper is not a polyline_mapper node') in rec.stderr, rec.stderr
+
+
+def test_play_names_the_topics_as_remapped(capsys):
+    # play --ros-args -r /scan:=/front/scan published on /front/scan but said 'no subscriber on
+    # /scan' and '83 /scan' (new-user audit): the names are the publishers' own now.
+    assert main(['play', 'sim:hall', '--rate', '200', '--wait-for-subscriber', '0.3',
+                 '--ros-args', '-r', '/scan:=/front/scan']) == 0
+    out, err = capsys.readouterr()
+    assert 'no subscriber on /front/scan after 0.3 s' in err, err
+    assert ': 83 /front/scan, 83 /odom' in out and ' /scan' not in out, out

@@ -203,7 +203,7 @@ class Player:
             from tf2_msgs.msg import TFMessage
             pub.publish(TFMessage(transforms=[transform_msg(t, t.stamp + shift)
                                               for t in record]))
-        self.stats.published[topic] += 1
+        self.stats.published[pub.topic_name] += 1     # (after --ros-args -r remapping)
 
     def wait_for_acks(self, timeout: float) -> list:
         """
@@ -359,7 +359,8 @@ def run_play(path: str, rate: float = 1.0, loop: bool = False, clock: bool = Tru
                     if (first_scan is not None and not player.wait_for_subscriber(
                             first_scan[0], first_scan[1], wait_for_subscriber)
                             and not player.stopped):
-                        log(f'warning: no subscriber on {first_scan[0]} after '
+                        name = player.publisher(*first_scan).topic_name     # remapped
+                        log(f'warning: no subscriber on {name} after '
                             f'{wait_for_subscriber:g} s; playing anyway')
                 if progress:
                     import sys
