@@ -1775,10 +1775,14 @@ class MappingSession:
         """Pose the queued scans, run the updates they complete (at most ``max_updates``)."""
         with self._lock:
             self._news = False
-        notes = self._pose_waiting(final=False)
-        done = self._run(max_updates, partial=False)
-        self._emit(notes)
-        return done
+        done = 0
+        while True:     # with scan matching a group is posed only once the ones before it ran
+            notes = self._pose_waiting(final=False)
+            ran = self._run(None if max_updates is None else max_updates - done, partial=False)
+            self._emit(notes)
+            done += ran
+            if not ran or (max_updates is not None and done >= max_updates):
+                return done
 
     def flush(self, final: bool = True) -> int:
         """
@@ -1788,10 +1792,14 @@ class MappingSession:
         waiting for their pose keep waiting (up to ``wait``). Returns the number of update
         groups processed.
         """
-        notes = self._pose_waiting(final=final)
-        done = self._run(None, partial=True)
-        self._emit(notes)
-        return done
+        done = 0
+        while True:
+            notes = self._pose_waiting(final=final)
+            ran = self._run(None, partial=True)
+            self._emit(notes)
+            done += ran
+            if not ran:
+                return done
 
     def idle_seconds(self) -> float:
         """Seconds (of the clock) since the last scan came; inf before any."""
@@ -1813,7 +1821,13 @@ class MappingSession:
         opts = self.options
         with self._lock:
             now = self._now()
+            if opts.scan_matching:
+                notes.extend(self._shed_waiting(now))
             while self._waiting:
+                if opts.scan_matching and len(self._ready) >= opts.update_every_n_scans:
+                    # A scan is matched against the map of every scan before it, as in a
+                    # replay: not against a map that lags behind because updates do.
+                    break
                 scan, arrived = self._waiting[0]
                 if isinstance(scan, PoseEstimate):
                     self._waiting.popleft()
@@ -1846,6 +1860,28 @@ class MappingSession:
                     notes.append(self._skip(
                         'dropped', 'queue_full', 'the oldest queued scan: updates fall behind '
                         f'the scan rate (queue of {opts.max_queue} scans)'))
+        return notes
+
+    def _shed_waiting(self, now: float) -> list:
+        """Scan matching: load shedding (max_queue, max_latency) on the scans not yet posed."""
+        opts, notes = self.options, []
+        scans = [i for i, (s, _) in enumerate(self._waiting) if isinstance(s, Scan)]
+        drop = set()
+        if opts.max_queue is not None and len(scans) > opts.max_queue:
+            drop.update(scans[:len(scans) - opts.max_queue])
+            notes += [self._skip('dropped', 'queue_full', 'the oldest queued scan: updates '
+                                 f'fall behind the scan rate (queue of {opts.max_queue} scans)')
+                      for _ in range(len(drop))]
+        if opts.max_latency is not None and self.clock is not None:
+            keep = opts.update_every_n_scans
+            late = [i for i in scans[:max(len(scans) - keep, 0)] if i not in drop
+                    and now - self._waiting[i][1] > opts.max_latency]
+            drop.update(late)
+            notes += [self._skip('dropped', 'too_late', 'a scan that waited more than '
+                                 f'{opts.max_latency:g} s for its update: updates are slower '
+                                 'than the scans') for _ in late]
+        if drop:
+            self._waiting = deque(w for i, w in enumerate(self._waiting) if i not in drop)
         return notes
 
     def _last_beam_posed(self, scan: Scan) -> bool:
