@@ -1775,14 +1775,7 @@ class MappingSession:
         """Pose the queued scans, run the updates they complete (at most ``max_updates``)."""
         with self._lock:
             self._news = False
-        done = 0
-        while True:     # with scan matching a group is posed only once the ones before it ran
-            notes = self._pose_waiting(final=False)
-            ran = self._run(None if max_updates is None else max_updates - done, partial=False)
-            self._emit(notes)
-            done += ran
-            if not ran or (max_updates is not None and done >= max_updates):
-                return done
+        return self._pose_and_run(False, False, max_updates)
 
     def flush(self, final: bool = True) -> int:
         """
@@ -1792,13 +1785,22 @@ class MappingSession:
         waiting for their pose keep waiting (up to ``wait``). Returns the number of update
         groups processed.
         """
+        return self._pose_and_run(final, True)
+
+    def _pose_and_run(self, final: bool, partial: bool, max_updates: int = None) -> int:
+        """
+        Pose the queued scans and run their updates, again until none runs; return the updates.
+
+        Again: with scan matching a group is posed only once the ones before it ran
+        (``_pose_waiting``). At most ``max_updates`` (None: no limit).
+        """
         done = 0
         while True:
             notes = self._pose_waiting(final=final)
-            ran = self._run(None, partial=True)
+            ran = self._run(None if max_updates is None else max_updates - done, partial)
             self._emit(notes)
             done += ran
-            if not ran:
+            if not ran or (max_updates is not None and done >= max_updates):
                 return done
 
     def idle_seconds(self) -> float:
@@ -1857,9 +1859,7 @@ class MappingSession:
             if opts.max_queue is not None:
                 while len(self._ready) > opts.max_queue:
                     self._ready.popleft()
-                    notes.append(self._skip(
-                        'dropped', 'queue_full', 'the oldest queued scan: updates fall behind '
-                        f'the scan rate (queue of {opts.max_queue} scans)'))
+                    notes.append(self._dropped('queue_full'))
         return notes
 
     def _shed_waiting(self, now: float) -> list:
@@ -1869,17 +1869,13 @@ class MappingSession:
         drop = set()
         if opts.max_queue is not None and len(scans) > opts.max_queue:
             drop.update(scans[:len(scans) - opts.max_queue])
-            notes += [self._skip('dropped', 'queue_full', 'the oldest queued scan: updates '
-                                 f'fall behind the scan rate (queue of {opts.max_queue} scans)')
-                      for _ in range(len(drop))]
+            notes += [self._dropped('queue_full') for _ in range(len(drop))]
         if opts.max_latency is not None and self.clock is not None:
             keep = opts.update_every_n_scans
             late = [i for i in scans[:max(len(scans) - keep, 0)] if i not in drop
                     and now - self._waiting[i][1] > opts.max_latency]
             drop.update(late)
-            notes += [self._skip('dropped', 'too_late', 'a scan that waited more than '
-                                 f'{opts.max_latency:g} s for its update: updates are slower '
-                                 'than the scans') for _ in late]
+            notes += [self._dropped('too_late') for _ in late]
         if drop:
             self._waiting = deque(w for i, w in enumerate(self._waiting) if i not in drop)
         return notes
@@ -2439,10 +2435,17 @@ class MappingSession:
         notes = []
         while len(self._ready) > n and now - self._ready[0][4] > limit:
             self._ready.popleft()
-            notes.append(self._skip('dropped', 'too_late', 'a scan that waited more than '
-                                    f'{limit:g} s for its update: updates are slower than the '
-                                    'scans'))
+            notes.append(self._dropped('too_late'))
         return notes
+
+    def _dropped(self, cause: str) -> tuple:
+        """Count and word one scan shed for load: ``cause`` 'queue_full' or 'too_late'."""
+        opts = self.options
+        return self._skip('dropped', cause, (
+            f'the oldest queued scan: updates fall behind the scan rate (queue of '
+            f'{opts.max_queue} scans)' if cause == 'queue_full' else
+            f'a scan that waited more than {opts.max_latency:g} s for its update: updates are '
+            'slower than the scans'))
 
     def _update(self, group: list, gen: int) -> bool:
         points = np.concatenate([g[1] for g in group])

@@ -280,13 +280,12 @@ class PolylineMapperNode(Node):
     def _matched_events(self, topic: str) -> SubscriptionEventCallbacks:
         """Return the event callbacks of an input: rclpy's defaults plus ``_on_matched``."""
         key = topic.lstrip('/')         # 'scan', 'odom', 'tf', 'tf_static'
-        return _MatchedEvents(lambda info: self._on_matched(topic, info),
+        return _MatchedEvents(lambda info: self._on_matched(key, topic, info),
                               lambda: self.publishers_matched.setdefault(key, 0))
 
-    def _on_matched(self, topic: str, info) -> None:
-        """Count (and log) the publishers an input's subscription has matched."""
+    def _on_matched(self, key: str, topic: str, info) -> None:
+        """Count (as ``key``) and log the publishers an input's subscription has matched."""
         count = int(info.current_count)
-        key = topic.lstrip('/')
         if self.publishers_matched.get(key) != count:
             self.get_logger().info(f'{self.resolve_topic_name(topic)}: {count} publisher'
                                    f'{"" if count == 1 else "s"} matched')
