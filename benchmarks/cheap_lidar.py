@@ -14,7 +14,7 @@ the beams taken over the scan time (a spinning sensor), 0.12-3.5 m, 1 % dropouts
 waypoints, 38 m) and round a 10 m corridor loop (2 m wide), the laser on the base, with true
 odometry and with ``OdometryDrift`` seeds (issue 19's model), mapped through the session
 (``replay_records``) without ``scan_matching`` and with it, its ``chord_knots`` 'arc' (the
-default) and 'median'. Scores per run: RMS of the base
+default before 2026-11-30) and 'median' (the default since). Scores per run: RMS of the base
 position and heading against the truth as the poses stand, ATE, the map against the true
 points (mean distance, coverage within 0.10 m) and the walls' F1 as the map stands and after
 the trajectory's alignment.

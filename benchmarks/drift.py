@@ -60,7 +60,7 @@ MODES = ('corrected', 'odometry', 'matching', 'exact-matching', 'loops')
 
 
 def one(path: pathlib.Path, seed, truth: np.ndarray, log, mode: str, config=None,
-        knots: str = 'arc') -> dict:
+        knots: str = SessionOptions.chord_knots) -> dict:
     """
     Map ``path`` in ``mode`` (drift ``seed``; None for the corrected poses); return its row.
 
@@ -121,9 +121,9 @@ def main() -> int:
     ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
                     help="the mapper's settings for every replay, as replay --set takes them "
                     '(e.g. free_space_window=10); each row records them')
-    ap.add_argument('--chord-knots', choices=CHORD_KNOTS, default='arc',
+    ap.add_argument('--chord-knots', choices=CHORD_KNOTS, default=SessionOptions.chord_knots,
                     help="the session's chord_knots (replay --chord-knots) for every replay "
-                    'with scan matching')
+                    'with scan matching (default: %(default)s)')
     ap.add_argument('--from-json', nargs='+', metavar='JSON', help='run nothing: join these '
                     'runs (e.g. two logs run side by side, each with --json) into '
                     'results/drift.json and the README block')

@@ -19,7 +19,7 @@ noise scale estimated (the default), fixed at 2.5 cm (``config/lds01.yaml``), fi
 estimated with ``range_noise`` 0.01 (each point's noise scale hypot(sigma, 0.01 x its range)).
 The rplidar drives are also mapped with scan matching from drifting odometry
 (``OdometryDrift`` seed = the noise seed), estimated against range_noise, with the chords'
-knots 'arc' (the default) and 'median' (what the README advises for such a lidar). Scores,
+knots 'arc' (the default before 2026-11-30) and 'median' (the default since). Scores,
 both ways: segments (shorter than 0.5 m), the map against the true points (mean distance,
 coverage within 0.10 m), the share of the map's length its own beams contradict
 (``free_space_stats``), and the walls' F1

@@ -56,7 +56,7 @@ SETTINGS = {
 """IncrementalConfig fields of each row (over the defaults)."""
 
 
-def one(drive, fields: dict, knots: str = 'arc') -> dict:
+def one(drive, fields: dict, knots: str = SessionOptions.chord_knots) -> dict:
     """Map the drive with scan matching and the mapper ``fields``; return its scores."""
     records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0)))
     session = replay_records(records, IncrementalConfig(**fields),

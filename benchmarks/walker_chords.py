@@ -3,7 +3,7 @@ A person walking ahead of the robot: the transient chords' hold, and the chord l
 
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
-    .venv/bin/python benchmarks/walker_chords.py [--seeds 1 2 3 4 5 6 7 8] [--chord-knots median]
+    .venv/bin/python benchmarks/walker_chords.py [--seeds 1 2 3 4 5 6 7 8] [--chord-knots arc]
 
 The simulated dynamic office of ``walker_ahead.py`` (true poses, scan matching, the session as
 ``test_imperfect_poses`` drives it), every seed mapped with the chords of the last scans
@@ -21,8 +21,9 @@ matching runs by default) and ``evidence`` (the evidence per square alone), as t
 One row per setting, extent and length: the median, mean and largest RMS position error over
 the seeds, how many of them keep the walls F1 >= 0.95, and the lowest F1. Writes the table
 into benchmarks/README.md (between the ``walker-chords`` markers) and the rows to
-results/walker_chords.json; with ``--chord-knots median`` (the session's ``chord_knots``) between
-the ``walker-chords-median`` markers and to results/walker_chords_median.json.
+results/walker_chords.json with ``--chord-knots arc`` (the session's default before 2026-11-30);
+with ``median`` (the default) between the ``walker-chords-median`` markers and to
+results/walker_chords_median.json.
 """
 
 import argparse
@@ -47,8 +48,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
     ap.add_argument('--seeds', type=int, nargs='+', default=list(range(1, 9)),
                     help='drive seeds (default 1-8, the tests)')
-    ap.add_argument('--chord-knots', choices=register.CHORD_KNOTS, default='arc',
-                    help="the session's chord_knots")
+    ap.add_argument('--chord-knots', choices=register.CHORD_KNOTS, default='median',
+                    help="the session's chord_knots (default: the session's default, median; "
+                    'arc writes the walker-chords block)')
     args = ap.parse_args()
     name = 'walker_chords' + ('' if args.chord_knots == 'arc' else '_median')
     meta = stamp('.venv/bin/python benchmarks/walker_chords.py ' + ' '.join(sys.argv[1:]))

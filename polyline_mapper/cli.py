@@ -466,8 +466,8 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         # /tf_static and odometry is not read, in scan mode no pose data at all.
         raise CliError(f'{" and ".join(given)} {"applies" if len(given) == 1 else "apply"} '
                        f'with --pose-source odom only (given: {args.pose_source})')
-    knots = getattr(args, 'chord_knots', 'arc')
-    if knots != 'arc' and not matching and args.pose_source != 'scan':
+    knots = getattr(args, 'chord_knots', None)
+    if knots is not None and not matching and args.pose_source != 'scan':
         raise CliError('--chord-knots applies to scan matching only: add --scan-matching (or '
                        '--pose-source scan)')
     mount, flip = _mount(args.laser_mount)
@@ -478,7 +478,8 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         fixed = 'map'
     return SessionOptions(pose_source=args.pose_source, fixed_frame=fixed,
                           every=every, update_every_n_scans=group, mount=mount,
-                          mount_upside_down=flip, scan_matching=matching, chord_knots=knots)
+                          mount_upside_down=flip, scan_matching=matching,
+                          chord_knots=knots or SessionOptions.chord_knots)
 
 
 def _initial_pose(text: str) -> tuple:
@@ -975,12 +976,12 @@ def _pose_args(sp, plot: bool = False, replay: bool = False) -> None:
                     "deg; flip: mounted upside down), like the node's laser_* parameters; "
                     "default: the scan frame's mount from /tf_static")
     from .core.register import CHORD_KNOTS
-    sp.add_argument('--chord-knots', choices=CHORD_KNOTS, default='arc',
+    sp.add_argument('--chord-knots', choices=CHORD_KNOTS,
                     help=('scan matching' if replay else 'with --pose-source scan')
-                    + ": the last scans' chord knots every 0.15 m of the raw "
-                    "arc (default) or of an arc of median steps ('median': for lidars whose "
-                    "noise grows with the range, as a TurtleBot3's, where the default turns "
-                    "the heading); the node's chord_knots")
+                    + ": the last scans' chord knots every 0.15 m of an arc of median steps "
+                    '(median, the default) or of the raw arc (arc, the default before '
+                    "2026-11-30, which turns every match a little the same way); the node's "
+                    'chord_knots')
 
 
 def build_parser() -> argparse.ArgumentParser:

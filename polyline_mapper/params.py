@@ -79,13 +79,13 @@ NODE_PARAMS = (
               "the node broadcasts. '' = found: the first odometry message's frame (odom mode) "
               "or the root of the scan frame's TF tree (tf mode). Set it when that root is not "
               'the odometry frame (e.g. robot1/odom on a multi-robot tree).'),
-    ParamSpec('chord_knots', 'arc',
+    ParamSpec('chord_knots', 'median',
               "scan_matching: where the knots of the last scans' chords (matched to beside the "
-              "map) lie along each scan: 'arc' every 0.15 m of the arc through its readings; "
-              "'median' every 0.15 m of an arc whose steps are each the median of 31 around "
-              'it. Use median for a lidar whose range noise grows with the range (a '
-              "TurtleBot3's LDS-01, RPLidar-class): with arc every match turns the same way "
-              '(1.9-4.9 deg over a 3-minute simulated drive).', choices=CHORD_KNOTS),
+              "map) lie along each scan: 'median' every 0.15 m of an arc whose steps are each "
+              "the median of 31 around it; 'arc' (the default before 2026-11-30) every 0.15 m "
+              'of the arc through its readings, whose knots noise displaces along the sweep: '
+              'every match then turns the same way (-0.1 deg a match on the Intel log; 1.9-4.9 '
+              "deg over a 3-minute drive of a TurtleBot3's LDS-01).", choices=CHORD_KNOTS),
     ParamSpec('map_odom_post_date', 0.2,
               'scan_matching: seconds the map -> odom transform is stamped after its scan, as '
               "AMCL's transform_tolerance, so transforms at the current time resolve between "

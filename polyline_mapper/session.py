@@ -108,8 +108,15 @@ the corridor's west end (scans 486-489), the heading took up the prediction's 5 
 (+3.5 -> -5.3 deg) and kept it (ATE 0.838 m); with 0.1 m/rad it stays within 2.3 deg and the
 position within 0.27 m there.
 """
-RECENT_SCANS = 6
-"""Scan matching: the last scans whose chords join G(t) as the map a new scan is matched to."""
+RECENT_SCANS = 12
+"""
+Scan matching: the last scans whose chords join G(t) as the map a new scan is matched to.
+12 with 'median' knots against 6 with 'arc' (the defaults before 2026-11-30; drifted Radish
+logs, seeds 0-14, benchmarks/README.md "Median knots and 12 recent scans"): RMS as the poses
+stand Intel 0.365 -> 0.217 m, CSAIL 0.512 -> 0.267 m, ATE 0.123 -> 0.119 / 0.184 -> 0.164 m,
+matching 10 % slower. 'median' with 6 lost a scan on Intel seed 2 (a 6.3 deg prediction
+refused) and had the ATE worse on more seeds.
+"""
 KEYFRAME_STEP = (0.25, 0.15)
 """Scan matching: metres / radians a scan must be from the last keyframe to become one."""
 MATCH_POINTS = 240
@@ -470,7 +477,7 @@ class RecentChords:
     pulls the matches back along it. The chords are matched to all the same.
     """
 
-    def __init__(self, size: int, knots: str = 'arc'):
+    def __init__(self, size: int, knots: str = 'median'):
         self.knots = knots
         """``register.scan_chords``'s knot rule (``SessionOptions.chord_knots``)."""
         self._frames = deque(maxlen=size)
@@ -531,7 +538,7 @@ class GapTrack:
     """
 
     def __init__(self, since: float, first: float, center: np.ndarray, window: tuple,
-                 estimate: np.ndarray = None, knots: str = 'arc'):
+                 estimate: np.ndarray = None, knots: str = 'median'):
         self.knots = knots
         """``register.scan_chords``'s knot rule (``SessionOptions.chord_knots``)."""
         self.since = float(since)
@@ -678,12 +685,13 @@ class SessionOptions:
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
     consistent as the scans, not as the odometry. Off: the poses are used as given."""
-    chord_knots: str = 'arc'
+    chord_knots: str = 'median'
     """Scan matching: how the knots of the last scans' chords (``register.scan_chords``) are
-    placed along each scan: 'arc' every 0.15 m of the raw arc; 'median' every 0.15 m of an
-    arc whose steps are medians of their neighbours', for lidars whose range noise grows with
-    the range (a TurtleBot3's LDS-01, RPLidar-class), where 'arc' turns every match the same
-    way (1.9-4.9 deg over a 3-minute simulated drive, benchmarks/cheap_lidar.py)."""
+    placed along each scan: 'median' every 0.15 m of an arc whose steps are medians of their
+    neighbours'; 'arc' every 0.15 m of the raw arc, whose knots are readings that noise
+    displaced along the sweep, so every match turns the same way: -0.10 deg a match on the
+    Intel log, 1.9-4.9 deg over a 3-minute drive of a lidar whose noise grows with the range
+    (benchmarks/cheap_lidar.py). 'arc' was the default before 2026-11-30."""
     odom_frame: Optional[str] = None
     """Scan matching into ``fixed_frame``: the odometry frame, whose correction fixed frame ->
     it the session computes (the node broadcasts it). None: the first odometry's frame (odom

@@ -13,9 +13,10 @@ def test_the_shipped_parameter_file_gives_the_defaults(tmp_path):
 
 
 def test_replay_names_the_node_parameters_of_a_file_it_does_not_read(tmp_path, capsys):
-    # A TurtleBot user's parameter file with chord_knots: median mapped with arc knots without a
-    # word (replay takes it from --chord-knots). Node parameters set off their defaults are
-    # named now, with the flag; the shipped file, all defaults, names none.
+    # A TurtleBot user's parameter file with chord_knots: median (then off the default) mapped
+    # with arc knots without a word (replay takes it from --chord-knots). Node parameters set
+    # off their defaults are named now, with the flag; the shipped file, all defaults, names
+    # none.
     from conftest import REPO
     from polyline_mapper.cli import main
     from polyline_mapper.config import unread_node_params
@@ -23,9 +24,9 @@ def test_replay_names_the_node_parameters_of_a_file_it_does_not_read(tmp_path, c
                  'no_free_space.yaml'):
         assert unread_node_params(str(REPO / 'config' / name)) == [], name
     path = tmp_path / 'tb3.yaml'
-    path.write_text('/**:\n  ros__parameters:\n    chord_knots: median\n    transform_timeout: 0.1'
+    path.write_text('/**:\n  ros__parameters:\n    chord_knots: arc\n    transform_timeout: 0.1'
                     '\n    fixed_frame: map\n    smemsf:\n      sigma: 0.025\n')
-    assert unread_node_params(str(path)) == ['chord_knots: median (replay: --chord-knots)',
+    assert unread_node_params(str(path)) == ['chord_knots: arc (replay: --chord-knots)',
                                              'transform_timeout: 0.1']
     out = tmp_path / 'map.json'
     assert main(['replay', 'sim:hall', '--config', str(path), '-o', str(out), '-q']) == 0

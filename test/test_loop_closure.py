@@ -10,27 +10,39 @@ from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.carmen_bag import carmen_to_bag
 from polyline_mapper.poses import se2_compose, se2_inverse
 from polyline_mapper.replay import ReplayError, run_replay
+import polyline_mapper.session as session
 from polyline_mapper.session import SessionOptions
 import pytest
 
 MATCHING = SessionOptions(pose_source='odom', scan_matching=True, keep_points=True)
+DOUBLED = SessionOptions(pose_source='odom', scan_matching=True, keep_points=True,
+                         chord_knots='arc')
+"""With ``session.RECENT_SCANS`` 6: the matcher of before 2026-11-30, whose heading bias (-0.1
+deg a match) leaves the first 200 drifted Intel scans with doubled walls to close (2-3 % of
+the map's length contradicted). The defaults bring them back consistent (0.4 %): nothing to
+close there, nor in the first 600 (benchmarks/README.md, "Median knots and 12 recent
+scans")."""
 NO_EVIDENCE = IncrementalConfig(free_space_window=0)
 
 
-def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path):
-    # The first 200 scans of the Intel lab, with drifting odometry (seed 0): scan matching
-    # comes back to the first corridors 0.1-0.3 m off. Closed, the trajectory is nearer the
-    # corrected poses and the map has no wall its own beams pass through. Mapped without the
-    # free-space evidence (the default with scan matching), so that the doubled walls show;
-    # with the evidence on (config/free_space.yaml) they are cut out of the matched map even
-    # before the loops are closed (below).
+def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path, monkeypatch):
+    # The first 200 scans of the Intel lab, with drifting odometry (seed 0): scan matching as
+    # it was before 2026-11-30 (``DOUBLED``) comes back to the first corridors 0.1-0.3 m off.
+    # Closed, the trajectory is nearer the corrected poses and the map has no wall its own
+    # beams pass through. Mapped without the free-space evidence (the default with scan
+    # matching), so that the doubled walls show; with the evidence on (config/free_space.yaml)
+    # they are cut out of the matched map even before the loops are closed (below).
     log = radish_head('intel-corrected.log.gz', 200, tmp_path)
     carmen_to_bag(str(log), str(tmp_path / 'bag'), drift_seed=0)
     carmen = read_carmen(str(log))
     truth = se2_compose(np.array([r.pose for r in carmen.records]),
                         se2_inverse(np.asarray(carmen.laser_offset, dtype=float)))
-    runs = {lc: run_replay(str(tmp_path / 'bag'), None, MATCHING, loop_closure=lc)
-            for lc in (False, True)}
+    with monkeypatch.context() as patch:
+        patch.setattr(session, 'RECENT_SCANS', 6)
+        runs = {lc: run_replay(str(tmp_path / 'bag'), None, DOUBLED, loop_closure=lc)
+                for lc in (False, True)}
+        evidence = run_replay(str(tmp_path / 'bag'), IncrementalConfig(free_space_window=10),
+                              DOUBLED).map_value.stats
     # the defaults' window (-1) is 0 with scan matching, and the map after the closure, made
     # without matching, keeps the first map's setting
     assert all(r.session.mapper.config == NO_EVIDENCE for r in runs.values())
@@ -47,9 +59,11 @@ def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path):
     assert st['contradicted_share'] == info['contradicted_after'] < 0.5 * before
     assert len(runs[True].map_value.trajectory) == len(truth)      # every scan mapped
     assert runs[True].map_value.frame_id == runs[False].map_value.frame_id
-    evidence = run_replay(str(tmp_path / 'bag'), IncrementalConfig(free_space_window=10),
-                          MATCHING).map_value.stats
     assert evidence['contradicted_share'] < 0.5 * before                # 0.0 %
+    # the defaults map these scans without the doubled walls (0.40 % on an Intel Xeon VM):
+    # nothing to close here
+    plain = run_replay(str(tmp_path / 'bag'), None, MATCHING).map_value.stats
+    assert plain['contradicted_share'] < 0.5 * before
 
 
 def test_without_a_loop_to_close_the_matched_map_is_kept(tmp_path):

@@ -328,12 +328,10 @@ def lds_corridor_scan(rng, share: float = 0.01) -> np.ndarray:
 
 
 ARC_KNOT_BIAS = pytest.mark.xfail(strict=True, reason=(
-    "issue 19, a known limit (README): with chord_knots 'arc' (the default) the knots of "
-    'register.scan_chords are readings displaced along the sweep; with noise growing with '
-    'range every match against the last scan chords turns one way (-0.115 / +0.119 deg '
-    "here). chord_knots 'median' passes; as the default it lowered the drifted logs' RMS as "
-    'the poses stand but not their ATE over 15 Intel seeds (0.121 against 0.101 m), and three '
-    'tests missed their bars (benchmarks/README.md, the TurtleBot3 section)'))
+    "issue 19, a known limit (README): with chord_knots 'arc' (the default before 2026-11-30) "
+    'the knots of register.scan_chords are readings displaced along the sweep; with noise '
+    'growing with range every match against the last scan chords turns one way (-0.115 / '
+    "+0.119 deg here). chord_knots 'median', the default now, passes"))
 
 
 @pytest.mark.parametrize('knots', [pytest.param('arc', marks=ARC_KNOT_BIAS), 'median'])
