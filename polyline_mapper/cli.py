@@ -565,12 +565,10 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
     off = coverage is not None and np.isfinite(coverage) and coverage < UNCOVERED_WARN
     if not (through or off):
         return ''
-    matched = (getattr(args, 'scan_matching', False) or args.pose_source == 'scan'
-               or getattr(args, 'map', None) is not None)
     if getattr(args, 'map', None) is not None:
         check = ['the initial pose (--initial-pose X,Y,YAW_DEG) and that the saved map is of '
                  'this place']
-    elif matched:
+    elif getattr(args, 'scan_matching', False) or args.pose_source == 'scan':
         check = ['the poses']
     else:
         check = ['the poses (drifting odometry: --scan-matching)'
@@ -937,7 +935,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         """Print one line and exit 2 (``--rate must be ...`` for a refused option value)."""
-        import re
         message = re.sub(r'^argument (?:[^:/]+/)?([^:]+): must be', r'\1 must be', message)
         if message.endswith('required: command'):          # (no command given at all)
             commands = [name for action in self._actions
@@ -1184,16 +1181,10 @@ def _join_negative_poses(argv: list) -> list:
     """
     out, it = [], iter(argv)
     for item in it:
-        if item in _POSE_VALUED:
-            nxt = next(it, None)
-            if nxt is not None and _NEGATIVE_LIST.match(nxt):
-                out.append(f'{item}={nxt}')
-                continue
-            out.append(item)
-            if nxt is not None:
-                out.append(nxt)
-            continue
         out.append(item)
+        nxt = next(it, None) if item in _POSE_VALUED else None
+        if nxt is not None:
+            out[-1:] = [f'{item}={nxt}'] if _NEGATIVE_LIST.match(nxt) else [item, nxt]
     return out
 
 

@@ -2283,14 +2283,12 @@ class MappingSession:
                 f'the scans near the pose estimate ({x:.2f}, {y:.2f}, {yaw:.2f}; within '
                 f'{track.window[0]:.2f} m and {track.window[1]:.2f} rad of the laser)')
             lost = f'has not found {what}'
-        elif track.paused:
-            cause, what = 'scan_gap', (f'a gap of {track.first - track.since:.1f} s in the '
-                                       f'scans (from {track.since:.3f} s)')
-            lost, what = f'lost the track after {what}', f'the scans after {what}'
-        else:       # the scans kept coming, none matched: a jump refused, a turn too fast
-            cause, what = 'scan_gap', (f'{track.first - track.since:.1f} s of scans that did '
-                                       f'not match the map (from {track.since:.3f} s; no gap '
-                                       'in the scans)')
+        else:       # not paused: the scans kept coming, none matched (a jump, a fast turn)
+            cause, what = 'scan_gap', (
+                f'a gap of {track.first - track.since:.1f} s in the scans (from '
+                f'{track.since:.3f} s)' if track.paused else
+                f'{track.first - track.since:.1f} s of scans that did not match the map (from '
+                f'{track.since:.3f} s; no gap in the scans)')
             lost, what = f'lost the track after {what}', f'the scans after {what}'
         if track.final and track.warned < 2:
             track.warned = 2
