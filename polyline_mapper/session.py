@@ -169,7 +169,10 @@ worth, every clutter edge), they give a scan predicted far off more places to lo
 ``benchmarks/slips.py``'s office drive (seed 7), a 1.5 m slip (beyond ``RELOCALIZE``) was
 matched onto them 1 m off after 22 lost scans and mapped from there: poses up to 3.66 m off,
 walls F1 0.29. Against the map alone the search relocalizes it 0.65 m off (F1 0.51), as on
-the other drive; the drifted Radish logs are never lost, so they map as before.
+the other drive; the drifted Radish logs are never lost, so they map as before. Where G(t)
+has no segment near the scan the chords stay: lost before the mapper's first update (a gap in
+the odometry at the fourth scan of ``benchmarks/odom_loss.py``'s sparse drive), the map alone
+would be nothing, and no scan would ever be matched or mapped again.
 """
 CONFIRM_JUMP = 3
 """
@@ -2147,8 +2150,6 @@ class MappingSession:
         support = self.mapper.support if sigma is not None else np.zeros(0)
         sigma = sigma or MATCH_SIGMA
         recent, transient = self._recent.chords(), self._recent.transient()
-        if LOST_WITHOUT_CHORDS and self._proposals:   # lost: the map alone
-            recent, transient = recent[:0], transient[:0]
         stamp, window, estimate = gap
         if window is not None:
             return self._find_after_gap(local, given, prediction, np.concatenate([segs, recent]),
@@ -2161,6 +2162,8 @@ class MappingSession:
                                  np.compress(inside[1], recent, axis=0),
                                  np.compress(inside[0], support))
         transient = np.compress(inside[1], transient)
+        if LOST_WITHOUT_CHORDS and self._proposals and len(segs):
+            recent, transient = recent[:0], transient[:0]   # lost: the map alone, if any here
         if not len(segs) and not len(recent):
             self.matches['no map yet'] += 1
             if not self._proposals:                 # (lost: not where the map is)
