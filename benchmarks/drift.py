@@ -5,7 +5,7 @@ Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/drift.py [--datasets DIR] [--only NAME ...] [--seeds 0 1 2 3 4]
         [--modes corrected odometry matching exact-matching loops] [--set KEY=VALUE ...]
-        [--json FILE | --from-json FILE ...]
+        [--drop-first N] [--json FILE | --from-json FILE ...]
 
 For each log and seed, ``polyline-mapper convert LOG --odom-drift SEED`` writes a bag whose
 /odom and /tf odom -> base_link follow the corrected poses with wheel-odometry-like drift added
@@ -30,6 +30,12 @@ the matching does where the odometry is perfect. ``loops`` (not run unless asked
 - the map against its own points (as the mapper placed them): the self-consistency a user sees;
 - the update time per scan (scan conversion, matching and map update, the session's clock).
 
+``--drop-first N`` maps each log without its first N scans (``scan_only.drop_first``: a
+copy written to a temporary folder, its corrected poses the reference), a change of input as
+small as another CPU's rounding, to see how much one run is luck (one replay is chaotic). The
+drift is then drawn for the shorter log, so a drifted run is another odometry too; an
+``exact-matching`` run is the same odometry without those scans. Needs ``--json``.
+
 Writes the table into benchmarks/README.md (between the ``drift`` markers) and the raw numbers
 to benchmarks/results/drift.json.
 """
@@ -52,6 +58,7 @@ from polyline_mapper.poses import se2_compose, se2_inverse
 from polyline_mapper.recordings import OdometryDrift
 from polyline_mapper.replay import run_replay
 from polyline_mapper.session import SessionOptions
+from scan_only import drop_first
 
 LOGS = ['intel-corrected', 'csail-corrected', 'freiburg-079-corrected']
 
@@ -127,7 +134,12 @@ def main() -> int:
     ap.add_argument('--from-json', nargs='+', metavar='JSON', help='run nothing: join these '
                     'runs (e.g. two logs run side by side, each with --json) into '
                     'results/drift.json and the README block')
+    ap.add_argument('--drop-first', type=int, default=0, metavar='N',
+                    help='map each log without its first N scans (needs --json)')
     args = ap.parse_args()
+    if args.drop_first < 0 or (args.drop_first and not args.json):
+        ap.error('--drop-first takes N >= 0 and needs --json (its rows do not belong in the '
+                 'table)')
     if args.from_json:
         runs = [json.loads(pathlib.Path(p).read_text()) for p in args.from_json]
         meta = dict(runs[0]['meta'], command=' ; '.join(r['meta']['command'] for r in runs),
@@ -146,18 +158,24 @@ def main() -> int:
     runs = [(name, mode, seed) for name in args.only or LOGS for mode in args.modes
             for seed in ([None] if mode in ('corrected', 'exact-matching') else args.seeds)]
     logs = {}
-    for k, (name, mode, seed) in enumerate(runs):
-        print(f'[{k + 1}/{len(runs)}] {name} {mode} seed {seed}', file=sys.stderr, flush=True)
-        if name not in logs:
-            logs.clear()
-            path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
-            log = read_carmen(str(path))
-            logs[name] = (path, log, log.points())
-        path, log, truth = logs[name]
-        row = dict(one(path, seed, truth, log, mode, config, args.chord_knots), log=name,
-                   set=args.set, chord_knots=args.chord_knots)
-        rows.append(row)
-        print(json.dumps(row), flush=True)
+    with tempfile.TemporaryDirectory() as folder:
+        for k, (name, mode, seed) in enumerate(runs):
+            print(f'[{k + 1}/{len(runs)}] {name} {mode} seed {seed}', file=sys.stderr,
+                  flush=True)
+            if name not in logs:
+                logs.clear()
+                path = pathlib.Path(args.datasets) / 'radish' / f'{name}.log.gz'
+                if args.drop_first:
+                    path = drop_first(path, args.drop_first, folder)
+                log = read_carmen(str(path))
+                logs[name] = (path, log, log.points())
+            path, log, truth = logs[name]
+            row = dict(one(path, seed, truth, log, mode, config, args.chord_knots), log=name,
+                       set=args.set, chord_knots=args.chord_knots)
+            if args.drop_first:
+                row['drop_first'] = args.drop_first
+            rows.append(row)
+            print(json.dumps(row), flush=True)
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps({'meta': meta, 'rows': rows}, indent=1)
                                            + '\n')
