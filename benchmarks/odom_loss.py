@@ -64,9 +64,15 @@ def odometry_of(record, source: str) -> bool:
     return isinstance(record, Transform) and record.child == 'base_link' and not record.static
 
 
-def one(drive, records: list, loss: float, seed: int, matching: bool = False,
-        gap_factor: float = 1.5, source: str = 'odom') -> dict:
-    """Map ``records`` with a share ``loss`` of the odometry dropped; return the scores."""
+def drive_records(label: str) -> tuple:
+    """Return (drive, records) of the ``DRIVES`` entry ``label``, as every row maps it."""
+    drive = make_drive(DRIVES[label], 7)
+    return drive, flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0)))
+
+
+def mapped(records: list, loss: float, seed: int, matching: bool = False,
+           gap_factor: float = 1.5, source: str = 'odom') -> tuple:
+    """Map ``records`` with a share ``loss`` of the odometry dropped; (session, dropped)."""
     odom = [i for i, r in enumerate(records) if odometry_of(r, source)]
     inner = odom[1:-1]
     rng = np.random.default_rng(seed)
@@ -74,6 +80,13 @@ def one(drive, records: list, loss: float, seed: int, matching: bool = False,
     session = replay_records([r for i, r in enumerate(records) if i not in drop],
                              options=dataclasses.replace(OPTIONS[source], scan_matching=matching,
                                                          odom_gap_factor=gap_factor))
+    return session, len(drop)
+
+
+def one(drive, records: list, loss: float, seed: int, matching: bool = False,
+        gap_factor: float = 1.5, source: str = 'odom') -> dict:
+    """Map ``records`` with a share ``loss`` of the odometry dropped; return the scores."""
+    session, dropped = mapped(records, loss, seed, matching, gap_factor, source)
     value = session.map_value()
     traj = np.asarray(value.trajectory)
     truth = drive_truth(drive, traj)
@@ -83,7 +96,7 @@ def one(drive, records: list, loss: float, seed: int, matching: bool = False,
     samples, _ = sample_segments(value.segments, 0.02)
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
     free = contradicted(value.segments, session.points(), session.origins())
-    return {'scans': int(len(traj)), 'dropped': len(drop),
+    return {'scans': int(len(traj)), 'dropped': dropped,
             'pose_max_cm': round(100 * float(err.max()), 2),
             'heading_max_deg': round(float(np.degrees(turn.max())), 2),
             'stray_m': round(float(world.distance(samples).max()), 3),
@@ -93,8 +106,7 @@ def one(drive, records: list, loss: float, seed: int, matching: bool = False,
 
 def run(job: dict) -> dict:
     """Map one row's drive as ``job`` says (a worker of ``main``); return the row."""
-    drive = make_drive(DRIVES[job['drive']], 7)
-    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0)))
+    drive, records = drive_records(job['drive'])
     row = {**job, **one(drive, records, job['loss'], job['seed'], job['mode'] == 'matching',
                         job['gap_factor'], job['source'])}
     print(json.dumps(row), file=sys.stderr, flush=True)

@@ -2299,7 +2299,7 @@ class MappingSession:
                 f'the scans near the pose estimate ({x:.2f}, {y:.2f}, {yaw:.2f}; within '
                 f'{track.window[0]:.2f} m and {track.window[1]:.2f} rad of the laser)')
             lost = f'has not found {what}'
-        else:       # not paused: the scans kept coming, none matched (a jump, a fast turn)
+        else:       # a gap in the scans (paused), or scans kept coming and none matched
             cause, what = 'scan_gap', (
                 f'a gap of {track.first - track.since:.1f} s in the scans (from '
                 f'{track.since:.3f} s)' if track.paused else

@@ -187,24 +187,13 @@ def test_lost_before_the_first_map_update_is_found_on_the_chords():
     # update, so G(t) holds no segment yet. Matched to the map alone while lost, nothing could
     # ever be matched again: 4 of 229 scans used, the map empty. The chords kept from before
     # the loss stay where G(t) has nothing, and the session is found at the next scan.
-    import dataclasses
     import importlib
     import sys
     from conftest import REPO
-    from polyline_mapper.recordings import drive_messages, make_drive
-    from polyline_mapper.replay import replay_records
     sys.path.insert(0, str(REPO / 'benchmarks'))
     odom_loss = importlib.import_module('odom_loss')
-    flat = importlib.import_module('matching').flat
-    drive = make_drive(odom_loss.DRIVES['sparse'], 7)
-    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0)))
-    odom = [i for i, r in enumerate(records) if odom_loss.odometry_of(r, 'odom')]
-    rng = np.random.default_rng(0)
-    drop = set(rng.choice(odom[1:-1], size=int(round(0.2 * len(odom[1:-1]))),
-                          replace=False).tolist())
-    session = replay_records([r for i, r in enumerate(records) if i not in drop],
-                             options=dataclasses.replace(odom_loss.OPTIONS['odom'],
-                                                         scan_matching=True))
+    _, records = odom_loss.drive_records('sparse')
+    session, _ = odom_loss.mapped(records, 0.2, 0, matching=True)
     stats = session.stats()
     assert stats['scan_matching']['correction too large'] == 1
     assert stats['skipped']['not mapped: lost'] == 1, stats['skipped']
