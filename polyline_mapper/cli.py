@@ -245,6 +245,16 @@ def cmd_fit(args) -> int:
     _suffixes(args.output, args.plot)
     config, extra = load_fit_options(args.config, args.set)
     window = extra['free_space_window']
+    if args.config:
+        from .config import node_file_settings
+        try:
+            names = node_file_settings(args.config)[1]
+        except ValueError:
+            names = ()          # the node's checks: fit takes none of these parameters
+        if names:
+            print(f'polyline-mapper: warning: {args.config}: node parameters not used by fit '
+                  f'(it places scans by its own flags, --pose-source ...; replay --config '
+                  f'takes them): {", ".join(names)}', file=sys.stderr)
     t0 = time.perf_counter()
     points, origins, desc, posed = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
@@ -471,15 +481,19 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         raise CliError('--chord-knots applies to scan matching only: add --scan-matching (or '
                        '--pose-source scan)')
     mount, flip = _mount(args.laser_mount)
+    source = args.pose_source or 'tf'           # (replay: None until _node_file)
     fixed = args.fixed_frame
-    if fixed is None and matching and args.pose_source == 'odom':
+    if fixed is None and matching and source == 'odom':
         # The matched map is not the odometry frame (it leaves it as the odometry drifts): it is
         # 'map', above the odometry frame, as the node's (REP 105).
         fixed = 'map'
-    return SessionOptions(pose_source=args.pose_source, fixed_frame=fixed,
+    extra = dict(getattr(args, 'session_extra', None) or {})   # replay --config (_node_file)
+    if 'mount' in extra:
+        mount, flip = extra.pop('mount'), extra.pop('mount_upside_down')
+    return SessionOptions(pose_source=source, fixed_frame=fixed,
                           every=every, update_every_n_scans=group, mount=mount,
                           mount_upside_down=flip, scan_matching=matching,
-                          chord_knots=knots or SessionOptions.chord_knots)
+                          chord_knots=knots or SessionOptions.chord_knots, **extra)
 
 
 def _initial_pose(text: str) -> tuple:
@@ -506,7 +520,8 @@ def _start_map(args) -> tuple:
                 raise CliError(f'{flag} applies to a saved map: give --map MAP.json')
         return None, None
     from .formats.mapjson import read_map
-    pose = None if args.initial_pose is None else _initial_pose(args.initial_pose)
+    pose = getattr(args, 'file_initial_pose', None) if args.initial_pose is None \
+        else _initial_pose(args.initial_pose)
     saved = read_map(args.map)
     if args.no_mapping and not len(saved.value):
         raise CliError(f'{args.map}: the saved map holds no segment: nothing to localize on '
@@ -586,15 +601,83 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
     return f'{" and ".join(what)}: the scans disagree with each other; check {" and ".join(check)}'
 
 
+LASER_PARAMS = ('laser_x', 'laser_y', 'laser_yaw', 'laser_upside_down')
+
+
+def _node_file(args) -> None:
+    """
+    Fill replay's pose and session options from a ROS 2 parameter file (``--config``).
+
+    The node parameters that place and group the scans (``config.REPLAY_READS``) are taken as
+    the node with that file takes them (``config.node_file_settings``: its checks, and a
+    ``map_input_path`` with its ``initial_pose``, in radians); a flag on the command line wins.
+    ``fixed_frame`` and the laser mount count only when the file sets them off their defaults:
+    at the defaults replay finds them (the TF tree's 'map' or root; the mount on /tf_static),
+    as it does without a file. Sets ``args.session_extra`` (SessionOptions fields without a
+    flag), ``args.file_initial_pose`` and ``args.from_config`` (the names taken).
+    """
+    from .config import node_file_settings
+    s, names = node_file_settings(args.config) if args.config else (None, ())
+    taken, extra = [], {}
+
+    def take(name, attr, value, unset=None):
+        if getattr(args, attr) == unset and name in names:
+            setattr(args, attr, value)
+            taken.append(name)
+    if s is not None:
+        take('pose_source', 'pose_source', s.pose_source)
+        take('fixed_frame', 'fixed_frame', s.fixed_frame)
+        take('update_every_n_scans', 'update_every_n_scans', s.update_every_n_scans)
+        if 'scan_matching' in names and not args.scan_matching:
+            args.scan_matching = True
+            taken.append('scan_matching')
+        if s.input_path and args.map is None:
+            args.map = s.input_path
+            taken.append('map_input_path')
+            if args.initial_pose is None:
+                args.file_initial_pose = s.initial_pose
+                taken.append('initial_pose')
+        if args.scan_matching or args.map is not None or args.pose_source == 'scan':
+            take('chord_knots', 'chord_knots', s.chord_knots)   # (the node's, unused without)
+        if not s.mapping and not args.no_mapping:
+            args.no_mapping = True
+            taken.append('mapping')
+        for name, field in (('odom_frame', 'odom_frame'), ('transform_tolerance', 'tolerance'),
+                            ('transform_timeout', 'wait'), ('transform_cache', 'cache_seconds'),
+                            ('odom_gap_factor', 'odom_gap_factor'),
+                            ('grid_resolution', 'grid_resolution')):
+            if name in names:
+                value = getattr(s, name)
+                extra[field] = (value or None) if name == 'odom_frame' else value
+                taken.append(name)
+    if args.pose_source is None:
+        args.pose_source = 'tf'
+    if args.update_every_n_scans is None:
+        args.update_every_n_scans = 1
+    laser = [name for name in LASER_PARAMS if name in names]
+    if laser and args.laser_mount is None and args.pose_source == 'odom':
+        # The node's mount in odom mode, exactly (radians): the text is what stats record.
+        extra.update(mount=(s.laser_x, s.laser_y, s.laser_yaw),
+                     mount_upside_down=s.laser_upside_down)
+        args.laser_mount = (f'{s.laser_x:g},{s.laser_y:g},{math.degrees(s.laser_yaw):g}'
+                            + (',flip' if s.laser_upside_down else ''))
+        taken += laser
+    args.session_extra, args.from_config = extra, taken
+
+
 def cmd_replay(args) -> int:
     from .replay import run_replay
     config = load_incremental_config(args.config, args.set)
+    try:
+        _node_file(args)
+    except ValueError as exc:           # ConfigError: one line naming the file
+        raise CliError(str(exc)) from None
     if args.config:
         from .config import unread_node_params
         unread = unread_node_params(args.config)
         if unread:
-            print(f'polyline-mapper: warning: {args.config}: node parameters not read by replay '
-                  f'(its command line sets them): {", ".join(unread)}', file=sys.stderr)
+            print(f'polyline-mapper: warning: {args.config}: live node parameters, not used by '
+                  f'replay: {", ".join(unread)}', file=sys.stderr)
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
     _suffixes(args.output, args.plot)
     start, pose = _start_map(args)
@@ -629,6 +712,8 @@ def cmd_replay(args) -> int:
         print(f'polyline-mapper: warning: {disagree}', file=sys.stderr)
     value.stats.update(total_seconds=round(time.perf_counter() - t0, 3),
                        laser_mount=args.laser_mount)
+    if args.from_config:                # the node parameters --config gave (_node_file)
+        value.stats['node_parameters_from_config'] = args.from_config
     if start is not None:
         value.stats.update(start_map=os.path.basename(args.map), mapping=not args.no_mapping)
     save_map(value, res.points, args.output, args.plot,
@@ -951,9 +1036,10 @@ POSITIVE = number(0.0, lo_open=True)
 def _pose_args(sp, plot: bool = False, replay: bool = False) -> None:
     """Add the options that place a bag's or a drive's scans (``replay``: its own wording)."""
     sp.add_argument('--scan-topic', help='sensor_msgs/LaserScan topic (default: the only one)')
-    # plot: None when not given (cmd_plot then takes the map's own, else 'tf')
+    # None when not given: plot then takes the map's own, else 'tf'; replay its --config's
+    # pose_source, else 'tf' (_node_file)
     sp.add_argument('--pose-source', choices=('tf', 'odom', 'scan'),
-                    default=None if plot else 'tf',
+                    default=None if plot or replay else 'tf',
                     help='tf: laser pose in the fixed frame from /tf and /tf_static ('
                     + ("default: the map's own with its input, else tf" if plot else 'default')
                     + '); odom: nav_msgs/Odometry plus the laser mount, map in the odometry '
@@ -992,7 +1078,8 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument('-o', '--output', required=True, help='map JSON to write')
         sp.add_argument('--plot', metavar='PNG', help='also write a PNG of points and map')
         sp.add_argument('--config', metavar='FILE', help='YAML/JSON with SMEMSFConfig keys, '
-                        'or a ROS 2 parameter file (config/polyline_mapper.yaml)')
+                        'or a ROS 2 parameter file (config/polyline_mapper.yaml; replay also '
+                        'takes the node parameters that place the scans from it, flags win)')
         sp.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
                         help='override one config key (repeatable), e.g. --set sigma=0.02')
         sp.add_argument('-q', '--quiet', action='store_true', help='no progress, no summary')
@@ -1044,7 +1131,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='with --scan-matching and --pose-source odom: after the replay, close '
                    'the loops of its trajectory (offline) and map the recording again on the '
                    'closed trajectory')
-    r.add_argument('--update-every-n-scans', type=number(1, 1000, kind=int), default=1,
+    r.add_argument('--update-every-n-scans', type=number(1, 1000, kind=int), default=None,
                    metavar='N', help="one map update per N posed scans, as the node's "
                    'update_every_n_scans parameter (the same map as the node given N)')
     r.add_argument('--map', metavar='SAVED.json', help='start from a saved map (a MAP.json of '

@@ -9,8 +9,10 @@ so a value means the same and is checked the same way everywhere.
 A config file is YAML (or JSON): either a flat mapping of field names (``sigma: 0.03``,
 ``buffer_scans: 5``) or a ROS 2 parameter file (``<node>: ros__parameters: {...}``) whose
 ``smemsf.*`` / ``incremental.*`` entries (dotted, or nested blocks, or plain field names) are
-used and whose node parameters are ignored. Numbers written as text (``1e-3``, which YAML reads
-as a string) are numbers; a field that defaults to "automatic" (None) takes ``none``.
+used; ``replay`` also takes the node parameters that place and group the scans from it
+(``node_file_settings``, ``REPLAY_READS``), as the node with that file would. Numbers
+written as text (``1e-3``, which YAML reads as a string) are numbers; a field that defaults to
+"automatic" (None) takes ``none``.
 """
 
 from dataclasses import replace
@@ -161,24 +163,54 @@ def _file_values(data: dict, keys: dict, path: str) -> dict:
     return out
 
 
-REPLAY_FLAGS = {'fixed_frame': '--fixed-frame', 'pose_source': '--pose-source',
-                'scan_matching': '--scan-matching', 'chord_knots': '--chord-knots',
-                'laser_x': '--laser-mount', 'laser_y': '--laser-mount',
-                'laser_yaw': '--laser-mount', 'laser_upside_down': '--laser-mount',
-                'update_every_n_scans': '--update-every-n-scans', 'map_input_path': '--map',
-                'initial_pose': '--initial-pose', 'mapping': '--no-mapping'}
-"""Node parameters ``replay`` takes from its command line instead (``unread_node_params``)."""
+REPLAY_READS = ('fixed_frame', 'pose_source', 'scan_matching', 'odom_frame', 'chord_knots',
+                'transform_tolerance', 'transform_timeout', 'transform_cache', 'laser_x',
+                'laser_y', 'laser_yaw', 'laser_upside_down', 'odom_gap_factor',
+                'update_every_n_scans', 'grid_resolution', 'map_input_path', 'initial_pose',
+                'mapping')
+"""Node parameters ``replay --config`` maps with, as the node would (``node_file_settings``);
+the others only shape the live node's outputs, queues and timers."""
+
+
+def node_file_settings(path: str) -> tuple:
+    """
+    Return (NodeSettings, names) of a ROS 2 parameter file's node parameters, else (None, ()).
+
+    The settings are the node's with that file (``params.settings_from``: the same checks, and
+    a ``map_input_path`` turns ``scan_matching`` on); ``names`` the node parameters the file
+    sets off their defaults. A flat config gives (None, ()). Raises ConfigError (one line
+    naming the file) for a value the node would refuse.
+    """
+    import yaml
+    from .params import NODE_PARAMS, settings_from
+    try:
+        with open(path, 'r', encoding='utf-8') as fh:
+            data = yaml.safe_load(fh) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None, ()          # read_values, which reads the file first, says why
+    params = _ros_parameters(data, path) if isinstance(data, dict) else None
+    if params is None:
+        return None, ()
+    specs = {spec.name: spec for spec in NODE_PARAMS}
+    given = {str(k): v for k, v in params.items() if str(k) in specs}
+    values = {spec.name: spec.default for spec in all_params()}
+    values.update(given)
+    try:
+        settings, _ = settings_from(values)
+    except ValueError as exc:
+        raise ConfigError(f'{path}: {exc}') from None
+    return settings, tuple(k for k, v in given.items() if not _same(v, specs[k].default))
 
 
 def unread_node_params(path: str) -> list:
     """
     Return the node parameters a ROS 2 parameter file sets off their defaults, unread here.
 
-    ``--config`` reads the ``smemsf.*`` / ``incremental.*`` entries only; a node parameter the
-    file gives its default value (the shipped ``config/polyline_mapper.yaml``) changes nothing.
-    Each as 'name: value (replay: FLAG)' when ``replay`` has a flag for it (``REPLAY_FLAGS``),
-    else 'name: value'. A flat config, or a file that cannot be read, gives none
-    (``read_values`` says why).
+    ``--config`` reads the ``smemsf.*`` / ``incremental.*`` entries, and ``replay`` the node
+    parameters that place and group the scans (``REPLAY_READS``); the others only shape the
+    live node's outputs, queues and timers. A parameter the file gives its default value (the
+    shipped ``config/polyline_mapper.yaml``) changes nothing. Each as 'name: value'. A flat
+    config, or a file that cannot be read, gives none (``read_values`` says why).
     """
     import yaml
     try:
@@ -192,11 +224,10 @@ def unread_node_params(path: str) -> list:
     out = []
     for key, value in (params or {}).items():
         key = str(key)
-        read = key.partition('.')[0] in GROUPS or key in keys
+        read = key.partition('.')[0] in GROUPS or key in keys or key in REPLAY_READS
         if read or _same(value, defaults.get(key)):
             continue
-        flag = REPLAY_FLAGS.get(key)
-        out.append(f'{key}: {value}' + ('' if flag is None else f' (replay: {flag})'))
+        out.append(f'{key}: {value}')
     return out
 
 

@@ -1,5 +1,6 @@
 """Configuration read through the parameter table: files, ROS 2 parameter files and --set."""
 
+import numpy as np
 from polyline_mapper.config import ConfigError, load_fit_config, load_mapper_config, read_values
 from polyline_mapper.params import all_params
 import pytest
@@ -12,27 +13,123 @@ def test_the_shipped_parameter_file_gives_the_defaults(tmp_path):
     assert config == IncrementalConfig()
 
 
-def test_replay_names_the_node_parameters_of_a_file_it_does_not_read(tmp_path, capsys):
-    # A TurtleBot user's parameter file with chord_knots: median (then off the default) mapped
-    # with arc knots without a word (replay takes it from --chord-knots). Node parameters set
-    # off their defaults are named now, with the flag; the shipped file, all defaults, names
-    # none.
+def _replayed(main, tmp_path, name, *argv):
+    import json
+    out = tmp_path / name
+    assert main(['replay', *argv, '-o', str(out), '-q']) == 0
+    return json.loads(out.read_text())
+
+
+def test_replay_maps_with_the_node_parameters_of_its_config_file(tmp_path, capsys):
+    # A robot's parameter file (odometry, scan matching, arc knots, a laser mount) gave replay
+    # only its smemsf block: the rest was named in a warning and the map made with replay's
+    # defaults, so the same file mapped one way live and another offline. Replay now takes the
+    # node parameters that place and group the scans, as the node does; only the live node's
+    # own (outputs, queues, timers) are named, in one line.
     from conftest import REPO
     from polyline_mapper.cli import main
-    from polyline_mapper.config import unread_node_params
+    from polyline_mapper.config import node_file_settings, unread_node_params
     for name in ('polyline_mapper.yaml', 'lds01.yaml', 'rplidar.yaml', 'free_space.yaml',
                  'no_free_space.yaml'):
         assert unread_node_params(str(REPO / 'config' / name)) == [], name
-    path = tmp_path / 'tb3.yaml'
-    path.write_text('/**:\n  ros__parameters:\n    chord_knots: arc\n    transform_timeout: 0.1'
-                    '\n    fixed_frame: map\n    smemsf:\n      sigma: 0.025\n')
-    assert unread_node_params(str(path)) == ['chord_knots: arc (replay: --chord-knots)',
-                                             'transform_timeout: 0.1']
-    out = tmp_path / 'map.json'
-    assert main(['replay', 'sim:hall', '--config', str(path), '-o', str(out), '-q']) == 0
+        assert node_file_settings(str(REPO / 'config' / name))[1] == (), name
+    path = tmp_path / 'robot.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n    scan_matching: true\n'
+                    '    chord_knots: arc\n    laser_x: 0.05\n    grid_resolution: 0.1\n'
+                    '    fixed_frame: map\n    map_output_path: /nowhere/map.json\n'
+                    '    smemsf:\n      sigma: 0.01\n')
+    assert unread_node_params(str(path)) == ['map_output_path: /nowhere/map.json']
+    drive = 'sim:hall,odom_drift=3'
+    filed = _replayed(main, tmp_path, 'file.json', drive, '--config', str(path))
     err = capsys.readouterr().err
-    assert err.count('\n') == 1 and 'not read by replay' in err and '--chord-knots' in err
-    assert load_mapper_config(str(path)).smemsf.sigma == 0.025      # the smemsf entry is read
+    assert err.count('\n') == 1 and 'not used by replay: map_output_path' in err
+    st = filed['stats']
+    assert st['node_parameters_from_config'] == ['pose_source', 'scan_matching', 'chord_knots',
+                                                 'grid_resolution', 'laser_x']
+    assert (st['pose_source'], st['laser_mount']) == ('odom', '0.05,0,0')
+    flags = _replayed(main, tmp_path, 'flags.json', drive, '--pose-source', 'odom',
+                      '--scan-matching', '--chord-knots', 'arc', '--laser-mount', '0.05,0,0',
+                      '--set', 'sigma=0.01')
+    assert filed['segments'] == flags['segments'] and filed['trajectory'] == flags['trajectory']
+    # the planner map's resolution has no flag: the node's parameter sets it
+    assert (filed['grid']['resolution'], flags['grid']['resolution']) == (0.1, 0.05)
+    # a flag on the command line wins over the file
+    arc = _replayed(main, tmp_path, 'median.json', drive, '--config', str(path),
+                    '--chord-knots', 'median', '--laser-mount', '0,0,0')
+    assert 'chord_knots' not in arc['stats']['node_parameters_from_config']
+    median = _replayed(main, tmp_path, 'median2.json', drive, '--pose-source', 'odom',
+                       '--scan-matching', '--laser-mount', '0,0,0', '--set', 'sigma=0.01')
+    assert arc['segments'] == median['segments'] and arc['segments'] != filed['segments']
+
+
+def test_chord_knots_of_a_config_file_without_scan_matching_change_nothing(tmp_path, capsys):
+    # The node leaves chord_knots unused without scan matching; so does replay, without the
+    # error --chord-knots gets there.
+    from polyline_mapper.cli import main
+    path = tmp_path / 'knots.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    chord_knots: arc\n')
+    filed = _replayed(main, tmp_path, 'file.json', 'sim:hall', '--config', str(path))
+    plain = _replayed(main, tmp_path, 'plain.json', 'sim:hall')
+    assert filed['segments'] == plain['segments']
+    assert 'node_parameters_from_config' not in filed['stats']
+    assert capsys.readouterr().err == ''
+
+
+def test_fit_names_the_node_parameters_of_its_config_file_it_does_not_use(tmp_path, capsys):
+    # fit places a bag's or a drive's scans by its own flags (no scan matching): a robot's
+    # file that says odometry and matching would otherwise be followed offline by replay and
+    # passed over by fit without a word.
+    from polyline_mapper.cli import main
+    path = tmp_path / 'robot.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n    scan_matching: true\n'
+                    '    smemsf:\n      kappa: 3.0\n')
+    assert main(['fit', 'sim:hall', '--config', str(path), '-o', str(tmp_path / 'm.json'),
+                 '-q']) == 0
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'not used by fit' in err
+    assert err.rstrip().endswith(': pose_source, scan_matching')
+
+
+def test_replay_localizes_on_the_map_its_config_file_names(tmp_path):
+    # map_input_path, initial_pose (radians) and mapping false, as the node takes them.
+    import math
+    from polyline_mapper.cli import main
+    drive = 'sim:hall,odom_drift=3'
+    saved = tmp_path / 'saved.json'
+    _replayed(main, tmp_path, 'saved.json', drive, '--pose-source', 'odom', '--scan-matching')
+    first = _replayed(main, tmp_path, 'first.json', 'sim:hall,odom_drift=4',
+                      '--pose-source', 'odom', '--scan-matching')['trajectory'][0]
+    x, y, yaw = first[1:]
+    path = tmp_path / 'loc.yaml'
+    path.write_text(f'/**:\n  ros__parameters:\n    pose_source: odom\n'
+                    f'    map_input_path: {saved}\n    initial_pose: [{x!r}, {y!r}, {yaw!r}]\n'
+                    f'    mapping: false\n')
+    filed = _replayed(main, tmp_path, 'file.json', 'sim:hall,odom_drift=4', '--config', str(path))
+    flags = _replayed(main, tmp_path, 'flags.json', 'sim:hall,odom_drift=4', '--pose-source',
+                      'odom', '--map', str(saved), '--no-mapping', '--initial-pose',
+                      f'{x!r},{y!r},{math.degrees(yaw)!r}')
+    assert filed['stats']['node_parameters_from_config'] == [
+        'pose_source', 'map_input_path', 'initial_pose', 'mapping']
+    assert filed['stats']['mapping'] is False
+    assert filed['segments'] == json_segments(saved)          # localization only: unchanged
+    err = np.abs(np.asarray(filed['trajectory']) - np.asarray(flags['trajectory']))
+    assert err[:, 1:3].max() < 1e-6 and err[:, 3].max() < 1e-6
+
+
+def json_segments(path):
+    import json
+    return json.loads(path.read_text())['segments']
+
+
+def test_a_node_parameter_the_node_refuses_is_refused_by_replay_in_one_line(tmp_path, capsys):
+    from polyline_mapper.cli import main
+    path = tmp_path / 'bad.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    initial_pose: [1.0, 0.0, 0.0]\n')
+    out = tmp_path / 'map.json'
+    assert main(['replay', 'sim:hall', '--config', str(path), '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'bad.yaml: initial_pose' in err and 'map_input_path' in err
+    assert not out.exists()
 
 
 def test_dotted_nested_and_plain_keys_of_a_ros_parameter_file(tmp_path):
