@@ -28,7 +28,7 @@ import os
 import textwrap
 
 from .core.incremental import IncrementalConfig
-from .core.register import CHORD_KNOTS
+from .core.register import CHORD_KNOTS, DEFAULT_CHORD_KNOTS
 from .core.smemsf import SMEMSFConfig
 
 
@@ -79,7 +79,7 @@ NODE_PARAMS = (
               "the node broadcasts. '' = found: the first odometry message's frame (odom mode) "
               "or the root of the scan frame's TF tree (tf mode). Set it when that root is not "
               'the odometry frame (e.g. robot1/odom on a multi-robot tree).'),
-    ParamSpec('chord_knots', 'median',
+    ParamSpec('chord_knots', DEFAULT_CHORD_KNOTS,
               "scan_matching: where the knots of the last scans' chords (matched to beside the "
               "map) lie along each scan: 'median' every 0.15 m of an arc whose steps are each "
               "the median of 31 around it; 'arc' (the default before 2026-11-30) every 0.15 m "

@@ -63,9 +63,9 @@ from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
-from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, match_scan, odometry_covariance,
-                            RELOCALIZE_SHARE, scan_chords, ScanMatch, search_after_gap, spread,
-                            transform)
+from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, DEFAULT_CHORD_KNOTS, match_scan,
+                            odometry_covariance, RELOCALIZE_SHARE, scan_chords, ScanMatch,
+                            search_after_gap, spread, transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
 from .poses import (mount_quaternion, planar_edge, PlanarPose, TransformBuffer2D,
@@ -491,7 +491,7 @@ class RecentChords:
     pulls the matches back along it. The chords are matched to all the same.
     """
 
-    def __init__(self, size: int, knots: str = 'median'):
+    def __init__(self, size: int, knots: str = DEFAULT_CHORD_KNOTS):
         self.knots = knots
         """``register.scan_chords``'s knot rule (``SessionOptions.chord_knots``)."""
         self._frames = deque(maxlen=size)
@@ -552,7 +552,7 @@ class GapTrack:
     """
 
     def __init__(self, since: float, first: float, center: np.ndarray, window: tuple,
-                 estimate: np.ndarray = None, knots: str = 'median'):
+                 estimate: np.ndarray = None, knots: str = DEFAULT_CHORD_KNOTS):
         self.knots = knots
         """``register.scan_chords``'s knot rule (``SessionOptions.chord_knots``)."""
         self.since = float(since)
@@ -699,7 +699,7 @@ class SessionOptions:
     """Refine each scan's pose against the map built so far (``core.register.match_scan``),
     starting from the odometry / TF pose corrected as the last match was: the map is then as
     consistent as the scans, not as the odometry. Off: the poses are used as given."""
-    chord_knots: str = 'median'
+    chord_knots: str = DEFAULT_CHORD_KNOTS
     """Scan matching: how the knots of the last scans' chords (``register.scan_chords``) are
     placed along each scan: 'median' every 0.15 m of an arc whose steps are medians of their
     neighbours'; 'arc' every 0.15 m of the raw arc, whose knots are readings that noise

@@ -847,6 +847,8 @@ Neighbour steps whose median ``scan_chords`` counts for each step of a scan's ar
 """
 CHORD_KNOTS = ('arc', 'median')
 """``scan_chords``'s knot rules: the raw arc, or the arc of median steps."""
+DEFAULT_CHORD_KNOTS = 'median'
+"""The session's and the node's default knot rule ('arc' before 2026-11-30)."""
 
 
 def scan_chords(points: np.ndarray, gap: float = 0.5, length: float = 0.15,
