@@ -239,22 +239,43 @@ def _suffixes(map_json: str = None, png: str = None) -> None:
             raise CliError(f'{path}: {what}, not {ext}: give a name ending in {want}{more}')
 
 
+def _fit_node_warnings(path: str) -> list:
+    """
+    Return ``fit``'s warnings on a ROS 2 parameter file's node parameters: it uses none.
+
+    fit places a bag's or a drive's scans by its own flags (``--pose-source``, ...); the
+    parameters replay would take, the live node's own, names the node does not have, and a
+    value the node would refuse are each named.
+    """
+    from .config import ConfigError, read_node_file, REPLAY_READS
+    if not path:
+        return []
+    try:
+        nf = read_node_file(path)
+    except ConfigError as exc:
+        return [f'{exc} (fit does not use the node parameters)']
+    out = []
+    placed = [n for n in nf.names if n in REPLAY_READS]
+    if placed:
+        out.append(f'{path}: node parameters not used by fit (it places scans by its own '
+                   f'flags: --pose-source, --laser-mount, ...; replay --config takes them): '
+                   f'{", ".join(placed)}')
+    if nf.live_only:
+        out.append(f'{path}: live node parameters, not used by fit: {", ".join(nf.live_only)}')
+    if nf.unknown:
+        out.append(f'{path}: parameters the node does not have, not used: '
+                   f'{", ".join(nf.unknown)}')
+    return out
+
+
 def cmd_fit(args) -> int:
     inputs = [args.input, args.config]
     check_outputs([args.output, args.plot], inputs)
     _suffixes(args.output, args.plot)
     config, extra = load_fit_options(args.config, args.set)
     window = extra['free_space_window']
-    if args.config:
-        from .config import node_file_settings
-        try:
-            names = node_file_settings(args.config)[1]
-        except ValueError:
-            names = ()          # the node's checks: fit takes none of these parameters
-        if names:
-            print(f'polyline-mapper: warning: {args.config}: node parameters not used by fit '
-                  f'(it places scans by its own flags, --pose-source ...; replay --config '
-                  f'takes them): {", ".join(names)}', file=sys.stderr)
+    for line in _fit_node_warnings(args.config):
+        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     t0 = time.perf_counter()
     points, origins, desc, posed = read_beams_any(args.input, args, args.range_max)
     if len(points) < 2:
@@ -522,7 +543,13 @@ def _start_map(args) -> tuple:
     from .formats.mapjson import read_map
     pose = getattr(args, 'file_initial_pose', None) if args.initial_pose is None \
         else _initial_pose(args.initial_pose)
-    saved = read_map(args.map)
+    try:
+        saved = read_map(args.map)
+    except ValueError as exc:
+        if not getattr(args, 'map_from_config', False):
+            raise
+        raise CliError(f'{args.config}: map_input_path: {exc} (a relative path is from the '
+                       'current folder, as for the node)') from None
     if args.no_mapping and not len(saved.value):
         raise CliError(f'{args.map}: the saved map holds no segment: nothing to localize on '
                        '(--no-mapping would keep it empty)')
@@ -604,20 +631,47 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
 LASER_PARAMS = ('laser_x', 'laser_y', 'laser_yaw', 'laser_upside_down')
 
 
-def _node_file(args) -> None:
+def _node_sets(items: list) -> tuple:
+    """
+    Split ``replay --set`` items: (node parameters of ``config.REPLAY_READS``, the rest).
+
+    The node's scalar parameters replay takes (``--set scan_matching=false``,
+    ``--set odom_frame=wheel_odom``) are typed by the parameter table; every other item is the
+    mapper's (``load_incremental_config``), which refuses what it does not know.
+    """
+    from .config import REPLAY_READS, typed_value
+    from .params import NODE_PARAMS
+    specs = {spec.name: spec for spec in NODE_PARAMS if spec.name in REPLAY_READS
+             and not isinstance(spec.default, (list, tuple))}
+    node, rest = {}, []
+    for item in items:
+        key, eq, value = item.partition('=')
+        key = key.strip()
+        if eq and key in specs:
+            node[key] = typed_value(specs[key], value, '--set')
+        else:
+            rest.append(item)
+    return node, rest
+
+
+def _node_file(args, node_sets: dict) -> None:
     """
     Fill replay's pose and session options from a ROS 2 parameter file (``--config``).
 
     The node parameters that place and group the scans (``config.REPLAY_READS``) are taken as
-    the node with that file takes them (``config.node_file_settings``: its checks, and a
-    ``map_input_path`` with its ``initial_pose``, in radians); a flag on the command line wins.
-    ``fixed_frame`` and the laser mount count only when the file sets them off their defaults:
-    at the defaults replay finds them (the TF tree's 'map' or root; the mount on /tf_static),
-    as it does without a file. Sets ``args.session_extra`` (SessionOptions fields without a
-    flag), ``args.file_initial_pose`` and ``args.from_config`` (the names taken).
+    the node with that file takes them (``config.read_node_file``: its checks; a
+    ``map_input_path`` with its ``initial_pose``, in radians, the node's default [0, 0, 0] when
+    the file gives none), with ``node_sets`` (``--set``) over it; a flag on the command line
+    wins. ``fixed_frame`` and the laser mount count only when the file sets them off their
+    defaults (or ``--set`` does): at the defaults replay finds them (the TF tree's 'map' or
+    root; the mount on /tf_static), as it does without a file, and ``_node_differs`` says
+    when the node would not. Sets ``args.session_extra`` (SessionOptions fields without a
+    flag), ``args.file_initial_pose``, ``args.from_config`` (the names taken) and
+    ``args.node_file`` (the ``config.NodeFile``).
     """
-    from .config import node_file_settings
-    s, names = node_file_settings(args.config) if args.config else (None, ())
+    from .config import read_node_file
+    nf = read_node_file(args.config, node_sets, args.map)
+    s, names = nf.settings, nf.names
     taken, extra = [], {}
 
     def take(name, attr, value, unset=None):
@@ -628,15 +682,17 @@ def _node_file(args) -> None:
         take('pose_source', 'pose_source', s.pose_source)
         take('fixed_frame', 'fixed_frame', s.fixed_frame)
         take('update_every_n_scans', 'update_every_n_scans', s.update_every_n_scans)
-        if 'scan_matching' in names and not args.scan_matching:
+        if 'scan_matching' in names and s.scan_matching and not args.scan_matching:
             args.scan_matching = True
             taken.append('scan_matching')
         if s.input_path and args.map is None:
             args.map = s.input_path
+            args.map_from_config = True
             taken.append('map_input_path')
-            if args.initial_pose is None:
-                args.file_initial_pose = s.initial_pose
-                taken.append('initial_pose')
+        if args.map is not None and args.initial_pose is None and (
+                'initial_pose' in names or getattr(args, 'map_from_config', False)):
+            args.file_initial_pose = s.initial_pose     # the node's (its default: the origin)
+            taken += ['initial_pose'] if 'initial_pose' in names else []
         if args.scan_matching or args.map is not None or args.pose_source == 'scan':
             take('chord_knots', 'chord_knots', s.chord_knots)   # (the node's, unused without)
         if not s.mapping and not args.no_mapping:
@@ -661,23 +717,73 @@ def _node_file(args) -> None:
                      mount_upside_down=s.laser_upside_down)
         args.laser_mount = (f'{s.laser_x:g},{s.laser_y:g},{math.degrees(s.laser_yaw):g}'
                             + (',flip' if s.laser_upside_down else ''))
+        args.mount_from_config = True
         taken += laser
-    args.session_extra, args.from_config = extra, taken
+    args.session_extra, args.from_config, args.node_file = extra, taken, nf
+
+
+def _node_file_warnings(args) -> list:
+    """Return the one-line warnings on ``--config``'s node parameters (``args.node_file``)."""
+    from .params import NODE_NAME
+    nf, where = args.node_file, args.config or '--set'
+    out = []
+    if nf.unknown:
+        out.append(f'{where}: parameters the node does not have, not used: '
+                   f'{", ".join(nf.unknown)}')
+    if nf.live_only:
+        out.append(f'{where}: live node parameters, not used by replay: '
+                   f'{", ".join(nf.live_only)}')
+    if nf.skipped:
+        out.append(f'{where}: blocks of other nodes not read: {", ".join(nf.skipped)} (replay '
+                   f'reads {NODE_NAME} and /**; for a node under another name, key its block '
+                   'so)')
+    return out
+
+
+def _node_differs(args, session) -> list:
+    """
+    Return warnings where the node, given ``--config``, would place the scans otherwise.
+
+    ``fixed_frame`` and the odom-mode laser mount at their defaults are found by replay (the TF
+    tree's 'map' or root; the scan frame's mount on /tf_static); the node takes the
+    parameters as they are: 'map', and (0, 0, 0) in odom mode.
+    """
+    s = getattr(args, 'node_file', None)
+    s = None if s is None else s.settings
+    if s is None or args.config is None:
+        return []
+    out = []
+    found = session.fixed_frame
+    if found and args.fixed_frame is None and found != s.fixed_frame:
+        out.append(f'{args.config}: the node with this file maps in fixed_frame {s.fixed_frame!r}'
+                   f' (the default), replay found {found!r}: add fixed_frame: {found} to the '
+                   'file for the node to map as replay did')
+    if args.pose_source == 'odom' == s.pose_source and args.laser_mount is None:
+        mounts = set()
+        for frame in session.scan_frames:
+            found = session.poses.static_mount(frame)
+            if found is not None and (max(abs(found[1].x), abs(found[1].y), abs(found[1].yaw))
+                                      > 1e-6 or found[1].flip):
+                m = found[1]
+                mounts.add(f'laser_x: {m.x:.4g}, laser_y: {m.y:.4g}, laser_yaw: {m.yaw:.4g}'
+                           + (', laser_upside_down: true' if m.flip else ''))
+        if mounts:
+            out.append(f'{args.config}: the node with this file (pose_source odom) places the '
+                       f'laser at laser_x/y/yaw 0, 0, 0; replay took the mount on /tf_static '
+                       f'({"; ".join(sorted(mounts))}): set those in the file for the node')
+    return out
 
 
 def cmd_replay(args) -> int:
     from .replay import run_replay
-    config = load_incremental_config(args.config, args.set)
+    node_sets, core_sets = _node_sets(args.set)
+    config = load_incremental_config(args.config, core_sets)
     try:
-        _node_file(args)
+        _node_file(args, node_sets)
     except ValueError as exc:           # ConfigError: one line naming the file
         raise CliError(str(exc)) from None
-    if args.config:
-        from .config import unread_node_params
-        unread = unread_node_params(args.config)
-        if unread:
-            print(f'polyline-mapper: warning: {args.config}: live node parameters, not used by '
-                  f'replay: {", ".join(unread)}', file=sys.stderr)
+    for line in _node_file_warnings(args):
+        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
     _suffixes(args.output, args.plot)
     start, pose = _start_map(args)
@@ -702,8 +808,8 @@ def cmd_replay(args) -> int:
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
         raise CliError(f'{args.input}: {res.nothing_mapped()}')
-    for line in res.skip_lines() + ([_off_the_saved_map(res, start.value)]
-                                    if start is not None else []):
+    saved_off = [_off_the_saved_map(res, start.value)] if start is not None else []
+    for line in res.skip_lines() + saved_off + _node_differs(args, res.session):
         if line:
             print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     value = res.map_value
@@ -712,8 +818,8 @@ def cmd_replay(args) -> int:
         print(f'polyline-mapper: warning: {disagree}', file=sys.stderr)
     value.stats.update(total_seconds=round(time.perf_counter() - t0, 3),
                        laser_mount=args.laser_mount)
-    if args.from_config:                # the node parameters --config gave (_node_file)
-        value.stats['node_parameters_from_config'] = args.from_config
+    if args.from_config:        # the node parameters --config and --set gave (_node_file)
+        value.stats['node_parameters'] = args.from_config
     if start is not None:
         value.stats.update(start_map=os.path.basename(args.map), mapping=not args.no_mapping)
     save_map(value, res.points, args.output, args.plot,

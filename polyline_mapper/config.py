@@ -10,14 +10,14 @@ A config file is YAML (or JSON): either a flat mapping of field names (``sigma: 
 ``buffer_scans: 5``) or a ROS 2 parameter file (``<node>: ros__parameters: {...}``) whose
 ``smemsf.*`` / ``incremental.*`` entries (dotted, or nested blocks, or plain field names) are
 used; ``replay`` also takes the node parameters that place and group the scans from it
-(``node_file_settings``, ``REPLAY_READS``), as the node with that file would. Numbers
+(``read_node_file``, ``REPLAY_READS``), as the node with that file would. Numbers
 written as text (``1e-3``, which YAML reads as a string) are numbers; a field that defaults to
 "automatic" (None) takes ``none``.
 """
 
 from dataclasses import replace
 import math
-from typing import Iterable
+from typing import Iterable, NamedTuple, Optional
 
 from .core.incremental import IncrementalConfig
 from .core.smemsf import SMEMSFConfig
@@ -50,7 +50,7 @@ def typed_value(spec, value, origin: str):
     none / null. The value is then checked against the entry's range and choices. Raises
     ConfigError naming ``origin``, the key and what is expected.
     """
-    key = spec.name.partition('.')[2]
+    key = spec.name.partition('.')[2] or spec.name
     base = type(spec.default)
     text = value.strip() if isinstance(value, str) else None
     if spec.optional and (value is None or (text is not None
@@ -102,8 +102,13 @@ def _node_blocks(data: dict, prefix: str = '', depth: int = 0) -> list:
 
 
 def _ros_parameters(data: dict, path: str):
+    """Return the ``ros__parameters`` of a ROS 2 parameter file's node block, else None (flat)."""
+    return _our_block(data, path)[0]
+
+
+def _our_block(data: dict, path: str) -> tuple:
     """
-    Return the ``ros__parameters`` of a ROS 2 parameter file's node block, else None (flat).
+    Return (``ros__parameters`` of this node's block or None (flat), other blocks' names).
 
     A file with several nodes' blocks (a whole robot's, Nav2's style) gives this node's:
     the one block named ``polyline_mapper_node`` (in any namespace) or ``/**``, both merged
@@ -113,7 +118,7 @@ def _ros_parameters(data: dict, path: str):
     """
     blocks = _node_blocks(data)
     if not blocks:
-        return None
+        return None, []
     ours = [(n, p) for n, p in blocks if n.rsplit('/', 1)[-1] in ('**', NODE_NAME)]
     if len(blocks) == 1:
         ours = blocks
@@ -130,7 +135,8 @@ def _ros_parameters(data: dict, path: str):
         if not isinstance(block, dict):
             raise ConfigError(f'{path}: ros__parameters must be a mapping')
         _merge(params, block)
-    return params
+    read = {n for n, _ in ours}
+    return params, [n for n, _ in blocks if n not in read]
 
 
 def _merge(into: dict, block: dict) -> None:
@@ -168,67 +174,103 @@ REPLAY_READS = ('fixed_frame', 'pose_source', 'scan_matching', 'odom_frame', 'ch
                 'laser_y', 'laser_yaw', 'laser_upside_down', 'odom_gap_factor',
                 'update_every_n_scans', 'grid_resolution', 'map_input_path', 'initial_pose',
                 'mapping')
-"""Node parameters ``replay --config`` maps with, as the node would (``node_file_settings``);
+"""Node parameters ``replay --config`` maps with, as the node would (``read_node_file``);
 the others only shape the live node's outputs, queues and timers."""
 
 
-def node_file_settings(path: str) -> tuple:
+class NodeFile(NamedTuple):
+    """What a ROS 2 parameter file (and ``replay --set``) says of the node's own parameters."""
+
+    settings: Optional[object] = None
+    """``params.NodeSettings`` of the file, as the node takes it (None: no node block)."""
+    names: tuple = ()
+    """The node parameters it sets: the file's off their defaults, every ``--set`` one."""
+    live_only: tuple = ()
+    """'name: value' of those ``replay`` does not take (``REPLAY_READS``): outputs, timers."""
+    unknown: tuple = ()
+    """Names that are no parameter of the node, each with a hint (``params.unknown_params``)."""
+    skipped: tuple = ()
+    """Other nodes' blocks of the file, not read (a node under another name reads its own)."""
+
+
+def read_node_file(path: str = None, overrides: dict = None, map_path: str = None) -> NodeFile:
     """
-    Return (NodeSettings, names) of a ROS 2 parameter file's node parameters, else (None, ()).
+    Return what a ROS 2 parameter file says of the node's own parameters (``NodeFile``).
 
     The settings are the node's with that file (``params.settings_from``: the same checks, and
-    a ``map_input_path`` turns ``scan_matching`` on); ``names`` the node parameters the file
-    sets off their defaults. A flat config gives (None, ()). Raises ConfigError (one line
-    naming the file) for a value the node would refuse.
+    a ``map_input_path`` turns ``scan_matching`` on), with ``overrides`` ({name: value}, typed:
+    ``replay --set``) over it; ``map_path`` (``replay --map``) stands for ``map_input_path``.
+    A number with no decimal point for a double parameter (``laser_yaw: 1``) is refused, as
+    the node refuses it (a ROS 2 parameter's type is the YAML value's). A flat config and no
+    overrides give ``NodeFile()``. Raises ConfigError (one line naming the file) for a value
+    the node would refuse.
     """
     import yaml
-    from .params import NODE_PARAMS, settings_from
-    try:
-        with open(path, 'r', encoding='utf-8') as fh:
-            data = yaml.safe_load(fh) or {}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return None, ()          # read_values, which reads the file first, says why
-    params = _ros_parameters(data, path) if isinstance(data, dict) else None
-    if params is None:
-        return None, ()
+    from .params import NODE_PARAMS, settings_from, unknown_params
+    overrides = dict(overrides or {})
+    params, skipped = None, []
+    if path:
+        try:
+            with open(path, 'r', encoding='utf-8') as fh:
+                data = yaml.safe_load(fh) or {}
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            data = None          # read_values, which reads the file first, says why
+        if isinstance(data, dict):
+            params, skipped = _our_block(data, path)
+    if params is None and not overrides:
+        return NodeFile()
     specs = {spec.name: spec for spec in NODE_PARAMS}
-    given = {str(k): v for k, v in params.items() if str(k) in specs}
+    given, others = {}, []
+    for key, value in (params or {}).items():
+        key = str(key)
+        if key in specs:
+            given[key] = value
+        elif key == 'qos_overrides' or key.partition('.')[0] in GROUPS:
+            continue            # the middleware's; the groups' keys are checked when read
+        elif isinstance(value, dict):
+            others += [f'{key}.{k}' for k in value]
+        else:
+            others.append(key)
+    for key, value in given.items():
+        _double_typed(specs[key], value, path)
     values = {spec.name: spec.default for spec in all_params()}
     values.update(given)
+    values.update(overrides)
+    if map_path:
+        values['map_input_path'] = str(map_path)
     try:
         settings, _ = settings_from(values)
     except ValueError as exc:
-        raise ConfigError(f'{path}: {exc}') from None
-    return settings, tuple(k for k, v in given.items() if not _same(v, specs[k].default))
+        raise ConfigError(f'{path or "--set"}: {exc}') from None
+    names = [k for k, v in given.items() if not _same(v, specs[k].default)]
+    names += [k for k in overrides if k not in names]
+    live = tuple(f'{k}: {_yaml_text(given[k])}' for k in names
+                 if k not in REPLAY_READS and k in given)
+    return NodeFile(settings, tuple(names), live, tuple(unknown_params(others)), tuple(skipped))
 
 
-def unread_node_params(path: str) -> list:
-    """
-    Return the node parameters a ROS 2 parameter file sets off their defaults, unread here.
+def _double_typed(spec, value, path: str) -> None:
+    """Raise ConfigError for an integer YAML value of a double (or double array) parameter."""
+    d = spec.default
+    ints = (isinstance(d, float) and isinstance(value, int) and not isinstance(value, bool)) or (
+        isinstance(d, (list, tuple)) and d and isinstance(d[0], float)
+        and isinstance(value, (list, tuple))
+        and any(isinstance(v, int) and not isinstance(v, bool) for v in value))
+    if ints:
+        fixed = ([float(v) for v in value] if isinstance(value, (list, tuple))
+                 else float(value))
+        raise ConfigError(f'{path}: {spec.name} is {_yaml_text(value)}, an integer where the node '
+                          f'takes a double (ROS 2 parameter types follow the YAML): write '
+                          f'{_yaml_text(fixed)}')
 
-    ``--config`` reads the ``smemsf.*`` / ``incremental.*`` entries, and ``replay`` the node
-    parameters that place and group the scans (``REPLAY_READS``); the others only shape the
-    live node's outputs, queues and timers. A parameter the file gives its default value (the
-    shipped ``config/polyline_mapper.yaml``) changes nothing. Each as 'name: value'. A flat
-    config, or a file that cannot be read, gives none (``read_values`` says why).
-    """
-    import yaml
-    try:
-        with open(path, 'r', encoding='utf-8') as fh:
-            data = yaml.safe_load(fh) or {}
-        params = _ros_parameters(data, path) if isinstance(data, dict) else None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, ConfigError):
-        return []
-    keys = table()
-    defaults = {spec.name: spec.default for spec in all_params()}
-    out = []
-    for key, value in (params or {}).items():
-        key = str(key)
-        read = key.partition('.')[0] in GROUPS or key in keys or key in REPLAY_READS
-        if read or _same(value, defaults.get(key)):
-            continue
-        out.append(f'{key}: {value}')
-    return out
+
+def _yaml_text(value) -> str:
+    """Return ``value`` as YAML writes it (true, not True)."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(_yaml_text(v) for v in value) + ']'
+    return str(value)
 
 
 def _same(value, default) -> bool:

@@ -1057,7 +1057,16 @@ class PoseSource:
                 # its root as the odometry drifts, so the map is 'map' above it (REP 105), as
                 # in odom mode and the node's; the root is then the odometry frame.
                 self.localizer, self.fixed_frame = True, 'map'
-                self.base_frame = self._chain(frame)[-2]
+                chain = self._chain(frame)
+                odom = self.options.odom_frame
+                if odom and odom not in chain:      # (as the localizer's branch above)
+                    raise TransformLookupError(
+                        'no_tf', f'frame {frame!r} does not reach odom_frame {odom!r} (its '
+                        f'tree goes up to {chain[-1]!r})')
+                if odom:
+                    chain = chain[:chain.index(odom) + 1]
+                    target = odom
+                self.base_frame = chain[-2]
         pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
                                          self.options.tolerance if tolerance is None
                                          else tolerance)
@@ -1209,6 +1218,24 @@ class PoseSource:
         pose = self.buffer.lookup_planar(target, source, stamp, self.options.tolerance)
         self._last_lookup = (key, pose)
         return pose
+
+    def static_mount(self, frame: str) -> Optional[tuple]:
+        """
+        Return (parent, PlanarPose) of ``frame`` under the frame its static transforms hang from.
+
+        That is the laser's mount on the robot as /tf_static gives it (what odom mode uses
+        without ``mount``); None when the frame has no static parent or the mount cannot be
+        placed in the plane.
+        """
+        top = frame
+        while top in self._static and top in self._parents:
+            top = self._parents[top]
+        if top == frame:
+            return None
+        try:
+            return top, self.buffer.lookup_planar(top, frame, self.latest, math.inf)
+        except (TransformLookupError, ValueError):
+            return None
 
     def _chain(self, frame: str) -> list:
         """Return [frame, its parent, ..., the root of its tree]; TransformLookupError if alone."""

@@ -28,24 +28,24 @@ def test_replay_maps_with_the_node_parameters_of_its_config_file(tmp_path, capsy
     # own (outputs, queues, timers) are named, in one line.
     from conftest import REPO
     from polyline_mapper.cli import main
-    from polyline_mapper.config import node_file_settings, unread_node_params
+    from polyline_mapper.config import read_node_file
     for name in ('polyline_mapper.yaml', 'lds01.yaml', 'rplidar.yaml', 'free_space.yaml',
                  'no_free_space.yaml'):
-        assert unread_node_params(str(REPO / 'config' / name)) == [], name
-        assert node_file_settings(str(REPO / 'config' / name))[1] == (), name
+        nf = read_node_file(str(REPO / 'config' / name))
+        assert (nf.names, nf.live_only, nf.unknown, nf.skipped) == ((),) * 4, name
     path = tmp_path / 'robot.yaml'
     path.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n    scan_matching: true\n'
                     '    chord_knots: arc\n    laser_x: 0.05\n    grid_resolution: 0.1\n'
                     '    fixed_frame: map\n    map_output_path: /nowhere/map.json\n'
                     '    smemsf:\n      sigma: 0.01\n')
-    assert unread_node_params(str(path)) == ['map_output_path: /nowhere/map.json']
+    assert read_node_file(str(path)).live_only == ('map_output_path: /nowhere/map.json',)
     drive = 'sim:hall,odom_drift=3'
     filed = _replayed(main, tmp_path, 'file.json', drive, '--config', str(path))
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and 'not used by replay: map_output_path' in err
     st = filed['stats']
-    assert st['node_parameters_from_config'] == ['pose_source', 'scan_matching', 'chord_knots',
-                                                 'grid_resolution', 'laser_x']
+    assert st['node_parameters'] == ['pose_source', 'scan_matching', 'chord_knots',
+                                     'grid_resolution', 'laser_x']
     assert (st['pose_source'], st['laser_mount']) == ('odom', '0.05,0,0')
     flags = _replayed(main, tmp_path, 'flags.json', drive, '--pose-source', 'odom',
                       '--scan-matching', '--chord-knots', 'arc', '--laser-mount', '0.05,0,0',
@@ -56,7 +56,7 @@ def test_replay_maps_with_the_node_parameters_of_its_config_file(tmp_path, capsy
     # a flag on the command line wins over the file
     arc = _replayed(main, tmp_path, 'median.json', drive, '--config', str(path),
                     '--chord-knots', 'median', '--laser-mount', '0,0,0')
-    assert 'chord_knots' not in arc['stats']['node_parameters_from_config']
+    assert 'chord_knots' not in arc['stats']['node_parameters']
     median = _replayed(main, tmp_path, 'median2.json', drive, '--pose-source', 'odom',
                        '--scan-matching', '--laser-mount', '0,0,0', '--set', 'sigma=0.01')
     assert arc['segments'] == median['segments'] and arc['segments'] != filed['segments']
@@ -71,7 +71,7 @@ def test_chord_knots_of_a_config_file_without_scan_matching_change_nothing(tmp_p
     filed = _replayed(main, tmp_path, 'file.json', 'sim:hall', '--config', str(path))
     plain = _replayed(main, tmp_path, 'plain.json', 'sim:hall')
     assert filed['segments'] == plain['segments']
-    assert 'node_parameters_from_config' not in filed['stats']
+    assert 'node_parameters' not in filed['stats']
     assert capsys.readouterr().err == ''
 
 
@@ -108,7 +108,7 @@ def test_replay_localizes_on_the_map_its_config_file_names(tmp_path):
     flags = _replayed(main, tmp_path, 'flags.json', 'sim:hall,odom_drift=4', '--pose-source',
                       'odom', '--map', str(saved), '--no-mapping', '--initial-pose',
                       f'{x!r},{y!r},{math.degrees(yaw)!r}')
-    assert filed['stats']['node_parameters_from_config'] == [
+    assert filed['stats']['node_parameters'] == [
         'pose_source', 'map_input_path', 'initial_pose', 'mapping']
     assert filed['stats']['mapping'] is False
     assert filed['segments'] == json_segments(saved)          # localization only: unchanged
@@ -119,6 +119,104 @@ def test_replay_localizes_on_the_map_its_config_file_names(tmp_path):
 def json_segments(path):
     import json
     return json.loads(path.read_text())['segments']
+
+
+def test_replay_names_typos_other_blocks_and_where_the_node_differs(tmp_path, capsys):
+    # A new user's audit: misspelt names were called "live node parameters"; a block for the
+    # node under another name was passed over without a word; and a file that leaves
+    # fixed_frame and the laser mount at their defaults mapped offline (replay finds the TF
+    # tree's root and the mount on /tf_static) where the node, which takes them as they are,
+    # skipped every scan ('map') and placed the laser 0.2 m off.
+    from polyline_mapper.cli import main
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text('polyline_mapper_node:\n  ros__parameters:\n    pose_sorce: odom\n'
+                    '    use_sim_time: true\n    qos_overrides:\n      /scan:\n'
+                    '        subscription:\n          depth: 50\n')
+    _replayed(main, tmp_path, 'typo.json', 'sim:hall', '--config', str(typo))
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1
+    assert 'does not have, not used: pose_sorce (did you mean pose_source?)' in err
+    multi = tmp_path / 'multi.yaml'
+    multi.write_text('amcl:\n  ros__parameters:\n    x: 1\nmapper:\n  ros__parameters:\n'
+                     '    pose_source: odom\n/**:\n  ros__parameters:\n    use_sim_time: true\n')
+    _replayed(main, tmp_path, 'multi.json', 'sim:hall', '--config', str(multi))
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'blocks of other nodes not read: /amcl, /mapper' in err
+    odom = tmp_path / 'odom.yaml'
+    odom.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n')
+    replayed = _replayed(main, tmp_path, 'odom.json', 'sim:hall', '--config', str(odom))
+    assert replayed['stats']['coverage_0_10m'] > 0.99       # replay: root 'odom', /tf_static
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2
+    assert "maps in fixed_frame 'map' (the default), replay found 'odom'" in err[0]
+    assert 'laser_x: 0.2, laser_y: 0, laser_yaw: 0' in err[1]
+    odom.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n    fixed_frame: odom\n'
+                    '    laser_x: 0.2\n')
+    same = _replayed(main, tmp_path, 'same.json', 'sim:hall', '--config', str(odom))
+    assert capsys.readouterr().err == '' and same['segments'] == replayed['segments']
+
+
+def test_replay_set_overrides_the_node_parameters_of_its_config_file(tmp_path, capsys):
+    # "A flag wins", also where there is no flag: --set takes the node's scalar parameters.
+    from polyline_mapper.cli import main
+    path = tmp_path / 'sm.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n    scan_matching: true\n'
+                    '    fixed_frame: odom\n    laser_x: 0.2\n')
+    drive = 'sim:hall,odom_drift=3'
+    off = _replayed(main, tmp_path, 'off.json', drive, '--config', str(path),
+                    '--set', 'scan_matching=false')
+    plain = _replayed(main, tmp_path, 'plain.json', drive, '--pose-source', 'odom')
+    assert off['segments'] == plain['segments'] and off['trajectory'] == plain['trajectory']
+    assert 'scan_matching' not in off['stats']['node_parameters']
+    framed = _replayed(main, tmp_path, 'framed.json', drive, '--set', 'pose_source=odom',
+                       '--set', 'fixed_frame=odom', '--set', 'grid_resolution=0.1')
+    assert framed['frame_id'] == 'odom' and framed['grid']['resolution'] == 0.1
+    out = tmp_path / 'bad.json'
+    capsys.readouterr()                 # (the unmatched drifted maps are warned of)
+    assert main(['replay', drive, '--set', 'scan_matching=maybe', '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'scan_matching must be true or false' in err
+    assert not out.exists()
+    # an odom_frame the scans' tree does not have: no scan is placed (the first one was, from
+    # the tree's root, and the replay wrote an empty map with exit code 0)
+    assert main(['replay', drive, '--scan-matching', '--set', 'odom_frame=wheel_odom', '-o',
+                 str(out), '-q']) == 2
+    err = capsys.readouterr().err
+    assert "does not reach odom_frame 'wheel_odom'" in err and not out.exists()
+
+
+def test_replay_refuses_an_integer_where_the_node_takes_a_double(tmp_path, capsys):
+    # The node refuses laser_yaw: 1 (a ROS 2 parameter's type is its YAML value's); a file
+    # replay took mapped offline and failed to start on the robot.
+    from polyline_mapper.cli import main
+    for text, name in (('    pose_source: odom\n    laser_yaw: 1\n', 'laser_yaw is 1'),
+                       ('    marker_color: [1, 0, 0, 1.0]\n', 'marker_color is [1, 0, 0, 1.0]')):
+        path = tmp_path / 'int.yaml'
+        path.write_text('/**:\n  ros__parameters:\n' + text)
+        out = tmp_path / 'm.json'
+        assert main(['replay', 'sim:hall', '--config', str(path), '-o', str(out), '-q']) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and name in err and 'write' in err and not out.exists()
+
+
+def test_replay_map_flag_stands_for_the_files_map_input_path(tmp_path, capsys):
+    # A localization file (mapping false, an initial pose) with the map given at launch, as
+    # the node takes `-p map_input_path:=...`; and a missing map_input_path names the file.
+    from polyline_mapper.cli import main
+    drive = 'sim:hall,odom_drift=3'
+    saved = tmp_path / 'saved.json'
+    _replayed(main, tmp_path, 'saved.json', drive, '--pose-source', 'odom', '--scan-matching')
+    path = tmp_path / 'loc.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    mapping: false\n')
+    loc = _replayed(main, tmp_path, 'loc.json', drive, '--pose-source', 'odom', '--config',
+                    str(path), '--map', str(saved))
+    assert loc['segments'] == json_segments(saved) and loc['stats']['mapping'] is False
+    path.write_text('/**:\n  ros__parameters:\n    map_input_path: nowhere.json\n')
+    out = tmp_path / 'm.json'
+    capsys.readouterr()
+    assert main(['replay', drive, '--config', str(path), '-o', str(out), '-q']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'loc.yaml: map_input_path: nowhere.json' in err
 
 
 def test_a_node_parameter_the_node_refuses_is_refused_by_replay_in_one_line(tmp_path, capsys):
