@@ -2,6 +2,7 @@
 
 import math
 import re
+import signal
 
 from conftest import REPO
 from polyline_mapper.recordings import drive_messages
@@ -175,3 +176,24 @@ def test_parameters_the_node_does_not_have_are_warned_of(tmp_path):
     assert len(warned) == 1 and warned[0].endswith(
         'not used: scan_matchng (did you mean scan_matching?), sigma (did you mean '
         'smemsf.sigma?)'), node.stderr()
+
+
+def test_a_node_that_mapped_nothing_keeps_the_map_file_there(tmp_path):
+    # An audit: a node stopped before its first scan (the laser down at a restart) replaced
+    # the last run's map at map_output_path (the default is shared) with an empty one.
+    out = tmp_path / 'keep.json'
+    out.write_text('{"the last run": "kept"}')
+    node = NodeProcess(tmp_path, {'map_output_path': str(out), 'save_map_on_shutdown': True})
+    peer = Peer('test_peer_keep')
+    try:
+        assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
+        resp = peer.call('/polyline_mapper_node/save_map', Trigger)
+        assert resp is not None and not resp.success and 'no scan has been mapped' in \
+            resp.message
+        node.proc.send_signal(signal.SIGTERM)
+        assert node.proc.wait(TIMEOUT) == 0, node.stderr()[-3000:]
+    finally:
+        peer.close()
+        node.stop()
+    assert out.read_text() == '{"the last run": "kept"}'
+    assert node.lines('not writing') and 'Traceback' not in node.stderr()

@@ -355,8 +355,19 @@ class PolylineMapperNode(Node):
         return response
 
     def _save_map(self) -> tuple:
-        """Write the map JSON to ``map_output_path``; log and return (success, message)."""
+        """
+        Write the map JSON to ``map_output_path``; log and return (success, message).
+
+        Before any scan was mapped (and without a loaded map) nothing is written: a node
+        restarted while the laser is down, or stopped before its first scan, would otherwise
+        replace the last run's map there (the default path is shared) with an empty one.
+        """
         path = self.settings.output_path
+        if self.session.used == 0 and self.session.loaded is None:
+            message = (f'not writing {path}: no scan has been mapped yet (a file there is '
+                       'kept)')
+            self.get_logger().warning(message)
+            return False, message
         value = self.session.map_value(trajectory=True)
         try:
             write_map(path, value, config_dict(self.config),
