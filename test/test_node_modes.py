@@ -197,3 +197,33 @@ def test_a_node_that_mapped_nothing_keeps_the_map_file_there(tmp_path):
         node.stop()
     assert out.read_text() == '{"the last run": "kept"}'
     assert node.lines('not writing') and 'Traceback' not in node.stderr()
+
+
+def test_the_diagnostics_warn_when_the_scans_stop(office_drive, tmp_path):
+    # A node audit: with the laser stopped (odometry still coming, the publisher still
+    # matched) /diagnostics said OK 'mapping' for as long as it lasted, and nothing was
+    # logged, while map -> odom, sent per scan, aged. Now WARN, and a warning in the log.
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    node = NodeProcess(tmp_path, {'diagnostics_period': 0.2})
+    peer = Peer('test_peer_silence')
+    try:
+        diags = []
+        peer.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+
+        def last():
+            status = [s for d in diags for s in d.status][-1:]
+            return status[0] if status else None
+        assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
+        msgs = list(drive_messages(office_drive))
+        scans = [i for i, (_, topic, _) in enumerate(msgs) if topic == '/scan']
+        peer.play(msgs[:scans[60]], RATE)
+        assert peer.spin_until(lambda: last() is not None and last().message == 'mapping',
+                               TIMEOUT), node.stderr()[-2000:]
+        assert peer.spin_until(lambda: last().message.startswith('no scan on /scan for'),
+                               TIMEOUT), node.stderr()[-2000:]
+        status = last()
+        assert status.level == DiagnosticStatus.WARN and 'received before' in status.message
+        assert node.wait_for_line('[scans_stopped]', TIMEOUT), node.stderr()[-2000:]
+    finally:
+        peer.close()
+        node.stop()

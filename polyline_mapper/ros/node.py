@@ -58,6 +58,7 @@ import warnings
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
+import numpy as np
 from polyline_mapper_msgs.msg import PolylineMap
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -86,6 +87,10 @@ from ..session import MappingSession, SessionOptions, WarningThrottle
 
 GROUP_IDLE = 1.0
 """Seconds without a new scan after which a partial update group is mapped."""
+SCAN_ARRIVALS = 20
+"""Scans whose arrival times give their usual interval (``_scans_silent``)."""
+SCAN_SILENCE, SCAN_SILENCE_MIN = 5.0, 1.0
+"""The scans stopped: none for this many usual intervals, and at least this many seconds."""
 
 
 class ConfigError(Exception):
@@ -215,6 +220,7 @@ class PolylineMapperNode(Node):
         self._stats_mark = (0, 0, 0)
         self._last_diag = -math.inf
         self._diag_mark = (0, 0, 0)
+        self._scan_arrivals = deque(maxlen=SCAN_ARRIVALS)   # monotonic s of the last scans
         self._stop = threading.Event()
         self._worker = threading.Thread(target=self._work, name='polyline_mapper_updates',
                                         daemon=True)
@@ -292,6 +298,7 @@ class PolylineMapperNode(Node):
         self.publishers_matched[key] = count
 
     def _on_scan(self, msg: LaserScan) -> None:
+        self._scan_arrivals.append(time.monotonic())
         if len(msg.intensities) not in (0, len(msg.ranges)):
             self.session.skip('bad scan', 'intensities', f'scan has {len(msg.ranges)} ranges '
                               f'but {len(msg.intensities)} intensities')
@@ -495,9 +502,12 @@ class PolylineMapperNode(Node):
                                    st['dropped'] - self._diag_mark[2])
         self._diag_mark = (st['scans'], st['scans_used'], st['dropped'])
         self._last_diag = now
+        silent = self._scans_silent(now)
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'), st['scans_used'],
-                                        self.publishers_matched.get('scan'))
+                                        self.publishers_matched.get('scan'), silent)
+        if silent is not None:
+            self.warnings.warn('scans_stopped', message)
         sigma = p.mapper.sigma or 0.0
         r = (p.mapper.r or 0.0) if sigma else 0.0
         # the noise scale to 9 digits, not the 3 decimals of the other floats: record-map
@@ -520,6 +530,22 @@ class PolylineMapperNode(Node):
         self.diag_pub.publish(diagnostics_msg(f'{self.get_fully_qualified_name()}: mapping',
                                               level, message,
                                               values, self.get_clock().now().to_msg()))
+
+    def _scans_silent(self, now: float):
+        """
+        Return the seconds since the last scan when the scans stopped, else None.
+
+        Stopped: none for ``SCAN_SILENCE`` times their usual interval (the median of the last
+        ``SCAN_ARRIVALS``), and at least ``SCAN_SILENCE_MIN`` s. A laser that stops is a real
+        robot's commonest failure; without this /diagnostics stayed OK ('mapping') for as long
+        as the laser was silent while map -> odom (sent per scan) aged.
+        """
+        times = list(self._scan_arrivals)
+        if not times:
+            return None
+        since = now - times[-1]
+        usual = float(np.median(np.diff(times))) if len(times) > 2 else 0.0
+        return since if since > max(SCAN_SILENCE_MIN, SCAN_SILENCE * usual) else None
 
     def close(self) -> None:
         """
@@ -563,15 +589,20 @@ class PolylineMapperNode(Node):
 
 
 def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
-                   topic: str, total_used: int = None, publishers: int = None) -> tuple:
+                   topic: str, total_used: int = None, publishers: int = None,
+                   silent: float = None) -> tuple:
     """
     Return the /diagnostics (level, message) of one period: 0 OK, 1 WARN.
 
     ``received`` / ``used`` / ``dropped``: scans in the period; ``total``: scans ever
     received; ``lost``: scan matching does not know where the scans are
     (``MappingSession.lost``); ``total_used``: scans ever used; ``publishers``: publishers
-    matched on the scan topic (None: not known).
+    matched on the scan topic (None: not known); ``silent``: seconds since the last scan when
+    the scans stopped (``PolylineMapperNode._scans_silent``), else None.
     """
+    if silent is not None and total:
+        return 1, (f'no scan on {topic} for {silent:.1f} s ({total} received before): has the '
+                   'laser or its driver stopped? The map and map -> odom are not updated')
     if lost:
         return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
                    'robot?) or searches for the scans (after a gap in them, near a pose '
