@@ -80,7 +80,7 @@ def score(run: tuple, stamps: np.ndarray, base: np.ndarray, start: int) -> dict:
     late = scan >= start
     err = np.hypot(*(rows[late, 1:3] - base[scan[late], :2]).T)
     out = {'not_mapped': int(len(stamps) - len(rows)), 'matches': dict(session.matches),
-           'warnings': dict(warned)}
+           'warnings': dict(warned), 'wrong_start_at_end': session.wrong_start is not None}
     if len(err):
         out.update(rms_m=round(float(np.sqrt(np.mean(err ** 2))), 3),
                    p95_m=round(float(np.percentile(err, 95)), 3),

@@ -1520,6 +1520,10 @@ class MappingSession:
         """(m, rad) around ``_place`` to search (a pose estimate, ``set_pose``), or None."""
         self._start_check = []
         """On a loaded map: the pass-through shares of the first scans placed (``START_CHECK``)."""
+        self.wrong_start = None
+        """On a loaded map: the median share of the first scans' beams that pass through its
+        walls when beyond ``START_CHECK`` (matched onto a wrong place), until the next reset or
+        pose estimate; else None."""
         self.matches = Counter()
         """
         Scan matching outcomes: 'matched', 'relocalized' (``RELOCALIZE``), 'no map yet', and
@@ -1683,6 +1687,7 @@ class MappingSession:
         self._place = place
         self._spread = None
         self._start_check = []
+        self.wrong_start = None
         self._correction = np.zeros(3)
         self._gap = None
         self._recent.clear()
@@ -2048,6 +2053,7 @@ class MappingSession:
         share = float(np.median(self._start_check))
         if share <= START_CHECK[1]:
             return []
+        self.wrong_start = share
         return [('wrong_start', f'localizing on the saved map, the beams of the first '
                  f'{len(self._start_check)} scans pass through its walls ({100 * share:.0f} % '
                  f'of them, median): the scans are likely matched onto a wrong place; give the '

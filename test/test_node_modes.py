@@ -119,6 +119,13 @@ def test_the_diagnostics_status_says_lost_first():
     assert mapping_status(0, 0, 0, 90, False, '/scan', 0) == (
         1, '90 scans received, none used yet (see the warnings)')
     assert mapping_status(0, 0, 0, 90, False, '/scan', 90) == (0, 'mapping')
+    # localizing on a saved map from a wrong place: said once in the log, OK after (audit)
+    level, message = mapping_status(10, 10, 0, 50, False, '/scan', 50, 1, None, 0.5)
+    assert level == 1 and message.startswith('localizing on the saved map from a wrong place: '
+                                             '50 %')
+    # the scans stopped
+    level, message = mapping_status(0, 0, 0, 50, False, '/scan', 50, 1, 3.25)
+    assert level == 1 and message.startswith('no scan on /scan for 3.2 s (50 received before)')
 
 
 def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):

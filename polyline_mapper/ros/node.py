@@ -505,7 +505,8 @@ class PolylineMapperNode(Node):
         silent = self._scans_silent(now)
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'), st['scans_used'],
-                                        self.publishers_matched.get('scan'), silent)
+                                        self.publishers_matched.get('scan'), silent,
+                                        p.wrong_start)
         if silent is not None:
             self.warnings.warn('scans_stopped', message)
         sigma = p.mapper.sigma or 0.0
@@ -590,7 +591,7 @@ class PolylineMapperNode(Node):
 
 def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
                    topic: str, total_used: int = None, publishers: int = None,
-                   silent: float = None) -> tuple:
+                   silent: float = None, wrong_start: float = None) -> tuple:
     """
     Return the /diagnostics (level, message) of one period: 0 OK, 1 WARN.
 
@@ -598,11 +599,18 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     received; ``lost``: scan matching does not know where the scans are
     (``MappingSession.lost``); ``total_used``: scans ever used; ``publishers``: publishers
     matched on the scan topic (None: not known); ``silent``: seconds since the last scan when
-    the scans stopped (``PolylineMapperNode._scans_silent``), else None.
+    the scans stopped (``PolylineMapperNode._scans_silent``), else None; ``wrong_start``: on a
+    saved map, the share of the first scans' beams through its walls when they were matched
+    onto a wrong place (``MappingSession.wrong_start``), else None.
     """
     if silent is not None and total:
         return 1, (f'no scan on {topic} for {silent:.1f} s ({total} received before): has the '
                    'laser or its driver stopped? The map and map -> odom are not updated')
+    if wrong_start is not None:
+        return 1, (f'localizing on the saved map from a wrong place: {100 * wrong_start:.0f} % '
+                   "of the first scans' beams pass through its walls; the poses, map -> odom "
+                   "and the map are not to be trusted until the robot's pose is given "
+                   '(initial_pose, or a pose estimate on initialpose)')
     if lost:
         return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
                    'robot?) or searches for the scans (after a gap in them, near a pose '
