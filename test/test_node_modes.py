@@ -190,10 +190,19 @@ def test_a_node_that_mapped_nothing_keeps_the_map_file_there(tmp_path):
     # the last run's map at map_output_path (the default is shared) with an empty one.
     out = tmp_path / 'keep.json'
     out.write_text('{"the last run": "kept"}')
-    node = NodeProcess(tmp_path, {'map_output_path': str(out), 'save_map_on_shutdown': True})
+    from nav_msgs.msg import OccupancyGrid
+    from polyline_mapper.ros.qos import MAP_QOS
+    node = NodeProcess(tmp_path, {'map_output_path': str(out), 'save_map_on_shutdown': True,
+                                  'grid_publish_period': 0.1})
     peer = Peer('test_peer_keep')
     try:
+        grids = []
+        peer.node.create_subscription(OccupancyGrid, 'map', grids.append, MAP_QOS)
         assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
+        assert peer.spin_until(lambda: peer.maps, TIMEOUT)      # the (empty) polyline map
+        peer.spin_for(1.0)
+        # no planner map before there is one (a 1 x 1 placeholder was published, audit)
+        assert grids == []
         resp = peer.call('/polyline_mapper_node/save_map', Trigger)
         assert resp is not None and not resp.success and 'no scan has been mapped' in \
             resp.message

@@ -211,7 +211,10 @@ class PolylineMapperNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._publish_lock = threading.Lock()
         self._dirty = True                  # publish the (empty) map at once for late joiners
-        self._grid_dirty = True
+        # The planner map only once there is one (a loaded map's at once): a 1 x 1 placeholder
+        # on the transient-local 'map' reached every late subscriber, Nav2's static layer
+        # among them (map_server and slam_toolbox publish nothing before they have a map).
+        self._grid_dirty = self.session.loaded is not None
         self._last_grid = -math.inf
         self._published = (-1, -1, None)    # (scans used, generation, segments) last published
         self._markers_shown = False
