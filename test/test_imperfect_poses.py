@@ -10,6 +10,7 @@ scan-only pose source; scored against the simulator's true poses and walls.
 import dataclasses
 import importlib
 import sys
+import time
 
 from conftest import REPO
 import numpy as np
@@ -619,6 +620,48 @@ def test_the_node_maps_scans_alone(tmp_path):
                         se2_compose(drive.poses[k], se2_inverse(mount)))
     err = np.hypot(*(got[:, :2] - truth[:, :2]).T)
     assert np.sqrt(np.mean(err ** 2)) < 0.05, err
+
+
+@pytest.mark.slow
+@pytest.mark.dds
+def test_the_node_waits_for_the_lasers_mount_before_broadcasting_scans_alone(tmp_path):
+    # A node audit: scans that came before the laser's /tf_static (discovery races them) were
+    # broadcast as map -> laser, the laser's root then, and once the mount came the laser had
+    # two parents (base_link, map; REP 105: one). A scan waits for its transforms up to
+    # transform_timeout; the broadcast of a laser without a parent does too.
+    pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
+    from polyline_mapper.ros.messages import transform_msg
+    from polyline_mapper.ros.qos import TF_QOS
+    from rosnode import NodeProcess, Peer
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    node = NodeProcess(tmp_path, {'pose_source': 'scan', 'map_publish_period': 0.0,
+                                  'stats_period': 0.0})
+    peer = Peer('test_peer_scan_race')
+    broadcast = []
+    peer.node.create_subscription(
+        peer.TFMessage, '/tf', lambda m: broadcast.extend(
+            t for t in m.transforms if t.header.frame_id == 'map'), TF_QOS)
+    try:
+        assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
+                               and peer.static_pub.get_subscription_count() > 0
+                               and peer.node.count_publishers('/polyline_map') > 0, 60.0)
+        peer.spin_for(0.5)
+        messages = [m for m in drive_messages(drive) if m[1] in ('/scan', '/tf_static')]
+        scans = [m for m in messages if m[1] == '/scan']
+        static = [r for _, topic, r in messages if topic == '/tf_static']
+        t0 = time.time()
+        peer.play(scans[:4], 25.0, mode='scan', t0=t0)         # 0.16 s of scans, no mount yet
+        peer.spin_for(0.1)
+        peer.static_pub.publish(peer.TFMessage(transforms=[transform_msg(t) for t in static[0]]))
+        last = peer.play(scans[4:60], 25.0, mode='scan', t0=t0 + 4 / 25.0)
+        assert peer.spin_until(lambda: broadcast and abs(
+            broadcast[-1].header.stamp.sec + 1e-9 * broadcast[-1].header.stamp.nanosec - last)
+            < 1e-6, 20.0), node.stderr()[-3000:]
+    finally:
+        peer.close()
+        assert node.stop() == 0
+    assert {t.child_frame_id for t in broadcast} == {'base_link'}
+    assert len(broadcast) >= 50
 
 
 def test_scan_consistency_tells_the_true_steps_from_noisy_ones():

@@ -224,6 +224,7 @@ class PolylineMapperNode(Node):
         self._last_diag = -math.inf
         self._diag_mark = (0, 0, 0)
         self._scan_arrivals = deque(maxlen=SCAN_ARRIVALS)   # monotonic s of the last scans
+        self._first_scan_at = None                          # monotonic s of the first
         self._stop = threading.Event()
         self._worker = threading.Thread(target=self._work, name='polyline_mapper_updates',
                                         daemon=True)
@@ -302,6 +303,8 @@ class PolylineMapperNode(Node):
 
     def _on_scan(self, msg: LaserScan) -> None:
         self._scan_arrivals.append(time.monotonic())
+        if self._first_scan_at is None:
+            self._first_scan_at = self._scan_arrivals[-1]
         if len(msg.intensities) not in (0, len(msg.ranges)):
             self.session.skip('bad scan', 'intensities', f'scan has {len(msg.ranges)} ranges '
                               f'but {len(msg.intensities)} intensities')
@@ -458,6 +461,13 @@ class PolylineMapperNode(Node):
             child, pose, why = self.session.scan_root(loc)
             if child is None:
                 self.warnings.warn('tf_frames', f'not broadcasting {frame} -> the laser: {why}')
+                return
+            if child == loc.scan_frame and time.monotonic() - self._first_scan_at < \
+                    self.settings.transform_timeout:
+                # The laser without a parent yet: its mount on /tf_static may still be on its
+                # way (discovery races the first scans). Broadcast as its parent, the laser would
+                # get two (REP 105: one); wait as a scan waits for its transforms.
+                self._localized = None
                 return
             self.tf_pub.publish(self._tf_message(transforms=[planar_transform_msg(
                 frame, child, time_msg(loc.stamp), pose)]))
