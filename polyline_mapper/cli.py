@@ -617,8 +617,10 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
                  if hasattr(args, 'scan_matching') else 'the poses (drifting odometry: '
                  'replay --scan-matching)']
     if args.pose_source == 'odom':
-        check.insert(0, "the laser's mount (--laser-mount: a laser facing backwards has yaw 180, "
-                        'one upside down flip)')
+        where = (f"{args.config}'s laser_x, laser_y, laser_yaw (rad), laser_upside_down, or "
+                 if getattr(args, 'mount_from_config', False) else '')
+        check.insert(0, f"the laser's mount ({where}--laser-mount: a laser facing backwards has "
+                        'yaw 180, one upside down flip)')
     if range_noise:
         check.append(f"range_noise ({range_noise:g}: the lidar's range error as a share of the "
                      'range; too high, it coarsens the map)')
