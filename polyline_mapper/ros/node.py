@@ -35,7 +35,8 @@ publishers matched on each input (``publishers_scan``, ``publishers_odom``, ``pu
 ``publishers_tf_static``: the middleware's matched event, so a publisher whose QoS cannot match
 is not counted); WARN when scan matching
 is lost (``mapping_status``), when scans came in since the last report but none could be used,
-or some were dropped. Each change in an input's matched publishers is logged.
+or some were dropped, when the scans stopped, and while localizing on a saved map from a wrong
+start (until a pose estimate or a reset). Each change in an input's matched publishers is logged.
 
 Services: ``~/reset`` and ``~/save_map`` (std_srvs/Trigger). Parameters: see ``params``.
 
