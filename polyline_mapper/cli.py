@@ -750,10 +750,10 @@ def _node_differs(args, session) -> list:
     tree's 'map' or root; the scan frame's mount on /tf_static); the node takes the
     parameters as they are: 'map', and (0, 0, 0) in odom mode.
     """
-    s = getattr(args, 'node_file', None)
-    s = None if s is None else s.settings
-    if s is None or args.config is None:
-        return []
+    nf = getattr(args, 'node_file', None)
+    if nf is None or nf.settings is None or not nf.states or args.config is None:
+        return []               # (a file of smemsf / incremental entries only says nothing)
+    s = nf.settings
     out = []
     found = session.fixed_frame
     if found and args.fixed_frame is None and found != s.fixed_frame:

@@ -191,6 +191,9 @@ class NodeFile(NamedTuple):
     """Names that are no parameter of the node, each with a hint (``params.unknown_params``)."""
     skipped: tuple = ()
     """Other nodes' blocks of the file, not read (a node under another name reads its own)."""
+    states: bool = False
+    """Whether the file (or ``--set``) gives any of the node's own parameters, even at its
+    default (a robot's file; not one of only ``smemsf`` / ``incremental`` entries)."""
 
 
 def read_node_file(path: str = None, overrides: dict = None, map_path: str = None) -> NodeFile:
@@ -246,7 +249,8 @@ def read_node_file(path: str = None, overrides: dict = None, map_path: str = Non
     names += [k for k in overrides if k not in names]
     live = tuple(f'{k}: {_yaml_text(given[k])}' for k in names
                  if k not in REPLAY_READS and k in given)
-    return NodeFile(settings, tuple(names), live, tuple(unknown_params(others)), tuple(skipped))
+    return NodeFile(settings, tuple(names), live, tuple(unknown_params(others)), tuple(skipped),
+                    bool(given or overrides))
 
 
 def _double_typed(spec, value, path: str) -> None:

@@ -150,6 +150,12 @@ def test_replay_names_typos_other_blocks_and_where_the_node_differs(tmp_path, ca
     assert len(err) == 2
     assert "maps in fixed_frame 'map' (the default), replay found 'odom'" in err[0]
     assert 'laser_x: 0.2, laser_y: 0, laser_yaw: 0' in err[1]
+    # a file of mapper entries only is no robot's file: nothing said of the node's frames
+    evidence = tmp_path / 'evidence.yaml'
+    evidence.write_text('/**:\n  ros__parameters:\n    incremental:\n'
+                        '      free_space_window: 0\n')
+    _replayed(main, tmp_path, 'evidence.json', 'sim:hall', '--config', str(evidence))
+    assert capsys.readouterr().err == ''
     odom.write_text('/**:\n  ros__parameters:\n    pose_source: odom\n    fixed_frame: odom\n'
                     '    laser_x: 0.2\n')
     same = _replayed(main, tmp_path, 'same.json', 'sim:hall', '--config', str(odom))
