@@ -559,21 +559,19 @@ def test_replay_pose_source_scan_from_the_command_line(tmp_path):
     assert np.sqrt(np.mean(np.sum((traj[:, 1:3] - truth[:, :2]) ** 2, axis=1))) < 0.05
 
 
-@pytest.mark.slow
-@pytest.mark.dds
-def test_the_node_maps_scans_alone(tmp_path):
-    # Over DDS: pose_source scan places the scans by themselves (no odometry; /tf and
-    # /tf_static only to learn where the laser hangs) and publishes a map whose walls, seen from
-    # the first scan's laser pose, are the world's; it broadcasts map -> base_link (the frame
-    # the laser's mount hangs from) at each matched pose, so RViz shows the scans and the robot.
+def _scan_mode_node(tmp_path, name: str) -> tuple:
+    """
+    Start the node with pose_source scan and a peer that keeps every map -> X it broadcasts.
+
+    Returns (the hall drive to play, node, peer, broadcast) once the node's inputs and map are
+    matched; the caller closes the peer and stops the node.
+    """
     pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
-    from polyline_mapper.ros.messages import transform_msg
     from polyline_mapper.ros.qos import TF_QOS
-    from rosnode import map_segments, NodeProcess, Peer, stamp_of
-    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    from rosnode import NodeProcess, Peer
     node = NodeProcess(tmp_path, {'pose_source': 'scan', 'map_publish_period': 0.0,
                                   'stats_period': 0.0})
-    peer = Peer('test_peer_scan_only')
+    peer = Peer(name)
     broadcast = []
     peer.node.create_subscription(
         peer.TFMessage, '/tf', lambda m: broadcast.extend(
@@ -583,6 +581,24 @@ def test_the_node_maps_scans_alone(tmp_path):
                                and peer.static_pub.get_subscription_count() > 0
                                and peer.node.count_publishers('/polyline_map') > 0, 60.0)
         peer.spin_for(0.5)
+    except BaseException:
+        peer.close()
+        node.stop()
+        raise
+    return make_drive('sim:hall,step=0.1,turn=0.1', 3), node, peer, broadcast
+
+
+@pytest.mark.slow
+@pytest.mark.dds
+def test_the_node_maps_scans_alone(tmp_path):
+    # Over DDS: pose_source scan places the scans by themselves (no odometry; /tf and
+    # /tf_static only to learn where the laser hangs) and publishes a map whose walls, seen from
+    # the first scan's laser pose, are the world's; it broadcasts map -> base_link (the frame
+    # the laser's mount hangs from) at each matched pose, so RViz shows the scans and the robot.
+    from polyline_mapper.ros.messages import transform_msg
+    from rosnode import map_segments, stamp_of
+    drive, node, peer, broadcast = _scan_mode_node(tmp_path, 'test_peer_scan_only')
+    try:
         assert peer.odom_pub.get_subscription_count() == 0
         messages = list(drive_messages(drive))
         static = [r for _, topic, r in messages if topic == '/tf_static']
@@ -629,23 +645,9 @@ def test_the_node_waits_for_the_lasers_mount_before_broadcasting_scans_alone(tmp
     # broadcast as map -> laser, the laser's root then, and once the mount came the laser had
     # two parents (base_link, map; REP 105: one). A scan waits for its transforms up to
     # transform_timeout; the broadcast of a laser without a parent does too.
-    pytest.importorskip('tf2_msgs.msg', reason='tf2_msgs is not built (run tools/dev.sh setup)')
     from polyline_mapper.ros.messages import transform_msg
-    from polyline_mapper.ros.qos import TF_QOS
-    from rosnode import NodeProcess, Peer
-    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
-    node = NodeProcess(tmp_path, {'pose_source': 'scan', 'map_publish_period': 0.0,
-                                  'stats_period': 0.0})
-    peer = Peer('test_peer_scan_race')
-    broadcast = []
-    peer.node.create_subscription(
-        peer.TFMessage, '/tf', lambda m: broadcast.extend(
-            t for t in m.transforms if t.header.frame_id == 'map'), TF_QOS)
+    drive, node, peer, broadcast = _scan_mode_node(tmp_path, 'test_peer_scan_race')
     try:
-        assert peer.spin_until(lambda: peer.scan_pub.get_subscription_count() > 0
-                               and peer.static_pub.get_subscription_count() > 0
-                               and peer.node.count_publishers('/polyline_map') > 0, 60.0)
-        peer.spin_for(0.5)
         messages = [m for m in drive_messages(drive) if m[1] in ('/scan', '/tf_static')]
         scans = [m for m in messages if m[1] == '/scan']
         static = [r for _, topic, r in messages if topic == '/tf_static']

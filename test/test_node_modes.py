@@ -128,25 +128,41 @@ def test_the_diagnostics_status_says_lost_first():
     assert level == 1 and message.startswith('no scan on /scan for 3.2 s (50 received before)')
 
 
+def _last_status(peer):
+    """
+    Subscribe ``peer`` to /diagnostics; return a function giving the newest status or None.
+
+    Its ``received`` attribute is the list of DiagnosticArray messages so far (to clear).
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    diags = []
+    peer.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+
+    def last():
+        status = [s for d in diags for s in d.status][-1:]
+        return status[0] if status else None
+    last.received = diags
+    return last
+
+
 def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
     # A laser driver that publishes best effort to a node told to subscribe reliably is never
     # matched: no scan arrives, and nothing but rclpy's one warning said why. The node now
     # counts the publishers matched on each input (the middleware's matched event), logs each
     # change and reports the count on /diagnostics, which also says what it is waiting for.
-    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import LaserScan
     node = NodeProcess(tmp_path, {'diagnostics_period': 0.2,
                                   'qos_overrides./scan.subscription.reliability': 'reliable'})
     peer = Peer('test_peer_qos')
     try:
-        diags = []
-        peer.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+        last = _last_status(peer)
+        diags = last.received
 
         def report():
             """Return the node's last (message, {key: value}) on /diagnostics, or None."""
-            status = [s for d in diags for s in d.status][-1:]
-            return status and (status[0].message, {kv.key: kv.value for kv in status[0].values})
+            status = last()
+            return status and (status.message, {kv.key: kv.value for kv in status.values})
         best_effort = peer.node.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
         assert peer.spin_until(lambda: node.lines('offering incompatible QoS'), TIMEOUT), \
             node.stderr()
@@ -219,16 +235,11 @@ def test_the_diagnostics_warn_when_the_scans_stop(office_drive, tmp_path):
     # A node audit: with the laser stopped (odometry still coming, the publisher still
     # matched) /diagnostics said OK 'mapping' for as long as it lasted, and nothing was
     # logged, while map -> odom, sent per scan, aged. Now WARN, and a warning in the log.
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from diagnostic_msgs.msg import DiagnosticStatus
     node = NodeProcess(tmp_path, {'diagnostics_period': 0.2})
     peer = Peer('test_peer_silence')
     try:
-        diags = []
-        peer.node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
-
-        def last():
-            status = [s for d in diags for s in d.status][-1:]
-            return status[0] if status else None
+        last = _last_status(peer)
         assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
         msgs = list(drive_messages(office_drive))
         scans = [i for i, (_, topic, _) in enumerate(msgs) if topic == '/scan']
