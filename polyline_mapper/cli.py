@@ -756,6 +756,11 @@ def _node_differs(args, session) -> list:
     s = nf.settings
     out = []
     found = session.fixed_frame
+    odom = session.poses.odom_frame
+    if args.scan_matching and odom is not None and odom == found:
+        out.append(f'{args.config}: with scan matching the map frame must be above the '
+                   f"odometry frame, and fixed_frame is the odometry's own ({odom!r}): the "
+                   f'node would broadcast no {odom} -> {odom} (tf_frames): set fixed_frame: map')
     if found and args.fixed_frame is None and found != s.fixed_frame:
         out.append(f'{args.config}: the node with this file maps in fixed_frame {s.fixed_frame!r}'
                    f' (the default), replay found {found!r}: add fixed_frame: {found} to the '
@@ -766,8 +771,9 @@ def _node_differs(args, session) -> list:
             found = session.poses.static_mount(frame)
             if found is not None and (max(abs(found[1].x), abs(found[1].y), abs(found[1].yaw))
                                       > 1e-6 or found[1].flip):
-                m = found[1]
-                mounts.add(f'laser_x: {m.x:.4g}, laser_y: {m.y:.4g}, laser_yaw: {m.yaw:.4g}'
+                m = found[1]        # as doubles (0.0, not 0: the node refuses integers)
+                mounts.add(f'laser_x: {float(m.x)!r}, laser_y: {float(m.y)!r}, '
+                           f'laser_yaw: {float(m.yaw)!r}'
                            + (', laser_upside_down: true' if m.flip else ''))
         if mounts:
             out.append(f'{args.config}: the node with this file (pose_source odom) places the '

@@ -149,7 +149,7 @@ def test_replay_names_typos_other_blocks_and_where_the_node_differs(tmp_path, ca
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2
     assert "maps in fixed_frame 'map' (the default), replay found 'odom'" in err[0]
-    assert 'laser_x: 0.2, laser_y: 0, laser_yaw: 0' in err[1]
+    assert 'laser_x: 0.2, laser_y: 0.0, laser_yaw: 0.0' in err[1]      # doubles, as the node
     # a file of mapper entries only is no robot's file: nothing said of the node's frames
     evidence = tmp_path / 'evidence.yaml'
     evidence.write_text('/**:\n  ros__parameters:\n    incremental:\n'
@@ -160,6 +160,11 @@ def test_replay_names_typos_other_blocks_and_where_the_node_differs(tmp_path, ca
                     '    laser_x: 0.2\n')
     same = _replayed(main, tmp_path, 'same.json', 'sim:hall', '--config', str(odom))
     assert capsys.readouterr().err == '' and same['segments'] == replayed['segments']
+    # with scan matching the map frame is above the odometry's: the node broadcasts nothing
+    odom.write_text(odom.read_text() + '    scan_matching: true\n')
+    _replayed(main, tmp_path, 'matched.json', 'sim:hall', '--config', str(odom))
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and "fixed_frame is the odometry's own ('odom')" in err
 
 
 def test_replay_set_overrides_the_node_parameters_of_its_config_file(tmp_path, capsys):

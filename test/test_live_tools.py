@@ -351,6 +351,10 @@ def test_record_map_keeps_the_planner_map_of_the_map_frame_only():
     assert saved['width'] == 6 and saved['height'] == 4 and saved['origin'] == [-0.5, -0.75]
     recorder._on_grid(grid_to_msg(grid, 'map', Time(sec=5)))
     assert recorder.grid_current() and np.array_equal(recorder.grid().data, cells)
+    # the message's float32 resolution is stored as the node's ~/save_map stores it (an audit:
+    # 0.05000000074505806, then in the map_server YAML of export)
+    recorder._on_grid(grid_to_msg(GridMap(cells, 0.05, (-0.5, -0.75)), 'map', Time(sec=6)))
+    assert recorder.to_dict()['grid']['resolution'] == 0.05
     quiet = MapRecorder(Node(), grid_topic='')
     quiet._on_map(map_to_msg(value, 'map', Time(sec=5)))
     assert 'grid' not in quiet.to_dict() and 'grid_topic' not in quiet.to_value().stats

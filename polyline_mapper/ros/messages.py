@@ -245,7 +245,9 @@ def grid_to_msg(grid: GridMap, frame_id: str, stamp) -> OccupancyGrid:
 def grid_from_msg(msg: OccupancyGrid) -> GridMap:
     """Return a nav_msgs/OccupancyGrid as a GridMap (its orientation is taken as identity)."""
     data = np.asarray(msg.data, dtype=np.int8).reshape(msg.info.height, msg.info.width)
-    return GridMap(data, float(msg.info.resolution),
+    # The message's float32 as its shortest decimal (0.05, not 0.05000000074505806: what
+    # ~/save_map stores and map_server's YAML then says)
+    return GridMap(data, float(str(np.float32(msg.info.resolution))),
                    (float(msg.info.origin.position.x), float(msg.info.origin.position.y)))
 
 

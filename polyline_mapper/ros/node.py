@@ -226,6 +226,7 @@ class PolylineMapperNode(Node):
         self._diag_mark = (0, 0, 0)
         self._scan_arrivals = deque(maxlen=SCAN_ARRIVALS)   # monotonic s of the last scans
         self._first_scan_at = None                          # monotonic s of the first
+        self._silence_said = False                          # this stop of the scans logged
         self._stop = threading.Event()
         self._worker = threading.Thread(target=self._work, name='polyline_mapper_updates',
                                         daemon=True)
@@ -521,8 +522,9 @@ class PolylineMapperNode(Node):
                                         self.resolve_topic_name('scan'), st['scans_used'],
                                         self.publishers_matched.get('scan'), silent,
                                         p.wrong_start)
-        if silent is not None:
-            self.warnings.warn('scans_stopped', message)
+        if silent is not None and not self._silence_said:
+            self.warnings.warn('scans_stopped', message)    # once a stop (counted once)
+        self._silence_said = silent is not None
         sigma = p.mapper.sigma or 0.0
         r = (p.mapper.r or 0.0) if sigma else 0.0
         # the noise scale to 9 digits, not the 3 decimals of the other floats: record-map
@@ -619,7 +621,8 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     """
     if silent is not None and total:
         return 1, (f'no scan on {topic} for {silent:.1f} s ({total} received before): has the '
-                   'laser or its driver stopped? The map and map -> odom are not updated')
+                   'laser or its driver stopped? Nothing is mapped (nor, with scan matching, '
+                   'map -> odom sent) until scans come again')
     if wrong_start is not None:
         return 1, (f'localizing on the saved map from a wrong place: {100 * wrong_start:.0f} % '
                    "of the first scans' beams pass through its walls; the poses, map -> odom "
