@@ -54,7 +54,9 @@ def test_odom_mode_with_an_upside_down_laser(office_drive, tmp_path):
         assert msg.header.frame_id == 'odom'
         stray, worst = wall_errors(map_segments(msg), office_drive)
         assert stray <= 0.15 and worst <= 0.15, (stray, worst)
-        assert not node.lines('WARN'), node.stderr()[-2000:]
+        # (the drive's end may be warned of by now: scans_stopped, test_node.py)
+        assert not [ln for ln in node.lines('WARN') if '[scans_stopped]' not in ln], \
+            node.stderr()[-2000:]
     finally:
         peer.close()
         assert node.stop() == 0
