@@ -1227,13 +1227,17 @@ class PoseSource:
         without ``mount``); None when the frame has no static parent or the mount cannot be
         placed in the plane.
         """
-        top = frame
+        top, seen = frame, {frame}
         while top in self._static and top in self._parents:
             top = self._parents[top]
+            if top in seen:
+                return None         # static transforms in a loop (a hostile recording)
+            seen.add(top)
         if top == frame:
             return None
         try:
-            return top, self.buffer.lookup_planar(top, frame, self.latest, math.inf)
+            stamp = self.latest if math.isfinite(self.latest) else 0.0     # (static: any)
+            return top, self.buffer.lookup_planar(top, frame, stamp, math.inf)
         except (TransformLookupError, ValueError):
             return None
 

@@ -235,3 +235,20 @@ def test_planar_pose_helpers():
     assert np.array_equal(p.xyz, [1.0, 2.0, 0.5])
     assert np.array_equal(p.beam_angles([0.1, -0.2]), [-0.1, 0.2])
     assert np.array_equal(PlanarPose(0, 0, 0).beam_angles([0.1]), [0.1])
+
+
+def test_static_mount_is_the_lasers_pose_under_the_frame_its_static_transforms_hang_from():
+    # replay --config compares it with the node's laser_* (odom mode): the mount replay took
+    # from /tf_static, in any mode, before any dynamic transform (odom mode has none on /tf).
+    from polyline_mapper.core.geometry import se2_compose
+    from polyline_mapper.formats.records import Transform
+    from polyline_mapper.session import PoseSource, SessionOptions
+    ps = PoseSource(SessionOptions(pose_source='odom'))
+    for parent, child, xy, yaw in (('base_link', 'plate', (0.2, 0.1), 0.5),
+                                   ('plate', 'laser', (0.05, 0.0), -0.25)):
+        ps.add(Transform(1.0, parent, child, np.array([*xy, 0.3]),
+                         quaternion_from_yaw(yaw), True))
+    top, pose = ps.static_mount('laser')
+    want = se2_compose(np.array([0.2, 0.1, 0.5]), np.array([0.05, 0.0, -0.25]))
+    assert top == 'base_link' and np.allclose([pose.x, pose.y, pose.yaw], want)
+    assert ps.static_mount('base_link') is None and ps.static_mount('unknown') is None
