@@ -260,12 +260,7 @@ def _fit_node_warnings(path: str) -> list:
         out.append(f'{path}: node parameters not used by fit (it places scans by its own '
                    f'flags: --pose-source, --laser-mount, ...; replay --config takes them): '
                    f'{", ".join(placed)}')
-    if nf.live_only:
-        out.append(f'{path}: live node parameters, not used by fit: {", ".join(nf.live_only)}')
-    if nf.unknown:
-        out.append(f'{path}: parameters the node does not have, not used: '
-                   f'{", ".join(nf.unknown)}')
-    return out
+    return out + _node_file_warnings(nf, path, 'fit')
 
 
 def cmd_fit(args) -> int:
@@ -724,19 +719,23 @@ def _node_file(args, node_sets: dict) -> None:
     args.session_extra, args.from_config, args.node_file = extra, taken, nf
 
 
-def _node_file_warnings(args) -> list:
-    """Return the one-line warnings on ``--config``'s node parameters (``args.node_file``)."""
+def _node_file_warnings(nf, where: str, tool: str) -> list:
+    """
+    Return the one-line warnings on a parameter file's node parameters (``config.NodeFile``).
+
+    Names the node does not have, the live node's own parameters ``tool`` does not use, and
+    other nodes' blocks; ``where``: the file (or '--set').
+    """
     from .params import NODE_NAME
-    nf, where = args.node_file, args.config or '--set'
     out = []
     if nf.unknown:
         out.append(f'{where}: parameters the node does not have, not used: '
                    f'{", ".join(nf.unknown)}')
     if nf.live_only:
-        out.append(f'{where}: live node parameters, not used by replay: '
+        out.append(f'{where}: live node parameters, not used by {tool}: '
                    f'{", ".join(nf.live_only)}')
     if nf.skipped:
-        out.append(f'{where}: blocks of other nodes not read: {", ".join(nf.skipped)} (replay '
+        out.append(f'{where}: blocks of other nodes not read: {", ".join(nf.skipped)} ({tool} '
                    f'reads {NODE_NAME} and /**; for a node under another name, key its block '
                    'so)')
     return out
@@ -768,10 +767,10 @@ def _node_differs(args, session) -> list:
     if args.pose_source == 'odom' == s.pose_source and args.laser_mount is None:
         mounts = set()
         for frame in session.scan_frames:
-            found = session.poses.static_mount(frame)
-            if found is not None and (max(abs(found[1].x), abs(found[1].y), abs(found[1].yaw))
-                                      > 1e-6 or found[1].flip):
-                m = found[1]        # as doubles (0.0, not 0: the node refuses integers)
+            under = session.poses.static_mount(frame)
+            m = None if under is None else under[1]
+            if m is not None and (max(abs(m.x), abs(m.y), abs(m.yaw)) > 1e-6 or m.flip):
+                # as doubles (0.0, not 0: the node refuses integers)
                 mounts.add(f'laser_x: {float(m.x)!r}, laser_y: {float(m.y)!r}, '
                            f'laser_yaw: {float(m.yaw)!r}'
                            + (', laser_upside_down: true' if m.flip else ''))
@@ -790,7 +789,7 @@ def cmd_replay(args) -> int:
         _node_file(args, node_sets)
     except ValueError as exc:           # ConfigError: one line naming the file
         raise CliError(str(exc)) from None
-    for line in _node_file_warnings(args):
+    for line in _node_file_warnings(args.node_file, args.config or '--set', 'replay'):
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     check_outputs([args.output, args.plot], [args.input, args.config, args.map])
     _suffixes(args.output, args.plot)

@@ -1014,42 +1014,7 @@ class PoseSource:
             if self.options.mount is not None:
                 frame = MOUNT_FRAME
         elif self.localizer:
-            chain = self._chain(frame)
-            if self.options.odom_frame and self.options.odom_frame not in chain:
-                raise TransformLookupError(
-                    'no_tf', f'frame {frame!r} does not reach odom_frame '
-                    f'{self.options.odom_frame!r} (its tree goes up to {chain[-1]!r})')
-            if self.odom_frame in chain:
-                # The odometry frame, given or found (the root) once, stays it: a frame
-                # another node later puts above it (a second robot's localizer) is not ours.
-                chain = chain[:chain.index(self.odom_frame) + 1]
-            target = chain[-1]
-            if target in self._parents:
-                raise TransformLookupError(
-                    'tf_frames', f'the odometry frame {target!r} has the parent '
-                    f'{self._parents[target]!r} on /tf: {self.fixed_frame} -> {target} would '
-                    f'give it a second one. Put {self.fixed_frame!r} under '
-                    f'{self._parents[target]!r} instead'
-                    + ('' if self.options.odom_frame else ", or set odom_frame (the robot's "
-                       'own odometry frame)'))
-            if target in self._under_fixed and self._static.issuperset(chain[:-1]):
-                self._wrong_chain = chain       # its held warning is said (``held_notes``)
-                raise TransformLookupError(
-                    'tf_frames', f'frame {frame!r} moves only through the ignored transform '
-                    f'{self.fixed_frame} -> {target}: with scan matching fixed_frame must be a '
-                    'map frame above the odometry frame')
-            if self._static.issuperset(chain[:-1]):
-                # The odometry transform (odom -> base_link) has not come yet: the root is the
-                # robot itself. Taken as the odometry frame, it was localized as one, and when
-                # the odometry came map -> base_link gave base_link a second parent (a node
-                # whose odometry driver started 1 s after the laser: 4.6 m off all run).
-                raise TransformLookupError(
-                    'no_tf', f'frame {frame!r} reaches {target!r} only through static '
-                    'transforms: scan matching localizes the odometry frame, and no odometry '
-                    f'transform ({target!r} in it) has come yet (odometry only as '
-                    'nav_msgs/Odometry, no odom -> base_link on /tf: pose_source odom; no '
-                    'odometry at all: pose_source scan)')
-            self.base_frame = chain[-2]
+            target = self._odometry_target(frame)
         else:
             target = self.fixed_frame or self._default_fixed(frame)
             if self.options.scan_matching and self.fixed_frame is None and target != 'map':
@@ -1057,16 +1022,8 @@ class PoseSource:
                 # its root as the odometry drifts, so the map is 'map' above it (REP 105), as
                 # in odom mode and the node's; the root is then the odometry frame.
                 self.localizer, self.fixed_frame = True, 'map'
-                chain = self._chain(frame)
-                odom = self.options.odom_frame
-                if odom and odom not in chain:      # (as the localizer's branch above)
-                    raise TransformLookupError(
-                        'no_tf', f'frame {frame!r} does not reach odom_frame {odom!r} (its '
-                        f'tree goes up to {chain[-1]!r})')
-                if odom:
-                    chain = chain[:chain.index(odom) + 1]
-                    target = odom
-                self.base_frame = chain[-2]
+                self.odom_frame = self.options.odom_frame or None
+                target = self._odometry_target(frame)
         pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
                                          self.options.tolerance if tolerance is None
                                          else tolerance)
@@ -1218,6 +1175,53 @@ class PoseSource:
         pose = self.buffer.lookup_planar(target, source, stamp, self.options.tolerance)
         self._last_lookup = (key, pose)
         return pose
+
+    def _odometry_target(self, frame: str) -> str:
+        """
+        Return the odometry frame to look ``frame`` up in (localizer, tf mode); set base_frame.
+
+        The top of ``frame``'s chain, or ``odom_frame`` (given, or found once) on it. Raises
+        TransformLookupError when a given ``odom_frame`` is not on the chain, when that frame
+        already has a parent on /tf, or when the chain reaches it through static transforms
+        only (no odometry yet).
+        """
+        chain = self._chain(frame)
+        if self.options.odom_frame and self.options.odom_frame not in chain:
+            raise TransformLookupError(
+                'no_tf', f'frame {frame!r} does not reach odom_frame '
+                f'{self.options.odom_frame!r} (its tree goes up to {chain[-1]!r})')
+        if self.odom_frame in chain:
+            # The odometry frame, given or found (the root) once, stays it: a frame
+            # another node later puts above it (a second robot's localizer) is not ours.
+            chain = chain[:chain.index(self.odom_frame) + 1]
+        target = chain[-1]
+        if target in self._parents:
+            raise TransformLookupError(
+                'tf_frames', f'the odometry frame {target!r} has the parent '
+                f'{self._parents[target]!r} on /tf: {self.fixed_frame} -> {target} would '
+                f'give it a second one. Put {self.fixed_frame!r} under '
+                f'{self._parents[target]!r} instead'
+                + ('' if self.options.odom_frame else ", or set odom_frame (the robot's "
+                   'own odometry frame)'))
+        if target in self._under_fixed and self._static.issuperset(chain[:-1]):
+            self._wrong_chain = chain       # its held warning is said (``held_notes``)
+            raise TransformLookupError(
+                'tf_frames', f'frame {frame!r} moves only through the ignored transform '
+                f'{self.fixed_frame} -> {target}: with scan matching fixed_frame must be a '
+                'map frame above the odometry frame')
+        if self._static.issuperset(chain[:-1]):
+            # The odometry transform (odom -> base_link) has not come yet: the root is the
+            # robot itself. Taken as the odometry frame, it was localized as one, and when
+            # the odometry came map -> base_link gave base_link a second parent (a node
+            # whose odometry driver started 1 s after the laser: 4.6 m off all run).
+            raise TransformLookupError(
+                'no_tf', f'frame {frame!r} reaches {target!r} only through static '
+                'transforms: scan matching localizes the odometry frame, and no odometry '
+                f'transform ({target!r} in it) has come yet (odometry only as '
+                'nav_msgs/Odometry, no odom -> base_link on /tf: pose_source odom; no '
+                'odometry at all: pose_source scan)')
+        self.base_frame = chain[-2]
+        return target
 
     def static_mount(self, frame: str) -> Optional[tuple]:
         """
