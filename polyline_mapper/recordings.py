@@ -39,7 +39,7 @@ import numpy as np
 
 from .core.register import ODOMETRY_NOISE
 from .formats.bag import BAG_SUFFIXES
-from .formats.records import Odometry, Scan
+from .formats.records import f32, Odometry, Scan
 from .poses import mount_quaternion, planar_transform, se2_compose, se2_inverse
 
 KINDS = ('points', 'carmen', 'bag', 'sim')
@@ -389,10 +389,13 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
     spec = drive.spec
     stamps = start + np.asarray(drive.stamps, dtype=np.float64)
     laser_frame = options.get('frames', FRAMES)[3]
-    extra = ({'time_increment': drive.time_increment, 'scan_time': drive.scan_time}
+    # The LaserScan fields at float32, as a bag or the node holds them, so that a drive
+    # replayed directly maps as the same drive played or recorded.
+    extra = ({'time_increment': f32(drive.time_increment), 'scan_time': f32(drive.scan_time)}
              if drive.time_increment > 0 else {})
-    scans = (Scan(t, laser_frame, spec.angle_min, spec.angle_increment, spec.range_min,
-                  spec.range_max, np.asarray(ranges, dtype=np.float32), **extra)
+    scans = (Scan(t, laser_frame, f32(spec.angle_min), f32(spec.angle_increment),
+                  f32(spec.range_min), f32(spec.range_max), np.asarray(ranges, dtype=np.float32),
+                  **extra)
              for t, ranges in zip(stamps.tolist(), drive.ranges))
     laser = drive.poses
     if odom_drift is not None and odometry is not None:
