@@ -249,14 +249,15 @@ def piece_pairs(p: Pairs, parent: np.ndarray, start: np.ndarray, length: np.ndar
 
 def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex = None,
                      radius: float = 0.5, chunk: int = 4_000_000,
-                     segment_chunk: int = 2000) -> tuple:
+                     segment_chunk: int = 2000, point_chunk: int = 100_000) -> tuple:
     """
     Exact distance from every point to its nearest segment.
 
     Points within ``radius`` of some segment are resolved through the index, ``segment_chunk``
     segments per query (so a map of many overlapping segments cannot make one query's pair list
     exhaust memory); the rest (usually few) are compared with every segment, in chunks of at
-    most ``chunk`` point-segment pairs.
+    most ``chunk`` point-segment pairs. More than ``point_chunk`` points are resolved that many
+    at a time (``index`` is then not used), so memory is bounded whatever the point count.
 
     Returns
     -------
@@ -268,6 +269,16 @@ def nearest_distance(points: np.ndarray, segments: np.ndarray, index: PointIndex
     dist = np.full(n, np.inf)
     nearest = np.full(n, -1, dtype=np.intp)
     if len(segments) == 0 or n == 0:
+        return dist, nearest
+    if n > point_chunk:
+        # The pairs within ``radius`` of a cluttered map are many per point (about 1 kB a point
+        # on fr079: 1.9 GB for its 1.7 M points at once); a chunk of points at a time bounds
+        # them. Each point's distance is its own, so the chunks give the same distances.
+        points = as_points(points)
+        for p0 in range(0, n, point_chunk):
+            dist[p0:p0 + point_chunk], nearest[p0:p0 + point_chunk] = nearest_distance(
+                points[p0:p0 + point_chunk], segments, None, radius, chunk, segment_chunk,
+                point_chunk)
         return dist, nearest
     index = index if index is not None else PointIndex(points)
     for s0 in range(0, len(segments), segment_chunk):
