@@ -26,6 +26,7 @@ import zlib
 from conftest import noisy_line
 import numpy as np
 from polyline_mapper.cli import main
+from polyline_mapper.formats.mapjson import read_map
 import pytest
 
 CLI = [sys.executable, '-m', 'polyline_mapper.cli']
@@ -494,6 +495,30 @@ def test_a_hostile_map_json_is_one_line(ws, capsys, case, command):
     assert code == 2
     assert_one_line(err, needle)
     assert snapshot(ws['dir']) == before
+
+
+@pytest.mark.parametrize('jitter', [0.0, 4e-4])
+def test_a_map_of_one_segment_repeated_reads_without_stalling(tmp_path, jitter):
+    # A new-user audit: 20000 copies of one segment (840 kB) took 47 s to export and a copy of a
+    # real map repeated 2000 times did not finish: each copy's edge was looked up among all the
+    # copies. The copies, exact or within the 1 mm tolerance and walked backwards, are one edge
+    # each; a subprocess with a timeout stands for a user who would give up.
+    k = 50_000
+    rng = np.random.default_rng(3)
+    segs = np.array([0.0, 0.0, 1.0, 0.0]) + rng.uniform(-jitter, jitter, (k, 4))
+    path = tmp_path / 'copies.json'
+    path.write_text(_map(segments=segs.tolist(), polylines=segs[:, [2, 3, 0, 1]].reshape(
+        k, 2, 2).tolist(), closed=[False] * k, support=[5.0] * k))
+    out = tmp_path / 'copies.csv'
+    done = subprocess.run(CLI + ['export', str(path), '-o', str(out)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert len(out.read_text().splitlines()) == k + 1          # a header and every copy
+    # One copy too many for the edges is still refused.
+    path.write_text(_map(segments=segs.tolist(), polylines=segs[1:, [2, 3, 0, 1]].reshape(
+        k - 1, 2, 2).tolist() + [[[5, 5], [6, 5]]], closed=[False] * k, support=[5.0] * k))
+    with pytest.raises(ValueError, match='is no polyline edge'):
+        read_map(str(path))
 
 
 def test_export_never_writes_infinity_or_nan(tmp_path):

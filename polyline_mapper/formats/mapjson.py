@@ -389,6 +389,21 @@ def _edges(polylines: list, closed: list) -> np.ndarray:
     return np.concatenate(rows) if rows else np.zeros((0, 4))
 
 
+EDGE_CANDIDATES = 32
+"""``check_edges``: how many of the nearest edges a repeated segment may take the first free of."""
+
+
+def _canonical(rows: np.ndarray) -> np.ndarray:
+    """Return (N, 4) rows x1, y1, x2, y2, each with its lexicographically lower end first."""
+    swap = (rows[:, 0] > rows[:, 2]) | ((rows[:, 0] == rows[:, 2]) & (rows[:, 1] > rows[:, 3]))
+    return np.where(swap[:, None], rows[:, [2, 3, 0, 1]], rows)
+
+
+def _row_order(rows: np.ndarray) -> np.ndarray:
+    """Return the lexicographic order of (N, 4) rows."""
+    return np.lexsort(rows.T[::-1])
+
+
 def check_edges(segments, polylines: list, closed: list) -> None:
     """
     Check that the polylines' edges are the segments, one edge each, in any order or direction.
@@ -412,25 +427,34 @@ def check_edges(segments, polylines: list, closed: list) -> None:
                          f'for {len(segs)} segments (each segment must be one polyline edge)')
     if not len(segs):
         return
+    # Most files (every one this package writes) hold the edges themselves: the same rows,
+    # sorted alike once each is put end-first, match one for one, repeated rows included.
+    a, b = _canonical(segs), _canonical(edges)
+    if np.abs(a[_row_order(a)] - b[_row_order(b)]).max() <= EDGE_TOLERANCE:
+        return
+    # Else each segment, in file order, takes the nearest edge still free within reach among
+    # the ``EDGE_CANDIDATES`` nearest distinct ones. The k-d tree holds distinct rows only:
+    # thousands of identical copies in one leaf made every query scan all of them.
     n = len(edges)
     both = np.vstack([edges, edges[:, [2, 3, 0, 1]]])     # either direction
-    tree = cKDTree(both)
-    dist, idx = tree.query(segs, p=np.inf, distance_upper_bound=EDGE_TOLERANCE)
-    found = np.isfinite(dist)
-    edge = np.where(found, idx % n, -1)
-    owner = np.full(n, -1, dtype=np.intp)                # the segment each edge is
-    ks = np.flatnonzero(found)
-    nearest, first = np.unique(edge[ks], return_index=True)
-    owner[nearest] = ks[first]
-    # An edge nearest to several segments (a segment repeated in the file) is the first one's;
-    # the others take the nearest edge left within reach, if any.
-    for k in ks[owner[edge[ks]] != ks]:
-        near = np.asarray(tree.query_ball_point(segs[k], EDGE_TOLERANCE, p=np.inf), np.intp)
-        near = near[owner[near % n] < 0]
-        if len(near):
-            owner[near[np.argmin(np.abs(both[near] - segs[k]).max(axis=1))] % n] = k
-        else:
-            found[k] = False
+    rows, inv = np.unique(both, axis=0, return_inverse=True)
+    slots = np.argsort(inv.reshape(-1), kind='stable') % n     # each row's edges, grouped
+    ends = np.cumsum(np.bincount(inv.reshape(-1), minlength=len(rows)))
+    nxt = ends - np.bincount(inv.reshape(-1), minlength=len(rows))   # next slot to try
+    _, cand = cKDTree(rows).query(segs, k=min(EDGE_CANDIDATES, len(rows)), p=np.inf,
+                                  distance_upper_bound=EDGE_TOLERANCE)
+    cand = cand.reshape(len(segs), -1)
+    taken = np.zeros(n, dtype=bool)
+    found = np.zeros(len(segs), dtype=bool)
+    for k, near in enumerate(cand.tolist()):
+        for r in near:
+            if r >= len(rows):
+                break
+            while nxt[r] < ends[r] and taken[slots[nxt[r]]]:
+                nxt[r] += 1
+            if nxt[r] < ends[r]:
+                taken[slots[nxt[r]]] = found[k] = True
+                break
     if not found.all():
         k = int(np.argmin(found))
         x1, y1, x2, y2 = segs[k]
