@@ -20,8 +20,8 @@ finer cell test over the buffer's points (``index.near_points``) keeps the *acti
 within ``REFIT_REACH`` (2) reaches of a point, where the reach is the merge reach plus kappa sigma
 plus ``margin``. So a wall seen again after a loop meets its old segments in the same fit, and
 merging examines every pair of the active set, as batch does, so they join instead of doubling.
-Segments outside stay exactly as they are. Memory is the map plus the buffer of the last
-``buffer_scans`` scans: no point is kept longer.
+Segments outside stay exactly as they are. Memory is the map plus the buffer of the points of
+the last ``buffer_scans`` updates: no point is kept longer.
 
 Free-space clearing (``clear_max_length``): a segment in the map keeps itself alive through its
 virtual points, so a person who stood still for a few scans, or a door since opened, would stay in
@@ -156,7 +156,8 @@ class IncrementalConfig:
     """Tunables of the incremental mapper (lengths in metres)."""
 
     buffer_scans: int = 3
-    """Scans whose points take part in each update (k)."""
+    """Updates whose points take part in each update (k): the last k ``update`` calls' scans
+    (k scans with the node's ``update_every_n_scans`` 1, N x k with N)."""
     iterations: int = 1
     """SMEMSF iterations per update."""
     margin: float = 0.0
