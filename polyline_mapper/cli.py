@@ -887,6 +887,8 @@ def _register(path: str, args):
         print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     if res.used == 0:
         raise CliError(f'{path}: {res.nothing_mapped()}')
+    for line in res.skip_lines():       # as replay says them: scans left out of the points
+        print(f'polyline-mapper: warning: {line}', file=sys.stderr)
     return res
 
 

@@ -1,5 +1,6 @@
 """Bag reading: rosbag2 sqlite3 / mcap (folder or file) and ROS 1, topics, damaged bags."""
 
+from dataclasses import replace
 import os
 import sqlite3
 import sys
@@ -273,3 +274,29 @@ def test_a_metadata_yaml_nested_too_deeply_is_one_line(tmp_path, drive, capsys):
         rc, err = run_cli(capsys, argv + ['-q'])
         assert_one_line_error(rc, err, 'deep: cannot open the bag (RecursionError')
     assert not out.exists()
+
+
+def test_fit_and_plot_of_a_bag_say_which_scans_they_left_out_as_replay_does(tmp_path, drive,
+                                                                            capsys):
+    # A new-user audit: `fit BAG` of a bag whose later scans name a frame without transforms
+    # exited 0 with the points of half the scans and no word on the rest; replay warned.
+    def renamed(messages):
+        for topic, record, t in messages:
+            if topic == '/scan' and t > drive.stamps[len(drive.stamps) // 2]:
+                record = replace(record, frame_id='nowhere')
+            yield topic, record, t
+
+    bag = write_bag(tmp_path / 'half', renamed(drive_messages(drive)))
+    left_out = int(np.sum(drive.stamps + 0.001 > drive.stamps[len(drive.stamps) // 2]))
+    words = f"skipped {left_out} scan(s)/message(s): no pose: unknown_frame, e.g. frame "
+    said = {}
+    for command in ('replay', 'fit'):
+        out = tmp_path / f'{command}.json'
+        rc, err = run_cli(capsys, [command, bag, '-o', str(out), '-q'])
+        assert rc == 0 and words in err, err
+        said[command] = [line for line in err.splitlines() if 'skipped' in line]
+    assert said['fit'] == said['replay']
+    rc, err = run_cli(capsys, ['plot', str(tmp_path / 'replay.json'), '--points', bag, '-o',
+                               str(tmp_path / 'p.png'), '-q'])
+    assert rc == 0 and words in err, err
+
