@@ -19,8 +19,8 @@ pose). ``open_recording`` opens a log, a bag or a drive as a ``Recording``: time
 ``(log_time, topic, record)``, ``record`` being a ``Scan``, an ``Odometry``, a list of
 ``Transform`` (one TFMessage) or, for a bag message that does not decode, a ``Skipped``
 (``formats.records``). Only what the mapper uses is kept: other topics of a bag, and the
-LaserScan fields the records do not hold (intensities, angle_max, which the other fields give)
-and Odometry's twist and covariances, are not.
+LaserScan fields the records do not hold (intensities) and Odometry's twist and covariances,
+are not.
 
 One message order for every kind, the one a robot records and ``polyline-mapper convert``
 writes: /tf_static with the laser mount first, then per scan /tf (map -> odom, odom ->

@@ -12,6 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 FULL_TURN = 2.0 * np.pi
+
+ANGLE_MAX_SLACK = 1.5
+"""``check_scan``: increments the last beam may lie from angle_max (drivers put angle_max at
+the last beam, or one increment on at the end of its sector)."""
 """A scan's beams span at most this (radians), within half an increment; more is malformed."""
 
 
@@ -116,14 +120,19 @@ class ScanArrays:
 
 def check_scan(ranges, angle_min: float, angle_increment: float, range_min: float,
                range_max: float, intensities: int = 0, stamp: float = 0.0, frame_id: str = '',
-               header=None) -> ScanArrays:
+               header=None, angle_max: float = None) -> ScanArrays:
     """
     Check a LaserScan's content and return it as arrays.
 
     ``intensities`` is the length of the intensities array (0 or the number of ranges).
+    ``angle_max`` (None: not checked): the message's; the last beam, at angle_min + (n - 1) x
+    angle_increment, must lie within ``ANGLE_MAX_SLACK`` increments of it, or the ranges do
+    not fit the angles (a driver that lists more or fewer ranges than its angles say, or an
+    increment of the wrong sign).
     Raises ScanError with cause ``empty_scan``, ``angle_increment`` (not finite, zero, or
-    beams spanning more than a full turn), ``intensities``, ``range_limits`` or
-    ``no_valid_ranges`` (every reading NaN, inf or out of range).
+    beams spanning more than a full turn), ``angle_min`` (beyond two turns from 0),
+    ``angle_max``, ``intensities``, ``range_limits``
+    or ``no_valid_ranges`` (every reading NaN, inf or out of range).
     """
     r = np.asarray(ranges, dtype=np.float64).ravel()
     n = r.size
@@ -139,6 +148,16 @@ def check_scan(ranges, angle_min: float, angle_increment: float, range_min: floa
         raise ScanError('angle_increment', f'scan of {n} beams at angle_increment '
                         f'{angle_increment} spans {abs(angle_increment) * (n - 1):.3f} rad, '
                         f'more than a full turn (the ranges do not fit the angles)')
+    if abs(angle_min) > 2 * FULL_TURN:
+        raise ScanError('angle_min', f'scan has angle_min {angle_min} rad (a beam angle is '
+                        f'within two turns: +-{2 * FULL_TURN:.4f})')
+    if angle_max is not None and n > 1 and np.isfinite(angle_max):
+        last = angle_min + angle_increment * (n - 1)
+        if abs(last - angle_max) > ANGLE_MAX_SLACK * abs(angle_increment) + 1e-6:
+            raise ScanError('angle_max', f'scan of {n} beams from angle_min {angle_min:.6g} at '
+                            f'angle_increment {angle_increment:.6g} ends at {last:.6g} rad, '
+                            f'but its angle_max is {angle_max:.6g} (the ranges do not fit the '
+                            f'angles)')
     if intensities not in (0, n):
         raise ScanError('intensities', f'scan has {n} ranges but {intensities} intensities')
     if not (np.isfinite(range_min) and range_min >= 0 and not np.isnan(range_max)

@@ -288,7 +288,7 @@ def test_fit_and_plot_of_a_bag_say_which_scans_they_left_out_as_replay_does(tmp_
 
     bag = write_bag(tmp_path / 'half', renamed(drive_messages(drive)))
     left_out = int(np.sum(drive.stamps + 0.001 > drive.stamps[len(drive.stamps) // 2]))
-    words = f"skipped {left_out} scan(s)/message(s): no pose: unknown_frame, e.g. frame "
+    words = f'skipped {left_out} scan(s)/message(s): no pose: unknown_frame, e.g. frame '
     said = {}
     for command in ('replay', 'fit'):
         out = tmp_path / f'{command}.json'
@@ -300,3 +300,25 @@ def test_fit_and_plot_of_a_bag_say_which_scans_they_left_out_as_replay_does(tmp_
                                str(tmp_path / 'p.png'), '-q'])
     assert rc == 0 and words in err, err
 
+
+def test_a_bag_whose_ranges_do_not_fit_angle_max_is_refused_scan_by_scan(tmp_path, drive,
+                                                                         capsys):
+    # A driver that lists twice the ranges its angles hold (360 for a 180-degree scan, say:
+    # angle_max says where they end) mapped without a word to 16 cm mean distance; each such
+    # scan is now a bad scan, named.
+    def doubled(messages):
+        for topic, record, t in messages:
+            if topic == '/scan':
+                half = record.angle_increment * (len(record.ranges) - 1) / 2
+                record = replace(record, angle_max=record.angle_min + half)
+            yield topic, record, t
+
+    good = write_bag(tmp_path / 'good', drive_messages(drive))
+    with BagReader(good) as reader:
+        scans = [r for r in reader.records() if isinstance(r, Scan)]
+    assert scans and all(s.angle_max == pytest.approx(s.angle_min + s.angle_increment
+                                                      * (len(s.ranges) - 1)) for s in scans)
+    bad = write_bag(tmp_path / 'doubled', doubled(drive_messages(drive)))
+    rc, err = run_cli(capsys, ['replay', bad, '-o', str(tmp_path / 'm.json'), '-q'])
+    assert_one_line_error(rc, err, f'{len(drive.stamps)} bad scan: angle_max',
+                          'the ranges do not fit the angles')

@@ -58,6 +58,13 @@ def causes(warned):
     ({'intensities': 4}, 'intensities'),
     ({'range_min': 5.0, 'range_max': 1.0}, 'range_limits'),
     ({'range_max': np.nan}, 'range_limits'),
+    # the ranges do not fit angle_max (a new-user audit: a 180-degree scan of 360 ranges, or
+    # of 50, or a negative increment from angle_min up to angle_max, mapped to 55 cm errors)
+    ({'angle_max': 0.6}, 'angle_max'),
+    ({'angle_max': 0.0}, 'angle_max'),
+    ({'angle_increment': -0.1, 'angle_max': 0.2}, 'angle_max'),
+    # 1e30: every beam on one ray (the increments vanish in the sum)
+    ({'angle_min': 1e30}, 'angle_min'),
 ])
 def test_check_scan_names_the_cause(kwargs, cause):
     args = {'ranges': [1.0, 2.0, np.nan, 3.0, 4.0], 'angle_min': -0.2, 'angle_increment': 0.1,
@@ -79,6 +86,10 @@ def test_check_scan_gives_arrays():
         assert np.isclose(full.angles[-1] - full.angles[0], 2 * np.pi * (n - 1) / 1440)
     ccw = check_scan(np.full(1441, 2.0), np.pi, -2 * np.pi / 1440, 0.1, 30.0)   # clockwise
     assert np.isclose(ccw.angles[-1], -np.pi)
+    # angle_max at the last beam, or one increment on (the end of its sector), in float32
+    args = ([1.0, 2.0, 3.0, 4.0, 5.0], -0.2, 0.1, 0.1, 30.0)
+    for angle_max in (0.2, 0.3, float(np.float32(0.2)), 0.2 - 0.1, np.nan, None):
+        assert check_scan(*args, angle_max=angle_max).angles[-1] == pytest.approx(0.2)
 
 
 def test_warning_throttle_logs_each_cause_once_per_period_and_counts():

@@ -306,7 +306,7 @@ class BagReader:
                         float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
                         float(msg.range_max), np.array(msg.ranges, dtype=np.float32),
                         time_increment=float(msg.time_increment),
-                        scan_time=float(msg.scan_time))
+                        scan_time=float(msg.scan_time), angle_max=float(msg.angle_max))
         if topic == self.odom_topic:
             pose = msg.pose.pose
             return Odometry(_stamp(msg.header), clean_frame(msg.header.frame_id),
@@ -413,7 +413,8 @@ class BagWriter:
             msgtype = SCAN_TYPE
             msg = t[SCAN_TYPE](self._header(record.stamp, record.frame_id),
                                record.angle_min, record.angle_min + record.angle_increment
-                               * (len(record.ranges) - 1), record.angle_increment,
+                               * (len(record.ranges) - 1) if record.angle_max is None
+                               else record.angle_max, record.angle_increment,
                                float(record.time_increment), float(record.scan_time),
                                record.range_min, record.range_max,
                                np.asarray(record.ranges, dtype=np.float32),

@@ -37,6 +37,9 @@ class Scan:
     0: all beams at the stamp (the mapper then does no motion compensation)."""
     scan_time: float = 0.0
     """Seconds between scans (LaserScan.scan_time), 0 when unknown."""
+    angle_max: Optional[float] = None
+    """LaserScan.angle_max, radians, as the message gave it (checked against the beams'
+    count, ``scan.check_scan``); None when the source has none (CARMEN logs, drives)."""
 
     def angles(self) -> np.ndarray:
         """Return each beam's angle, radians in the laser frame, (B,); ValueError if not finite."""

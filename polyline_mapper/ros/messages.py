@@ -50,8 +50,9 @@ def scan_msg(scan: records.Scan, stamp: float = None) -> LaserScan:
     msg.header.stamp = time_msg(scan.stamp if stamp is None else stamp)
     msg.angle_min = float(scan.angle_min)
     msg.angle_increment = float(scan.angle_increment)
-    msg.angle_max = float(np.float32(scan.angle_min + scan.angle_increment
-                                     * max(len(scan.ranges) - 1, 0)))
+    msg.angle_max = (float(np.float32(scan.angle_min + scan.angle_increment
+                                      * max(len(scan.ranges) - 1, 0)))
+                     if scan.angle_max is None else float(scan.angle_max))
     msg.range_min = float(scan.range_min)
     msg.range_max = float(scan.range_max)
     msg.time_increment = float(scan.time_increment)
@@ -122,7 +123,7 @@ def scan_from_msg(msg) -> records.Scan:
                         float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
                         float(msg.range_max), np.asarray(msg.ranges, dtype=np.float32),
                         time_increment=float(msg.time_increment),
-                        scan_time=float(msg.scan_time))
+                        scan_time=float(msg.scan_time), angle_max=float(msg.angle_max))
 
 
 def transforms_from_msg(msg, static: bool) -> list:
