@@ -267,11 +267,15 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
                                         for n, text in noted.values()]
     if mapping and session.used and not len(value.segments) and session.mapper.sigma is None:
         k = -(-session.used // options.update_every_n_scans)
+        left = sum(session.skipped.values())
+        cause = max(session.skipped, key=session.skipped.get) if left else ''
+        advice = (f'{left} were skipped ({cause}: {session.skipped[cause]}, see below), which '
+                  'is what to fix' if left >= session.used else
+                  'give more scans, or lower noise_updates (--set noise_updates=N)')
         warnings.append(f'{path}: no segment: the mapper estimates the noise scale over its first '
                         f'{session.mapper.config.noise_updates} map updates and maps after them; '
                         f'{session.used} scan(s) made {k} update(s) (one per '
-                        f'{options.update_every_n_scans} scans): give more scans, or lower '
-                        'noise_updates (--set noise_updates=N)')
+                        f'{options.update_every_n_scans} scans): {advice}')
     if session.received < source.scan_count:
         warnings.append(f'{path}: read {session.received} of the {source.scan_count} scans '
                         'the input announces (damaged?)')

@@ -322,3 +322,20 @@ def test_a_bag_whose_ranges_do_not_fit_angle_max_is_refused_scan_by_scan(tmp_pat
     rc, err = run_cli(capsys, ['replay', bad, '-o', str(tmp_path / 'm.json'), '-q'])
     assert_one_line_error(rc, err, f'{len(drive.stamps)} bad scan: angle_max',
                           'the ranges do not fit the angles')
+
+
+def test_an_empty_map_of_skipped_scans_names_the_skips_not_the_noise_estimate(tmp_path, drive,
+                                                                              capsys):
+    # A new-user audit: a bag whose scans all carry one stamp (a stuck clock) mapped 1 scan of
+    # 60 and advised 'give more scans, or lower noise_updates'.
+    def stuck(messages):
+        for topic, record, t in messages:
+            if topic == '/scan':
+                record = replace(record, stamp=float(drive.stamps[0]))
+            yield topic, record, t
+
+    bag = write_bag(tmp_path / 'stuck', stuck(drive_messages(drive)))
+    rc, err = run_cli(capsys, ['replay', bag, '-o', str(tmp_path / 'm.json'), '-q'])
+    assert rc == 0 and 'no segment' in err and 'noise_updates' not in err, err
+    assert (f'{len(drive.stamps) - 1} were skipped (bad scan: stamp_order: '
+            f'{len(drive.stamps) - 1}, see below)') in err, err
