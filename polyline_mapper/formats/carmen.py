@@ -61,7 +61,7 @@ class CarmenLog:
 
     def usable_range(self, rec: LaserRecord) -> float:
         """Return the range (m) at or beyond which readings of ``rec`` are no-returns."""
-        return min(rec.range_max, self.no_return * 0.99)
+        return min(rec.range_max, self.no_return * 0.99, MAX_RANGE)
 
     def stamps(self, period: float = 1.0) -> tuple:
         """
@@ -202,6 +202,9 @@ def _lines(fh, limit: int = MAX_LINE_BYTES):
         yield line, True
 
 
+MAX_RANGE = 1000.0
+"""Metres: a reading beyond is no range a 2D laser measures (they reach 80-250 m), so no point
+and no candidate for the no-return code (one bogus value repeated, 1e300, hid the code)."""
 NO_RETURN_GLITCHES = 1e-3
 """Share of a log's readings that may lie above its no-return code as single glitches."""
 MIN_PERIOD = 1e-6
@@ -280,7 +283,7 @@ def read_carmen(path: str) -> CarmenLog:
     flaser = [r.ranges for r in records if not np.isfinite(r.range_max)]
     if flaser:
         allr = np.concatenate(flaser)
-        allr = allr[np.isfinite(allr)]
+        allr = allr[np.isfinite(allr) & (allr < MAX_RANGE)]
         values, counts = np.unique(allr, return_counts=True)
         repeated = values[counts > 1]
         # the largest repeated reading; a few single ones above it (at most 1 in 1000) are
