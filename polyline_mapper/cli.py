@@ -448,9 +448,12 @@ def cmd_record_map(args) -> int:
 
 
 def _frame(text: str) -> str:
-    """Parse a frame name: not empty, as a map's ``frame_id`` must be (argparse type)."""
+    """Parse a frame name: not empty, no leading '/', as the node's frames (argparse type)."""
     if not text.strip():
         raise argparse.ArgumentTypeError('must name a frame, got an empty string')
+    if text.startswith('/'):
+        raise argparse.ArgumentTypeError(f"must not start with '/' (tf2 refuses such frame "
+                                         f"names), got {text!r}: give {text.lstrip('/')!r}")
     return text
 
 
@@ -1163,7 +1166,7 @@ def _pose_args(sp, plot: bool = False, replay: bool = False) -> None:
                                                     'as replay --pose-source scan')
                     + "; the first scan at the origin of the map frame, 'map' unless "
                     '--fixed-frame)')
-    sp.add_argument('--fixed-frame', help="map frame with --pose-source tf (default: 'map' "
+    sp.add_argument('--fixed-frame', type=_frame, help="map frame with --pose-source tf (default: 'map' "
                     "when the scan's TF tree has it, else the tree's root; with scan matching "
                     "'map' above that root) or with --pose-source odom and scan matching "
                     "(default: 'map'; without matching the map is in the odometry frame)")

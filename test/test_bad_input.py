@@ -114,6 +114,13 @@ def test_cli_refuses_an_empty_frame_id_a_map_could_not_be_read_with(tmp_path, ca
     for frame in ('', ' '):
         code, err, out, _ = run_cli([str(pts), '--frame-id', frame], tmp_path, capsys)
         assert code == 2 and 'must name a frame' in err and not out.exists()
+    # nor one the node refuses (a new-user audit: '/map' was written into the map; tf2 refuses
+    # frame names with a leading slash)
+    code, err, out, _ = run_cli([str(pts), '--frame-id', '/map'], tmp_path, capsys)
+    assert code == 2 and "must not start with '/'" in err and "give 'map'" in err
+    assert not out.exists()
+    assert main(['replay', 'sim:office', '--fixed-frame', '/map', '-o', str(out)]) == 2
+    assert "must not start with '/'" in capsys.readouterr().err and not out.exists()
 
 
 def test_a_csv_with_a_byte_order_mark_keeps_its_first_point(tmp_path):
