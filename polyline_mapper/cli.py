@@ -1166,7 +1166,8 @@ def _pose_args(sp, plot: bool = False, replay: bool = False) -> None:
                                                     'as replay --pose-source scan')
                     + "; the first scan at the origin of the map frame, 'map' unless "
                     '--fixed-frame)')
-    sp.add_argument('--fixed-frame', type=_frame, help="map frame with --pose-source tf (default: 'map' "
+    sp.add_argument('--fixed-frame', type=_frame,
+                    help="map frame with --pose-source tf (default: 'map' "
                     "when the scan's TF tree has it, else the tree's root; with scan matching "
                     "'map' above that root) or with --pose-source odom and scan matching "
                     "(default: 'map'; without matching the map is in the odometry frame)")
