@@ -1734,7 +1734,7 @@ class MappingSession:
             try:
                 with np.errstate(invalid='ignore', over='ignore'):
                     check_scan(record.ranges, record.angle_min, record.angle_increment,
-                               record.range_min, record.range_max,
+                               record.range_min, record.range_max, record.intensities,
                                angle_max=record.angle_max)
             except ScanError as exc:
                 return self._skip('bad scan', exc.cause, str(exc))

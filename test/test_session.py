@@ -413,6 +413,22 @@ def test_a_pose_beyond_any_real_map_is_a_counted_skip_not_a_crash(office_drive):
     assert np.abs(session.map_value().segments).max() < 100
 
 
+def test_a_scan_whose_intensities_do_not_fit_its_ranges_is_skipped_by_every_tool(office_drive):
+    # The node dropped such scans before the session saw them, replay and fit mapped them (a
+    # new-user audit): one check in the session now serves both.
+    from dataclasses import replace
+    clock = FakeClock()
+    session, warned = live(clock, IncrementalConfig(noise_updates=1))
+    for i in range(4):
+        n = len(office_drive.ranges[i])
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        session.add(replace(scan_of(office_drive, i, float(i)),
+                            intensities=n - 10 if i == 2 else (n if i == 3 else 0)))
+        session.step()
+    assert session.stats()['skipped'] == {'bad scan: intensities': 1}
+    assert causes(warned) == ['intensities'] and session.used == 3
+
+
 def test_a_scan_at_the_newest_stamp_of_its_frame_is_a_counted_skip():
     # A stuck laser clock: every other scan carries its predecessor's stamp. Each was mapped at
     # the other scan's pose (0.3 m off: 31 segments and 3.3 cm mean distance against 7 and

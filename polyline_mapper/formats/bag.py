@@ -306,7 +306,8 @@ class BagReader:
                         float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
                         float(msg.range_max), np.array(msg.ranges, dtype=np.float32),
                         time_increment=float(msg.time_increment),
-                        scan_time=float(msg.scan_time), angle_max=float(msg.angle_max))
+                        scan_time=float(msg.scan_time), angle_max=float(msg.angle_max),
+                        intensities=len(msg.intensities))
         if topic == self.odom_topic:
             pose = msg.pose.pose
             return Odometry(_stamp(msg.header), clean_frame(msg.header.frame_id),

@@ -40,6 +40,9 @@ class Scan:
     angle_max: Optional[float] = None
     """LaserScan.angle_max, radians, as the message gave it (checked against the beams'
     count, ``scan.check_scan``); None when the source has none (CARMEN logs, drives)."""
+    intensities: int = 0
+    """How many intensities the message had (0, or one per range; checked, ``check_scan``);
+    their values are not kept."""
 
     def angles(self) -> np.ndarray:
         """Return each beam's angle, radians in the laser frame, (B,); ValueError if not finite."""

@@ -123,7 +123,8 @@ def scan_from_msg(msg) -> records.Scan:
                         float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
                         float(msg.range_max), np.asarray(msg.ranges, dtype=np.float32),
                         time_increment=float(msg.time_increment),
-                        scan_time=float(msg.scan_time), angle_max=float(msg.angle_max))
+                        scan_time=float(msg.scan_time), angle_max=float(msg.angle_max),
+                        intensities=len(msg.intensities))
 
 
 def transforms_from_msg(msg, static: bool) -> list:

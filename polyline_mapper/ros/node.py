@@ -307,11 +307,7 @@ class PolylineMapperNode(Node):
         self._scan_arrivals.append(time.monotonic())
         if self._first_scan_at is None:
             self._first_scan_at = self._scan_arrivals[-1]
-        if len(msg.intensities) not in (0, len(msg.ranges)):
-            self.session.skip('bad scan', 'intensities', f'scan has {len(msg.ranges)} ranges '
-                              f'but {len(msg.intensities)} intensities')
-            return
-        self.session.add(scan_from_msg(msg))
+        self.session.add(scan_from_msg(msg))      # (checked there, as replay checks it)
 
     def _on_tf(self, msg) -> None:
         if self.settings.scan_matching:
