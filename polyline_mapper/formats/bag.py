@@ -171,7 +171,8 @@ class BagReader:
             reader.open()
         except _read_errors() as exc:
             if p.suffix.lower() != '.bag' or not p.is_file():
-                raise BagError(f'{self.path}: cannot open the bag ({_why(exc)})') from None
+                raise BagError(f'{self.path}: cannot open the bag ({_why(exc)})'
+                               + _mcap_hint(p, exc)) from None
             reader = self._open_reindexed(p, store, exc)
         self._reader = reader
         try:
@@ -323,6 +324,17 @@ class BagReader:
         return [Transform(_stamp(t.header), clean_frame(t.header.frame_id),
                           clean_frame(t.child_frame_id), _vec(t.transform.translation),
                           _quat(t.transform.rotation), static) for t in msg.transforms]
+
+
+def _mcap_hint(p: pathlib.Path, exc: BaseException) -> str:
+    """Return advice for an .mcap file that ends early (a recorder stopped mid-write), or ''."""
+    text = str(exc).lower()
+    mcap = p.suffix.lower() == '.mcap' or (p.is_dir() and any(p.glob('*.mcap')))
+    if mcap and ('magic' in text or 'end of file' in text or 'unexpected end' in text):
+        return ('; the .mcap file ends early, as one does when the recorder was killed: '
+                "'mcap recover FILE -o FIXED.mcap' (the mcap command-line tool) keeps what it "
+                'holds')
+    return ''
 
 
 def _why(exc: BaseException) -> str:
