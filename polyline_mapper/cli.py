@@ -1036,6 +1036,11 @@ def cmd_export(args) -> int:
     from .formats.export import export_map, export_trajectory, map_yaml_image
     from .formats.mapjson import read_map
     check_outputs([args.output], [args.map])
+    ext = os.path.splitext(args.output)[1].lower().lstrip('.')
+    ext = 'yaml' if ext == 'yml' else ext
+    if args.format and ext in ('geojson', 'svg', 'csv', 'yaml', 'tum') and ext != args.format:
+        print(f'polyline-mapper: warning: writing {args.format} into {args.output}, whose '
+              f'extension says {ext} (--format {args.format} decides)', file=sys.stderr)
     data = read_map(args.map)
     if args.trajectory or (args.format or '') == 'tum' or \
             os.path.splitext(args.output)[1].lower() == '.tum':

@@ -74,7 +74,7 @@ def test_svg_parses_with_y_up_and_a_scale_bar(fitted, tmp_path):
         pytest.approx(50 * metres, abs=0.2)
 
 
-def test_csv_has_one_row_per_segment(fitted, tmp_path):
+def test_csv_has_one_row_per_segment(fitted, tmp_path, capsys):
     _, src, data = fitted
     out = tmp_path / 'segs.csv'
     assert main(['export', str(src), '-o', str(out), '-q']) == 0
@@ -86,7 +86,14 @@ def test_csv_has_one_row_per_segment(fitted, tmp_path):
     # --format wins over the suffix
     txt = tmp_path / 'segs.txt'
     assert main(['export', str(src), '-o', str(txt), '--format', 'csv', '-q']) == 0
-    assert txt.read_text() == out.read_text()
+    assert txt.read_text() == out.read_text() and not capsys.readouterr().err
+    # ... and says so when the suffix names another format (a new-user audit: SVG went into
+    # a .csv without a word)
+    svg = tmp_path / 'segs2.csv'
+    assert main(['export', str(src), '-o', str(svg), '--format', 'svg', '-q']) == 0
+    assert svg.read_text().startswith('<') and capsys.readouterr().err == (
+        f'polyline-mapper: warning: writing svg into {svg}, whose extension says csv '
+        '(--format svg decides)\n')
 
 
 def test_export_and_plot_errors_are_one_line(fitted, tmp_path, capsys):
