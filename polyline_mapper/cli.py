@@ -313,6 +313,12 @@ def cmd_fit(args) -> int:
 def cmd_demo(args) -> int:
     if not args.offline:
         return cmd_live_demo(args)
+    live = [flag for flag, given in (('--rate', args.rate != 1.0),
+                                     ('--domain-id', args.domain_id is not None)) if given]
+    if live:
+        print(f'polyline-mapper: warning: {" and ".join(live)} appl'
+              f'{"ies" if len(live) == 1 else "y"} to the live demo only, not with --offline',
+              file=sys.stderr)
     from .sim import LaserSpec, office_floor, simulate_drive
     check_outputs([args.output, args.plot], [args.config])
     _suffixes(args.output, args.plot)

@@ -96,10 +96,16 @@ def test_fit_carmen_log_registers_scans(tmp_path):
 def test_offline_demo_fits_the_office(tmp_path, capsys):
     out, png = tmp_path / 'd.json', tmp_path / 'd.png'
     assert main(['demo', '--offline', '-o', str(out), '--plot', str(png)]) == 0
-    assert 'segments' in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert 'segments' in said.out and not said.err
     data = json.loads(out.read_text())
     assert 15 <= data['stats']['segments'] <= 45 and data['stats']['coverage_0_10m'] > 0.99
     assert png.exists()
+    # the live demo's flags change nothing offline, and it says so (a new-user audit)
+    assert main(['demo', '--offline', '-o', str(out), '--rate', '4', '--domain-id', '7',
+                 '-q']) == 0
+    assert capsys.readouterr().err == ('polyline-mapper: warning: --rate and --domain-id apply '
+                                       'to the live demo only, not with --offline\n')
 
 
 def test_fit_of_bare_points_with_free_space_evidence_warns_once(tmp_path, capsys):
