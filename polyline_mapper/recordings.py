@@ -541,14 +541,23 @@ def read_log(path: str, period: float = 1.0) -> tuple:
         raise ValueError(f'period must be a positive number of seconds, got {period!r}')
     log = read_carmen(path)
     stamps, made_up = log.stamps(period)
-    warnings = []
-    if log.skipped:
-        warnings.append(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
-                        f'{log.skipped_examples[0]}')
+    warnings = log_warnings(path, log)
     if made_up:
         warnings.append(f'{path}: log times do not increase; made-up stamps {period:g} s '
                         'apart, from t = 1 s')
     return log, stamps, warnings
+
+
+def log_warnings(path: str, log) -> list:
+    """Return the lines to warn of a CarmenLog: malformed records, readings that are no range."""
+    out = []
+    if log.skipped:
+        out.append(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
+                   f'{log.skipped_examples[0]}')
+    if log.bad_readings:
+        out.append(f'{path}: dropped {log.bad_readings} reading(s) that are no range (negative '
+                   'or NaN)')
+    return out
 
 
 def read_points(path, range_max: float = None, progress=None,
@@ -606,9 +615,8 @@ def _read_log(path: str, range_max, progress, warn) -> tuple:
     desc = f'CARMEN log, {len(log.records)} scans'
     if log.skipped:
         desc += f', {log.skipped} malformed record(s) skipped'
-        if warn is not None:
-            warn(f'{path}: skipped {log.skipped} malformed laser record(s), e.g. '
-                 f'{log.skipped_examples[0]}')
+    for line in log_warnings(path, log) if warn is not None else ():
+        warn(line)
     points, origins = log.beams(range_max, progress)
     return check_coordinates(points, path), origins, desc
 

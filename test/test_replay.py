@@ -1,5 +1,6 @@
 """Replay: CARMEN <-> bag round trips, laser mounts, poses from tf and odom, skipped scans, CLI."""
 
+import gzip
 import json
 
 from bag_helpers import drive_messages, room_drive, write_bag, write_carmen, write_ros1_bag
@@ -265,6 +266,17 @@ def test_corrupt_carmen_lines_are_skipped_and_reported(tmp_path, capsys):
     assert main(['replay', str(trunc), '-o', str(out), '-q']) == 2
     assert 'unreadable or truncated log' in capsys.readouterr().err
     assert json.loads(out.read_text())['stats']['scans_used'] == len(drive.stamps)
+    # readings that are no range are dropped as the mapper drops them, and counted (a new-user
+    # audit: a log of negative readings mapped with no word on them)
+    lines = gzip.open(log, 'rt').read().splitlines(True)
+    fields = lines[4].split()
+    fields[2:5] = ['-1.5', 'nan', '-0.2']
+    neg = tmp_path / 'neg.log'
+    neg.write_text(''.join(lines[:4] + [' '.join(fields) + '\n'] + lines[5:]))
+    for command in ('replay', 'fit'):
+        assert main([command, str(neg), '-o', str(out), '-q']) == 0
+        assert (f'polyline-mapper: warning: {neg}: dropped 3 reading(s) that are no range '
+                '(negative or NaN)\n') in capsys.readouterr().err
 
 
 def test_bad_scans_are_checked_like_the_node_and_counted(tmp_path, rotated, capsys):

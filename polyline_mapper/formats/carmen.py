@@ -58,6 +58,8 @@ class CarmenLog:
     no_return: float = np.inf
     laser_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     """(x, y, yaw) of the laser on the robot, metres and radians."""
+    bad_readings: int = 0
+    """Readings that are no range (negative or NaN): dropped as the mapper drops them."""
 
     def usable_range(self, rec: LaserRecord) -> float:
         """Return the range (m) at or beyond which readings of ``rec`` are no-returns."""
@@ -291,4 +293,5 @@ def read_carmen(path: str) -> CarmenLog:
         if repeated.size and (np.count_nonzero(allr > repeated[-1])
                               <= NO_RETURN_GLITCHES * allr.size):
             no_return = float(repeated[-1])
-    return CarmenLog(records, skipped, examples, no_return, _offset(robotlaser, front))
+    bad = sum(int(np.count_nonzero(~(r.ranges >= 0))) for r in records)
+    return CarmenLog(records, skipped, examples, no_return, _offset(robotlaser, front), bad)
