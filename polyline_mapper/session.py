@@ -1840,6 +1840,11 @@ class MappingSession:
             self._news = False
         return self._pose_and_run(False, False, max_updates)
 
+    def queued_scans(self) -> int:
+        """Return how many scans wait for their pose or their update (not mapped yet)."""
+        with self._lock:
+            return (sum(isinstance(s, Scan) for s, _ in self._waiting) + len(self._ready))
+
     def flush(self, final: bool = True) -> int:
         """
         Map the last, partial update group; at the end of input (``final``) give up waiting.

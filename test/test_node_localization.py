@@ -162,3 +162,33 @@ def outcomes(saved_map, tmp_path_factory):
 @pytest.mark.parametrize('case', range(len(CASES)), ids=[' '.join(a) for a, _ in CASES])
 def test_a_bad_saved_map_or_initial_pose_stops_the_node_with_one_line(outcomes, case):
     assert_refused_in_one_line(outcomes[case], CASES[case][1])
+
+
+def test_the_node_never_saves_over_the_map_it_started_from(saved_map, office, tmp_path):
+    # A new-user audit: with map_output_path the saved map itself (or a link to it) ~/save_map
+    # and save_map_on_shutdown replaced it; mapping into it from a wrong start, that was the
+    # only copy. The node warns at start, refuses both writes, and exits 1 when the map it was
+    # to save on shutdown is not on disk.
+    saved = tmp_path / 'office.json'
+    saved.write_bytes(saved_map.read_bytes())
+    link = tmp_path / 'link.json'
+    link.symlink_to(saved)
+    before = saved.read_bytes()
+    start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
+    node = NodeProcess(tmp_path, {'map_input_path': str(saved), 'map_output_path': str(link),
+                                  'initial_pose': [float(v) for v in start],
+                                  'save_map_on_shutdown': True})
+    peer = Peer('test_peer_no_overwrite')
+    try:
+        assert peer.wait_for_node(TIMEOUT), 'the node did not come up:\n' + node.stderr()
+        messages = [(t, topic, record) for topic, record, t in drifted_messages(office, 1)]
+        peer.play(messages[:200], RATE)
+        response = peer.call('/polyline_mapper_node/save_map', Trigger)
+        assert response is not None and not response.success, node.stderr()[-3000:]
+        assert 'is an input of this run' in response.message
+    finally:
+        peer.close()
+        code = node.stop()
+    assert code == 1, node.stderr()[-3000:]
+    assert node.lines('map_output_path is the saved map the node starts from'), node.stderr()
+    assert saved.read_bytes() == before and link.is_symlink()

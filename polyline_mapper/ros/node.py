@@ -50,6 +50,7 @@ Services answer while an update runs (they wait at most for the one in progress)
 
 from collections import deque
 import math
+import os
 import signal
 import sys
 import threading
@@ -155,6 +156,8 @@ class PolylineMapperNode(Node):
             raise ConfigError(text) from None
         log = self.get_logger()
         self.warnings = WarningThrottle(log.warning, self.settings.warning_period)
+        self.save_failed = False
+        """Whether the last ``_save_map`` could not write the file (the exit code at shutdown)."""
         self.session = MappingSession(self.config, session_options(self.settings),
                                       clock=time.monotonic, warn=self.warnings.warn,
                                       info=log.info)
@@ -175,6 +178,10 @@ class PolylineMapperNode(Node):
             log.info(f'starting from the saved map {path} ({len(saved.value)} segments) at '
                      f'{list(self.settings.initial_pose)}; '
                      + ('mapping into it' if self.settings.mapping else 'localization only'))
+            if os.path.realpath(self.settings.output_path) == os.path.realpath(path):
+                log.warning(f'map_output_path is the saved map the node starts from ({path}): '
+                            '~/save_map and save_map_on_shutdown will not write over it; give '
+                            'another map_output_path to save the map')
         self.map_pub = self.create_publisher(PolylineMap, 'polyline_map', MAP_QOS)
         self.marker_pub = self.create_publisher(MarkerArray, 'polyline_map/markers', MAP_QOS)
         self.grid_pub = self.create_publisher(OccupancyGrid, 'map', MAP_QOS)
@@ -381,12 +388,16 @@ class PolylineMapperNode(Node):
             return False, message
         value = self.session.map_value(trajectory=True)
         try:
+            # Never over the saved map the node started from (or a link to it): with mapping
+            # on from a wrong start that file would be the only copy, replaced by a bad map.
             write_map(path, value, config_dict(self.config),
+                      inputs=(self.settings.input_path,) if self.settings.input_path else (),
                       grid=self.session.occupancy(value.segments))
         except (OSError, ValueError) as exc:       # ValueError: formats.output refused it
             reason = getattr(exc, 'strerror', None) or exc
             message = f'cannot write {path}: {reason}'
             self.get_logger().error(message)
+            self.save_failed = True
             return False, message
         message = (f'wrote {path}: {len(value.segments)} segments in {len(value.polylines)} '
                    'polylines')
@@ -572,9 +583,14 @@ class PolylineMapperNode(Node):
         if self.settings.save_map_on_shutdown:
             try:
                 if not self._worker.is_alive():     # (else: the map as it stands)
+                    queued = self.session.queued_scans()
+                    if queued:
+                        self.get_logger().info(f'mapping the {queued} queued scan(s) before '
+                                               f'saving the map to {self.settings.output_path}')
                     self.session.flush(final=True)
             except Exception as exc:        # the map so far is still written
                 self.get_logger().error(f'mapping the queued scans at shutdown failed: {exc!r}')
+            self.save_failed = False
             self._save_map()
         st = self.session.stats()
         warned = ', '.join(f'{k} {v}' for k, v in sorted(self.warnings.counts.items())) or 'none'
@@ -741,7 +757,9 @@ def main(args=None) -> int:
         executor.remove_node(node)
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    # A map that save_map_on_shutdown could not write: exit 1, so that a supervisor (or the
+    # user's script) knows the run's map is not on disk.
+    return 1 if node.settings.save_map_on_shutdown and node.save_failed else 0
 
 
 if __name__ == '__main__':
