@@ -318,6 +318,8 @@ class TransformBuffer2D:
         self.max_frames = int(max_frames)
         self._edges = {}          # child -> _Edge
         self._frames = {}         # frame -> number of edges naming it (as child or parent)
+        self._newest = -math.inf  # the newest dynamic stamp stored
+        self._swept = -math.inf   # ``_newest`` when expired frames were last looked for
 
     # -- filling -------------------------------------------------------------------------------
     def set_transform(self, parent: str, child: str, stamp: float, translation, quaternion,
@@ -327,10 +329,14 @@ class TransformBuffer2D:
 
         A frame has one parent. A transform naming a new parent for a known child replaces the
         child's history (the tree is re-hung), as does switching an edge between static and
-        dynamic. Raises ValueError on empty or equal frame names, a loop in the tree, a
+        dynamic, but a dynamic transform never replaces a static parent: a stray publisher of
+        a second parent (``other -> laser`` beside the mount ``base_link -> laser``) would drop
+        a mount that comes once, on transient-local /tf_static, for good. Raises ValueError on
+        empty or equal frame names, a second parent for a static frame, a loop in the tree, a
         non-finite stamp or translation, one beyond MAX_TRANSLATION, or a quaternion whose
         norm is not 1 (+-1 %), and FrameLimitError (a ValueError) when the transform would add
-        a frame beyond ``max_frames``.
+        a frame beyond ``max_frames`` (dynamic frames whose transforms all lie more than
+        ``cache_seconds`` before the newest are dropped first: a tracker's one-off frames).
         """
         parent, child = _frame(parent), _frame(child)
         if not parent or not child:
@@ -341,8 +347,18 @@ class TransformBuffer2D:
             raise ValueError(f'stamp must be finite, got {stamp!r}')
         t, q = _check_transform(translation, quaternion)
         edge = self._edges.get(child)
+        if edge is not None and edge.static and not static:
+            raise ValueError(f'transform {parent} -> {child} refused: {child!r} has the static '
+                             f'parent {edge.parent!r} (a frame has one parent; a second '
+                             f'publisher of {child!r}?)' if edge.parent != parent else
+                             f'transform {parent} -> {child} refused: it is static (on '
+                             '/tf_static), not dynamic')
+        if not static and stamp > self._newest:
+            self._newest = float(stamp)
         if edge is None or edge.parent != parent or edge.static != bool(static):
             new = (child not in self._frames) + (parent not in self._frames)
+            if new and len(self._frames) + new > self.max_frames:
+                self._drop_expired()
             if new and len(self._frames) + new > self.max_frames:
                 raise FrameLimitError(
                     f'transform {parent} -> {child} refused: the tree already holds '
@@ -357,6 +373,27 @@ class TransformBuffer2D:
                 self._frames[name] = self._frames.get(name, 0) + 1
         edge.insert(float(stamp), t, q, self.cache_seconds, self.max_entries)
 
+    def _drop_expired(self) -> None:
+        """
+        Drop the dynamic edges whose transforms all lie ``cache_seconds`` before the newest.
+
+        At most once per ``cache_seconds / 10`` of data time, so a flood of new frame names at
+        the limit costs one pass over the edges, not one per message.
+        """
+        if self._newest - self._swept < 0.1 * self.cache_seconds:
+            return
+        self._swept = self._newest
+        old = self._newest - self.cache_seconds
+
+        def expired(e):
+            return not e.static and e.stamps and e.stamps[-1] < old
+        # (a frame that is the parent of a transform still in use keeps its own)
+        parents = {e.parent for e in self._edges.values() if not expired(e)}
+        for child, edge in list(self._edges.items()):
+            if expired(edge) and child not in parents:
+                del self._edges[child]
+                self._unlink(edge.parent, child)
+
     def _unlink(self, parent: str, child: str) -> None:
         """Drop the references of edge parent -> child from the frame counts."""
         for name in (parent, child):
@@ -368,6 +405,7 @@ class TransformBuffer2D:
 
     def clear(self, keep_static: bool = False) -> None:
         """Forget every transform (or every dynamic one, e.g. after the clock jumped back)."""
+        self._newest = self._swept = -math.inf
         if keep_static:
             for child, edge in list(self._edges.items()):
                 if not edge.static:

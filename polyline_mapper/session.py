@@ -967,6 +967,12 @@ class PoseSource:
             self._static.discard(child)
             self.latest = max(self.latest, stamp)
             self._newest[child] = (stamp, translation, rotation)
+        if len(self._parents) > 2 * self.buffer.max_frames:
+            # the buffer dropped expired one-off frames (a tracker's): so do these notes
+            known = self.buffer.frames()
+            for notes in (self._parents, self._newest):
+                for name in [c for c in notes if c not in known]:
+                    del notes[name]
 
     def _jumped(self, child: str, stamp: float) -> bool:
         """Return whether a dynamic sample of ``child`` at ``stamp`` says the clock jumped back."""

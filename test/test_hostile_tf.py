@@ -191,3 +191,43 @@ def test_a_translation_beyond_1e8_m_is_refused_not_composed_into_a_pose(tmp_path
     assert len(err) == 1 and err[0].startswith('polyline-mapper: error:'), err
     assert 'no scan could be mapped' in err[0] and 'lies beyond +-1e+08 m' in err[0], err
     assert not out.exists()
+
+
+def test_one_off_frames_expire_so_the_limit_never_stops_the_robot_for_good():
+    # A live-node audit: a tracker's 12000 one-off frames (world -> obj_i, each sent once)
+    # filled the tree, and 40 s later (beyond the 30 s cache) the robot's own transforms were
+    # still refused: the node never mapped again. Frames whose transforms all lie beyond the
+    # cache before the newest now make room; fresh ones still count.
+    buf = TransformBuffer2D()
+    buf.set_transform('base_link', 'laser', 0.0, (0.2, 0.0, 0.1), IDENTITY, static=True)
+    refused = 0
+    for i in range(12_000):
+        try:
+            buf.set_transform('world', f'obj_{i}', 900.0 + 1e-3 * i, (1.0, 0.0, 0.0), IDENTITY)
+        except FrameLimitError:
+            refused += 1
+    assert refused == 12_000 - (buf.max_frames - 3) and len(buf.frames()) == buf.max_frames
+    with pytest.raises(FrameLimitError):          # within the cache: the junk still counts
+        buf.set_transform('odom', 'base_link', 920.0, (0.0, 0.0, 0.0), IDENTITY)
+    for t in np.arange(940.0, 945.0, 0.1):
+        buf.set_transform('odom', 'base_link', t, (t - 940.0, 0.0, 0.0), IDENTITY)
+    assert buf.lookup('odom', 'laser', 944.0)[0] == pytest.approx(4.2)
+    assert not any(name.startswith('obj_') for name in buf.frames())
+
+
+def test_a_stray_second_parent_never_replaces_a_static_mount():
+    # A live-node audit: one dynamic other -> laser beside the static base_link -> laser
+    # re-hung the laser; the mount, sent once on /tf_static, was gone for good and every later
+    # scan was 'not connected'. The stray transform is refused, saying why.
+    buf = TransformBuffer2D()
+    buf.set_transform('base_link', 'laser', 0.0, (0.2, 0.0, 0.1), IDENTITY, static=True)
+    for t in np.arange(0.0, 1.0, 0.1):
+        buf.set_transform('odom', 'base_link', t, (t, 0.0, 0.0), IDENTITY)
+    for parent in ('other', 'odom', 'base_link'):
+        with pytest.raises(ValueError, match="refused: 'laser' has the static parent "
+                           "'base_link'" if parent != 'base_link' else 'it is static'):
+            buf.set_transform(parent, 'laser', 0.5, (0.0, 0.0, 0.0), IDENTITY)
+    assert buf.lookup('odom', 'laser', 0.5)[0] == pytest.approx(0.7)
+    # a new static mount (the robot's description sent again, changed) still replaces it
+    buf.set_transform('base_link', 'laser', 0.0, (0.3, 0.0, 0.1), IDENTITY, static=True)
+    assert buf.lookup('odom', 'laser', 0.5)[0] == pytest.approx(0.8)
