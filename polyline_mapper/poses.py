@@ -69,7 +69,8 @@ class TransformLookupError(LookupError):
     (both frames known, in different trees), ``too_old`` / ``too_new`` (the stamp lies before /
     after the stored transforms of an edge by more than the tolerance), ``tilted`` (the source
     frame is not level), ``flipped`` (``lookup`` on an upside-down frame; use ``lookup_planar``),
-    ``too_deep`` (more than MAX_DEPTH frames between a frame and its root).
+    ``too_deep`` (more than MAX_DEPTH frames between a frame and its root), ``laser_frame`` (odom
+    mode: a scan of another laser than the one the mount is of).
     """
 
     def __init__(self, cause: str, reason: str):

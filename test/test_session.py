@@ -160,6 +160,15 @@ def test_odometry_with_a_mount_gives_the_laser_pose_and_checks_the_frame():
     pose = session.poses.pose(Scan(1.5, 'whatever_frame', 0.0, 0.1, 0.0, 10.0, np.ones(3)))
     want = se2_compose(np.array([2.5, 0.0, 1.0]), np.array([0.3, -0.1, 0.5]))
     assert np.allclose(pose.xyz, want) and pose.flip
+    # The mount is that one laser's: a second laser on the topic (a live-node audit: a rear
+    # laser placed with the front's mount, 46 segments for 7) is refused, saying why.
+    from polyline_mapper.poses import TransformLookupError
+    with pytest.raises(TransformLookupError, match="scan in frame 'rear', but the laser mount") \
+            as err:
+        session.poses.pose(Scan(1.6, 'rear', 0.0, 0.1, 0.0, 10.0, np.ones(3)))
+    assert err.value.cause == 'laser_frame' and not err.value.curable
+    assert np.allclose(session.poses.pose(Scan(1.5, 'whatever_frame', 0.0, 0.1, 0.0, 10.0,
+                                               np.ones(3))).xyz, want)
 
 
 def test_odometry_refused_for_its_frame_is_named_when_a_scan_has_no_pose():
