@@ -39,7 +39,7 @@ import numpy as np
 
 from .core.register import ODOMETRY_NOISE
 from .formats.bag import BAG_SUFFIXES
-from .formats.records import f32, Odometry, Scan
+from .formats.records import f32, last_angle, Odometry, Scan
 from .poses import mount_quaternion, planar_transform, se2_compose, se2_inverse
 
 KINDS = ('points', 'carmen', 'bag', 'sim')
@@ -395,6 +395,7 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
              if drive.time_increment > 0 else {})
     scans = (Scan(t, laser_frame, f32(spec.angle_min), f32(spec.angle_increment),
                   f32(spec.range_min), f32(spec.range_max), np.asarray(ranges, dtype=np.float32),
+                  angle_max=last_angle(spec.angle_min, spec.angle_increment, len(ranges)),
                   **extra)
              for t, ranges in zip(stamps.tolist(), drive.ranges))
     laser = drive.poses

@@ -28,7 +28,7 @@ import zlib
 import numpy as np
 
 from .points import MAX_COORDINATE
-from .records import f32, Scan
+from .records import f32, last_angle, Scan
 from ..scan import scan_to_points
 
 
@@ -94,7 +94,8 @@ class CarmenLog:
         with np.errstate(over='ignore'):    # readings beyond float32 become inf: no return
             return [Scan(float(t), frame_id, f32(r.angle_min), f32(r.angle_increment), 0.0,
                          f32(self.usable_range(r)), np.asarray(r.ranges, dtype=np.float32),
-                         np.asarray(r.pose, dtype=np.float64) if with_pose else None)
+                         np.asarray(r.pose, dtype=np.float64) if with_pose else None,
+                         angle_max=last_angle(r.angle_min, r.angle_increment, len(r.ranges)))
                     for r, t in zip(self.records, stamps)]
 
     def points(self, range_max: float = None, progress=None) -> np.ndarray:

@@ -39,7 +39,8 @@ class Scan:
     """Seconds between scans (LaserScan.scan_time), 0 when unknown."""
     angle_max: Optional[float] = None
     """LaserScan.angle_max, radians, as the message gave it (checked against the beams'
-    count, ``scan.check_scan``); None when the source has none (CARMEN logs, drives)."""
+    count, ``scan.check_scan``; CARMEN logs and drives: their last beam's, ``last_angle``);
+    None: not known, not checked."""
     intensities: int = 0
     """How many intensities the message had (0, or one per range; checked, ``check_scan``);
     their values are not kept."""
@@ -102,6 +103,11 @@ class Skipped:
 def f32(value) -> float:
     """Round a number to float32 precision, as a LaserScan field stores it."""
     return float(np.float32(value))
+
+
+def last_angle(angle_min: float, angle_increment: float, beams: int) -> float:
+    """Return the angle_max a LaserScan of these fields holds: its last beam's, at float32."""
+    return f32(f32(angle_min) + f32(angle_increment) * max(beams - 1, 0))
 
 
 def clean_frame(name: str) -> str:

@@ -633,8 +633,8 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     """
     if silent is not None and total:
         return 1, (f'no scan on {topic} for {silent:.1f} s ({total} received before): has the '
-                   'laser or its driver stopped? Nothing is mapped (nor, with scan matching, '
-                   'map -> odom sent) until scans come again')
+                   'laser or its driver stopped? Nothing is mapped (nor a map -> odom of this '
+                   'node sent) until scans come again')
     if wrong_start is not None:
         return 1, (f'localizing on the saved map from a wrong place: {100 * wrong_start:.0f} % '
                    "of the first scans' beams pass through its walls; the poses, map -> odom "
