@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 
 FULL_TURN = 2.0 * np.pi
+"""A scan's beams span at most this (radians), within half an increment; more is malformed."""
 
 ANGLE_MAX_SLACK = 1.5
 """``check_scan``: increments the last beam may lie from angle_max (drivers put angle_max at
 the last beam, or one increment on at the end of its sector)."""
-"""A scan's beams span at most this (radians), within half an increment; more is malformed."""
 
 
 def beam_angles(angle_min: float, angle_increment: float, count: int) -> np.ndarray:

@@ -79,15 +79,15 @@ MAX_SCAN_SPAN = 1.0
 MAX_MOTION_GAP = 1.0
 """Seconds between the last two poses beyond which their motion is not extrapolated."""
 ODOM_GAP_STEPS = (3, 51)
-ODOM_GAP_MIN = 0.05
-"""Seconds: a gap in the odometry shorter than this is never one (``_check_odom_gap``): at 1 kHz
-/tf a 2 ms gap is twice the usual interval but hides no motion worth a scan (a live-node
-audit: 43 of 100 scans refused so)."""
 """``odom_gap_factor``: the intervals between odometry messages (odom mode) or between the
 transforms of the odometry edge (tf mode: the lowest moving edge above the laser) that must be
 seen before a gap is judged, and how many of the newest give the typical interval (their
 median: stamps jittering by +-20 % of the period leave intervals within 1.4 x it, and one lost
 message makes one of 1.6 x or more)."""
+ODOM_GAP_MIN = 0.05
+"""Seconds: a gap in the odometry shorter than this is never one (``_check_odom_gap``): at 1 kHz
+/tf a 2 ms gap is twice the usual interval but hides no motion worth a scan (a live-node
+audit: 43 of 100 scans refused so)."""
 TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
