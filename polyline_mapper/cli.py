@@ -1048,8 +1048,7 @@ def cmd_export(args) -> int:
         print(f'polyline-mapper: warning: writing {args.format} into {args.output}, whose '
               f'extension says {ext} (--format {args.format} decides)', file=sys.stderr)
     data = read_map(args.map)
-    if args.trajectory or (args.format or '') == 'tum' or \
-            os.path.splitext(args.output)[1].lower() == '.tum':
+    if args.trajectory or (args.format or '') == 'tum' or ext == 'tum':
         fmt = export_trajectory(data, args.output, args.format, inputs=[args.map])
         if not args.quiet:
             print(f'wrote {args.output}: the trajectory, {len(data.value.trajectory)} poses '

@@ -425,9 +425,8 @@ class BagWriter:
         if isinstance(record, Scan):
             msgtype = SCAN_TYPE
             msg = t[SCAN_TYPE](self._header(record.stamp, record.frame_id),
-                               record.angle_min, record.angle_min + record.angle_increment
-                               * (len(record.ranges) - 1) if record.angle_max is None
-                               else record.angle_max, record.angle_increment,
+                               record.angle_min, record.message_angle_max(),
+                               record.angle_increment,
                                float(record.time_increment), float(record.scan_time),
                                record.range_min, record.range_max,
                                np.asarray(record.ranges, dtype=np.float32),

@@ -49,6 +49,11 @@ class Scan:
         """Return each beam's angle, radians in the laser frame, (B,); ValueError if not finite."""
         return beam_angles(self.angle_min, self.angle_increment, len(self.ranges))
 
+    def message_angle_max(self) -> float:
+        """Return the angle_max its LaserScan carries: ``angle_max``, else the last beam's."""
+        return (last_angle(self.angle_min, self.angle_increment, len(self.ranges))
+                if self.angle_max is None else float(self.angle_max))
+
 
 @dataclass
 class Transform:

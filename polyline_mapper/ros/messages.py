@@ -50,9 +50,7 @@ def scan_msg(scan: records.Scan, stamp: float = None) -> LaserScan:
     msg.header.stamp = time_msg(scan.stamp if stamp is None else stamp)
     msg.angle_min = float(scan.angle_min)
     msg.angle_increment = float(scan.angle_increment)
-    msg.angle_max = (float(np.float32(scan.angle_min + scan.angle_increment
-                                      * max(len(scan.ranges) - 1, 0)))
-                     if scan.angle_max is None else float(scan.angle_max))
+    msg.angle_max = scan.message_angle_max()
     msg.range_min = float(scan.range_min)
     msg.range_max = float(scan.range_max)
     msg.time_increment = float(scan.time_increment)
