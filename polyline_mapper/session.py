@@ -88,6 +88,16 @@ ODOM_GAP_MIN = 0.05
 """Seconds: a gap in the odometry shorter than this is never one (``_check_odom_gap``): at 1 kHz
 /tf a 2 ms gap is twice the usual interval but hides no motion worth a scan (a live-node
 audit: 43 of 100 scans refused so)."""
+ODOM_JUMP = (1.0, 5.0)
+"""Scan matching with odometry: (m, m/s). An odometry step (the base's motion between two matched
+scans) that departs from the odometry's previous step, carried on at its pace, by more than the
+first and than the second times the time between the scans is no motion but a jump
+(``_odometry_jumped``): of the odometry frame under the robot (a driver that restarted, a wheel
+that slipped) or of the robot with it (a recording played again). 5 m/s gained within one
+scan (at 10 Hz: 50 m/s^2) is beyond any ground robot; 1 m is the relocalization's reach
+(``RELOCALIZE``), which finds smaller jumps. Headings are not judged: the simulated drives turn
+90 deg within a scan, and a reset that moves the robot little (near the odometry's origin) is
+left to the match."""
 TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
@@ -1515,6 +1525,14 @@ class MappingSession:
         self._anchor = None
         """Scan matching: the robot base's given pose (TF / odometry) at the last matched scan:
         the start of the motion whose odometry error the next prediction carries."""
+        self._anchor_at = None
+        """Scan matching: (stamp s, laser pose in the fixed frame) of that scan."""
+        self._anchor_step = None
+        """Scan matching: (base motion (x, y, yaw) in the base frame, seconds) between the two
+        last matched scans: the pace an odometry jump is judged against and predicted with."""
+        self._odom_jump = None
+        """Scan matching: an odometry jump judged at this scan, to warn of: (its metres off the
+        pace, seconds since the last matched scan, whether map -> odom was re-anchored)."""
         self.held = 0
         """Scan matching: matched scans with a direction held at the prediction (``held``)."""
         self._found = False
@@ -1564,7 +1582,8 @@ class MappingSession:
         self.localization = None
         """Scan matching: the newest mapped scan's ``Localization`` (None before one)."""
         self.jumps = Counter()
-        """Scan matching: 'residual' and 'correction' jumps warned about (``_localize``)."""
+        """Scan matching: 'residual', 'correction' and 'odometry' jumps warned about
+        (``_localize``)."""
         self._residuals = deque(maxlen=JUMP_WINDOW)
         self._last_match = None
         self._news = False
@@ -1726,7 +1745,7 @@ class MappingSession:
         self._recent_pose = None
         self._proposals.clear()
         self._shares.clear()
-        self._anchor = None
+        self._anchor = self._anchor_at = self._anchor_step = self._odom_jump = None
         self._motion.clear()
         self._intervals.clear()
         self._found = False
@@ -2168,6 +2187,8 @@ class MappingSession:
                 rel = _compose(_inverse(pose.xyz), at)
             except TransformLookupError:
                 rel = None
+            if rel is not None and self._jumps_within(rel[-1], span):
+                rel = None                  # the odometry jumped during the scan
         if rel is None:
             velocity = motion_velocity(self._motion, scan.stamp)
             if velocity is None:
@@ -2176,6 +2197,22 @@ class MappingSession:
                                    limit)
             return self._deskew.motion
         return sweep_motion(times, span, rel)
+
+    def _jumps_within(self, motion: np.ndarray, span: float) -> bool:
+        """
+        Whether the pose source moves the laser by ``motion`` within one scan only by a jump.
+
+        Beyond ``ODOM_JUMP`` more than the pace of the last matched scans (the base's: the
+        laser's differs by its mount turning, centimetres) the beams of a scan during which the
+        odometry was reset would be spread along the jump (measured with a moving sensor and the
+        odometry reset mid-drive: walls F1 0.79 on the simulated office, 0.24 on the
+        corridors); placed with the matched motion instead.
+        """
+        pace = 0.0
+        if self._anchor_step is not None and self._anchor_step[1] > 0:
+            step, seconds = self._anchor_step
+            pace = math.hypot(step[0], step[1]) * span / seconds
+        return math.hypot(motion[0], motion[1]) - pace > max(ODOM_JUMP[0], ODOM_JUMP[1] * span)
 
     def _keyframe(self, local: np.ndarray, pose: np.ndarray) -> None:
         """
@@ -2209,10 +2246,13 @@ class MappingSession:
         walking ahead in a corridor.
         """
         local = spread(local, MATCH_POINTS)
+        stamp, window, estimate = gap
+        step = self._odometry_jumped(local, given, base, stamp, window)   # (re-anchored if so)
         prediction = _compose(self._correction, given)
         cov = None
         if self.options.pose_source != 'scan' and self._anchor is not None:
-            step = _compose(_inverse(self._anchor), base)
+            if step is None:
+                step = _compose(_inverse(self._anchor), base)
             cov = odometry_covariance(step)
             slip = TURN_SLIP * abs(math.remainder(float(step[2]), 2.0 * math.pi))
             cov[:2, :2] += np.diag([slip * slip, slip * slip])
@@ -2221,7 +2261,6 @@ class MappingSession:
         support = self.mapper.support if sigma is not None else np.zeros(0)
         sigma = sigma or MATCH_SIGMA
         recent, transient = self._recent.chords(), self._recent.transient()
-        stamp, window, estimate = gap
         if window is not None:
             return self._find_after_gap(local, given, prediction, np.concatenate([segs, recent]),
                                         sigma, window, base, stamp, estimate)
@@ -2239,7 +2278,7 @@ class MappingSession:
             self.matches['no map yet'] += 1
             if not self._proposals:                 # (lost: not where the map is)
                 self._keyframe(local, prediction)
-                self._anchor = np.asarray(base, dtype=np.float64).copy()
+                self._set_anchor(base, stamp, prediction)
             return prediction, None
         if MATCH_SEEN_THROUGH and self.options.pose_source != 'scan':
             segs, support, recent, kept = _not_seen_through(
@@ -2295,11 +2334,90 @@ class MappingSession:
                                 f'{m.reason} ({m.inliers} inliers){kept}')
         self.matches['relocalized' if m.relocalized else 'matched'] += 1
         self.held += m.held > 0
-        self._anchor = np.asarray(base, dtype=np.float64).copy()
+        self._set_anchor(base, stamp, m.pose)
         self._shares.append(m.share)
         self._keyframe(local, m.pose)
         self._correction = _compose(m.pose, _inverse(given))
         return m.pose, None
+
+    def _set_anchor(self, base, stamp, pose) -> None:
+        """
+        Note the last matched scan: its base pose (given), stamp and laser pose; the step.
+
+        The step into a scan where the odometry jumped is no pace (``_odometry_jumped``): the
+        one before is kept.
+        """
+        base = np.asarray(base, dtype=np.float64).copy()
+        if self._odom_jump is not None:
+            pass
+        elif self._anchor is not None and self._anchor_at is not None and stamp is not None \
+                and self._anchor_at[0] is not None:
+            self._anchor_step = (_compose(_inverse(self._anchor), base),
+                                 stamp - self._anchor_at[0])
+        self._anchor = base
+        self._anchor_at = (stamp, np.asarray(pose, dtype=np.float64).copy())
+
+    def _odometry_jumped(self, local: np.ndarray, given: np.ndarray, base: np.ndarray, stamp,
+                         window) -> Optional[np.ndarray]:
+        """
+        Re-anchor ``map -> odom`` when the odometry jumped; return the base motion then, or None.
+
+        An odometry driver that restarts (its pose back to 0 while the robot drives on) or a
+        slip moves the odometry frame under the robot. Predicted from it, the scans were
+        matched onto copies of the map shifted by the jump (measured: sim:office reset at scan
+        150, poses 16.6 m off, walls F1 0.65), or searched for within 1 m only. The odometry's
+        motion since the last matched scan is judged against its previous step, carried on at
+        that pace (constant velocity): off by more than ``ODOM_JUMP``, the scan is matched
+        (``_trial_match``) from both: from where the pace puts the robot, and from where the
+        odometry does (a recording played again with ``play --loop``, a simulation's robot
+        moved: the scans jumped with the odometry). The odometry is followed when its match
+        explains more of the scan; else the robot is predicted at the pace and map -> odom
+        re-anchored on the odometry's new pose. ``_localize`` warns either way.
+        """
+        if (self.options.pose_source == 'scan' or self._anchor is None or window is not None
+                or stamp is None or self._anchor_at is None or self._anchor_at[0] is None):
+            return None
+        step = _compose(_inverse(self._anchor), base)
+        dt = stamp - self._anchor_at[0]
+        pace = np.zeros(3)
+        if self._anchor_step is not None and self._anchor_step[1] > 0 and dt > 0:
+            pace = self._anchor_step[0] * min(dt / self._anchor_step[1], 1.0)
+        off = _compose(_inverse(pace), step)
+        shift, dt = math.hypot(off[0], off[1]), max(dt, 0.0)
+        if shift <= max(ODOM_JUMP[0], ODOM_JUMP[1] * dt):
+            return None
+        mount = _compose(_inverse(base), given)          # the laser on the base
+        laser = _compose(_compose(self._anchor_at[1], _inverse(mount)), _compose(pace, mount))
+        paced, followed = (self._trial_match(local, p) for p in
+                           (laser, _compose(self._correction, given)))
+        if followed is not None and followed.ok and (
+                paced is None or not paced.ok or followed.share > paced.share):
+            self._odom_jump = (shift, dt, False)
+            return None
+        self._correction = _compose(laser, _inverse(given))
+        self._anchor = np.asarray(base, dtype=np.float64).copy()
+        self._anchor_at = (stamp, laser)
+        self._odom_jump = (shift, dt, True)
+        return pace
+
+    def _trial_match(self, local: np.ndarray, prediction: np.ndarray) -> Optional[ScanMatch]:
+        """
+        Return a plain match of ``local`` from ``prediction`` (None: no map near it).
+
+        Against the map and the recent chords within reach of the scan placed there, with the
+        relocalization search and none of the prediction's terms (its covariance, the hold):
+        to compare two predictions of one scan (``_odometry_jumped``).
+        """
+        sigma = self.mapper.sigma
+        segs = self.mapper.segments if sigma is not None else np.zeros((0, 2, 2))
+        near = np.concatenate([segs, self._recent.chords()])
+        world = transform(local, prediction)
+        reach = 0.5 + self.mapper.r + RELOCALIZE
+        near = np.compress(in_box(near, world.min(axis=0) - reach, world.max(axis=0) + reach),
+                           near, axis=0)
+        if not len(near):
+            return None
+        return match_scan(local, prediction, near, sigma or MATCH_SIGMA, relocalize=RELOCALIZE)
 
     def _find_after_gap(self, local: np.ndarray, given: np.ndarray, prediction: np.ndarray,
                         segments: np.ndarray, sigma: float, window: tuple, base: np.ndarray,
@@ -2402,7 +2520,7 @@ class MappingSession:
                      else 'found near the estimate'] += 1
         self._found = True          # the gap, not the prediction, made the jump
         self._proposals.clear()
-        self._anchor = np.asarray(base, dtype=np.float64).copy()
+        self._set_anchor(base, motion[-1][0], pose)
         self._shares.append(m.share)
         self._keyframe(local, pose)
         self._correction = _compose(pose, _inverse(given))
@@ -2490,7 +2608,17 @@ class MappingSession:
         dx, dy, dyaw = _compose(_inverse(_compose(before, given)), laser)
         dyaw = wrap_angle(dyaw)
         found, self._found = self._found, False             # (warned at the run's first scan)
-        if (math.hypot(dx, dy) > JUMP_SHIFT or abs(dyaw) > JUMP_TURN) and not found:
+        jumped, self._odom_jump = self._odom_jump, None
+        if jumped is not None:
+            self.jumps['odometry'] += 1
+            shift, seconds, anchored = jumped
+            notes.append(('odom_jump', f'the odometry jumped at {stamp:.3f} s: {shift:.2f} m '
+                          f'off its pace in {seconds:.3f} s; ' + (
+                              'the scan fits the last pace better (its driver restarted, a '
+                              'slip?): predicted so, map -> odom re-anchored' if anchored else
+                              'the scan fits the odometry better (a recording played again, a '
+                              'robot carried?): followed')))
+        elif (math.hypot(dx, dy) > JUMP_SHIFT or abs(dyaw) > JUMP_TURN) and not found:
             self.jumps['correction'] += 1
             notes.append(('correction_jump', f'map -> odom jumped at {stamp:.3f} s: the scan '
                           f'matched {100 * math.hypot(dx, dy):.0f} cm, {math.degrees(dyaw):.1f} '

@@ -1,5 +1,7 @@
 """Scan matching as a localizer: the session's Localization value, frames, jump warnings."""
 
+import math
+
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
 from polyline_mapper.formats.records import Odometry
@@ -164,20 +166,28 @@ def test_a_sudden_drop_of_the_scan_on_the_map_starts_the_search():
     assert row['f1'] == 1.0 and row['precision'] == 1.0, row
 
 
-def test_a_slip_beyond_the_search_never_leaves_the_poses_further_off_than_the_slip():
+def test_a_slip_beyond_the_search_never_leaves_the_poses_further_off_than_the_slip(monkeypatch):
     # benchmarks/slips.py's office drive, seed 7: the odometry jumps 1.5 m forward at scan 30,
-    # beyond the 1 m relocalization search, so the true pose cannot be found. Matched to the
-    # chords of the last 12 scans as well while lost, scan 52 locked on 1 m off and the drive
-    # was mapped from there: poses up to 3.66 m off (worse than the slip), walls F1 0.29.
+    # beyond the 1 m relocalization search, so the true pose cannot be found there. Matched to
+    # the chords of the last 12 scans as well while lost, scan 52 locked on 1 m off and the
+    # drive was mapped from there: poses up to 3.66 m off (worse than the slip), walls F1 0.29.
     # Matched to the map alone while lost, it is relocalized 0.65 m off.
     import importlib
     import sys
     from conftest import REPO
+    from polyline_mapper import session
     from polyline_mapper.recordings import make_drive
     sys.path.insert(0, str(REPO / 'benchmarks'))
     slips = importlib.import_module('slips')
-    row = slips.one(make_drive('office', seed=7), 30, (1.5, 0.0, 0.0))
-    assert row['matches']['relocalized'] == 1
+    drive = make_drive('office', seed=7)
+    # 1.5 m in one scan (0.1 s) is an odometry jump (``ODOM_JUMP``): the robot is predicted at
+    # its last pace and matched where it is. The lost state alone is tested without that.
+    row = slips.one(drive, 30, (1.5, 0.0, 0.0))
+    assert row['jumps'] == {'odometry': 1} and 'relocalized' not in row['matches'], row
+    assert row['max_error_m'] < 0.05 and row['f1'] == 1.0 and row['not_mapped'] == 0, row
+    monkeypatch.setattr(session, 'ODOM_JUMP', (math.inf, math.inf))
+    row = slips.one(drive, 30, (1.5, 0.0, 0.0))
+    assert row['matches']['relocalized'] == 1 and row['jumps'] == {'correction': 1}, row
     assert row['max_error_m'] < 1.0 and row['final_error_m'] < 1.0, row
 
 
@@ -233,12 +243,24 @@ def test_a_heading_jump_beyond_the_turn_limit_maps_nothing_until_it_is_found(off
     # stopped right after the jump, the session says it is lost (the node's /diagnostics WARN)
     session, _ = _run(office_drive, odom[:31])
     assert session.lost and session.stats()['skipped'] == {'not mapped: lost': 1}
-    # lost, and then the odometry puts the robot 50 m away from any map: still not mapped
+    # lost, and then the odometry puts the robot 9 m away from any map (within the 10 m it may
+    # drive in the 2 s since the last matched scan, ``ODOM_JUMP``): still not mapped
     far = odom[:34].copy()
-    far[31:, 0] += 50.0
+    far[31:, 1] -= 9.0
     session, _ = _run(office_drive, far)
     assert session.lost and session.stats()['skipped'] == {'not mapped: lost': 4}
-    assert session.matches['no map yet'] == 4
+    assert session.matches['matched'] == 29
+    # 50 m in those 2 s is no motion but an odometry jump: predicted at the pace of the last
+    # matched scans, the robot is found where it is (it had been left lost and not mapped)
+    far = odom[:34].copy()
+    far[31:, 0] += 50.0
+    warned = []
+    session, locs = _run(office_drive, far, warn=lambda cause, text: warned.append(cause))
+    assert not session.lost and session.stats()['skipped'] == {'not mapped: lost': 1}
+    assert warned == ['match_failed', 'correction_jump', 'odom_jump']
+    assert session.stats()['match_jumps'] == {'correction': 1, 'odometry': 1}
+    pose = np.array([loc.pose for loc in locs])
+    assert np.hypot(*(pose[31:, :2] - truth[31:34, :2]).T).max() < 0.01
 
 
 def test_a_residual_far_above_its_running_median_warns(office_drive):
