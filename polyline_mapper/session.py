@@ -2368,11 +2368,14 @@ class MappingSession:
         150, poses 16.6 m off, walls F1 0.65), or searched for within 1 m only. The odometry's
         motion since the last matched scan is judged against its previous step, carried on at
         that pace (constant velocity): off by more than ``ODOM_JUMP``, the scan is matched
-        (``_trial_match``) from both: from where the pace puts the robot, and from where the
+        (``_trial_match``) from both: from where the pace puts the robot (or that pace without
+        its turn, or standing still: whichever the scan fits best), and from where the
         odometry does (a recording played again with ``play --loop``, a simulation's robot
         moved: the scans jumped with the odometry). The odometry is followed when its match
         explains more of the scan; else the robot is predicted at the pace and map -> odom
-        re-anchored on the odometry's new pose. ``_localize`` warns either way.
+        re-anchored on the odometry's new pose. ``_localize`` warns either way. A turn of more
+        than the matcher's heading search (0.2 rad) in the step the odometry jumped over is
+        lost with it (the simulated drives' instant U-turns).
         """
         if (self.options.pose_source == 'scan' or self._anchor is None or window is not None
                 or stamp is None or self._anchor_at is None or self._anchor_at[0] is None):
@@ -2387,13 +2390,22 @@ class MappingSession:
         if shift <= max(ODOM_JUMP[0], ODOM_JUMP[1] * dt):
             return None
         mount = _compose(_inverse(base), given)          # the laser on the base
-        laser = _compose(_compose(self._anchor_at[1], _inverse(mount)), _compose(pace, mount))
-        paced, followed = (self._trial_match(local, p) for p in
-                           (laser, _compose(self._correction, given)))
+        was = _compose(self._anchor_at[1], _inverse(mount))     # the base, last matched
+        # The pace, the pace without its turn (it may have been a turn's last step), and
+        # standing still (a robot that stopped): the first whose match explains most.
+        paces = [pace, np.array([pace[0], pace[1], 0.0]), np.zeros(3)]
+        best, paced = pace, None
+        for motion in paces:
+            m = self._trial_match(local, _compose(was, _compose(motion, mount)))
+            if m is not None and m.ok and (paced is None or m.share > paced.share):
+                best, paced = motion, m
+        followed = self._trial_match(local, _compose(self._correction, given))
         if followed is not None and followed.ok and (
-                paced is None or not paced.ok or followed.share > paced.share):
+                paced is None or followed.share > paced.share):
             self._odom_jump = (shift, dt, False)
             return None
+        pace = best
+        laser = _compose(was, _compose(pace, mount))
         self._correction = _compose(laser, _inverse(given))
         self._anchor = np.asarray(base, dtype=np.float64).copy()
         self._anchor_at = (stamp, laser)

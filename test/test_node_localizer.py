@@ -17,15 +17,18 @@ TIMEOUT = 60.0
 SEED = 0
 
 
-def _drifted(drive) -> tuple:
+def _drifted(drive, reset: int = None) -> tuple:
     """
     Return (messages, true base poses, drifted base poses) of a robot with wheel odometry only.
 
-    The messages have drifting /odom and odom -> base_link, no map frame.
+    The messages have drifting /odom and odom -> base_link, no map frame. ``reset``: the
+    odometry's driver restarts at that scan (its pose back to 0 while the robot drives on).
     """
     mount = np.asarray(SIM_MOUNT, dtype=float)
     truth = se2_compose(np.asarray(drive.poses, dtype=float), se2_inverse(mount))
     odom = OdometryDrift().apply(truth, SEED)
+    if reset is not None:
+        odom[reset:] = se2_compose(se2_inverse(odom[reset]), odom[reset:])
     moved = replace(drive, poses=se2_compose(odom, mount))     # the scans stay where they were
     return list(drive_messages(moved, map_to_odom=None)), truth, odom
 
@@ -46,8 +49,8 @@ def _planar(pose) -> np.ndarray:
     return np.array([p.x, p.y, 2.0 * np.arctan2(q.z, q.w)])
 
 
-def _run(drive, folder, mode: str, params: dict) -> tuple:
-    msgs, truth, odom = _drifted(drive)
+def _run(drive, folder, mode: str, params: dict, reset: int = None) -> tuple:
+    msgs, truth, odom = _drifted(drive, reset)
     if mode == 'odom':
         # Lossless odometry (test_node_modes.py): a message lost at a corner of this 0.4 m-step
         # drive costs its scan (skipped as odom_gap, test_odom_gaps.py); lossless, the run is
@@ -118,6 +121,33 @@ def test_with_only_drifting_odometry_the_node_localizes_and_maps_consistently(
     samples, _ = sample_segments(map_segments(msg), 0.05)
     dist = office_drive.world.distance(samples)
     assert len(msg.segments) > 10 and np.median(dist) < 0.03, np.median(dist)
+
+
+def test_an_odometry_driver_restart_is_warned_and_the_robot_stays_localized(
+        office_drive, tmp_path):
+    # The odometry's pose goes back to 0 at scan 100 while the robot drives on. It was taken
+    # for motion and the scans were matched onto a copy of the map shifted by the jump (the
+    # session: poses 16.6 m off). The node warns once, re-anchors map -> odom, and the
+    # robot's pose in map (map -> odom -> base_link) stays on the truth. The step before
+    # scan 100 is one of this drive's instant 90 deg turns: its pace would turn again (the
+    # pace without its turn is taken). At scan 150 the drive turns 180 deg in the very step
+    # the reset hides, which no pace predicts: that reset is not recovered (README).
+    params = {'scan_matching': True, 'map_odom_post_date': 0.0, 'laser_x': SIM_MOUNT[0],
+              'laser_y': SIM_MOUNT[1], 'laser_yaw': SIM_MOUNT[2]}
+    run = _run(office_drive, tmp_path, 'odom', params, reset=100)
+    node, peer, tfs, truth, odom = (run[k] for k in ('node', 'peer', 'tfs', 'truth', 'odom'))
+    assert np.hypot(*odom[99, :2]) > 5.0 and np.abs(odom[100]).max() < 1e-12
+    assert abs(np.angle(np.exp(1j * (truth[99, 2] - truth[98, 2])))) > 1.0
+    jumped = node.lines('the odometry jumped')
+    assert len(jumped) == 1 and 'its driver restarted' in jumped[0], node.stderr()[-3000:]
+    assert jumped[0].endswith('[odom_jump]') and node.lines('warnings: odom_jump 1;')
+    k = np.array([round((stamp_of(t) - run['t0']) * RATE) for t in tfs])
+    localized = se2_compose(np.array([_planar(t.transform) for t in tfs]), odom[k])
+    err = np.hypot(*(localized[:, :2] - truth[k, :2]).T)
+    assert k[-1] == len(truth) - 1 and (k > 100).sum() > 0.4 * len(truth)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05 and err.max() < 0.15, (err.max(), k[err.argmax()])
+    samples, _ = sample_segments(map_segments(peer.maps[-1]), 0.05)
+    assert np.percentile(office_drive.world.distance(samples), 95) < 0.05
 
 
 def test_without_scan_matching_the_node_broadcasts_nothing(office_drive, tmp_path):
