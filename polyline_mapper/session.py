@@ -98,6 +98,13 @@ scan (at 10 Hz: 50 m/s^2) is beyond any ground robot; 1 m is the relocalization'
 (``RELOCALIZE``), which finds smaller jumps. Headings are not judged: the simulated drives turn
 90 deg within a scan, and a reset that moves the robot little (near the odometry's origin) is
 left to the match."""
+ODOM_JUMP_MARGIN = 0.05
+"""Share of a scan's points: at an odometry jump (``_odometry_jumped``) the odometry is kept
+unless a pace's match puts this much more of the scan on the map than the odometry's, and the
+last pace gives way to the pace without its turn, or to standing still, only by as much. In a
+corridor every place along it fits nearly alike (the simulated corridors: 0.938 at the pace,
+0.942 standing still, 0.25 m behind; a robot at 5 m/s and 5 Hz taken for a jump at 1.02 m off
+its pace, the odometry right: 1.06 m off when the pace won by a hair)."""
 TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
@@ -1532,7 +1539,8 @@ class MappingSession:
         last matched scans: the pace an odometry jump is judged against and predicted with."""
         self._odom_jump = None
         """Scan matching: an odometry jump judged at this scan, to warn of: (its metres off the
-        pace, seconds since the last matched scan, whether map -> odom was re-anchored)."""
+        pace, seconds since the last matched scan, 'anchored' on the pace, 'followed' or
+        'kept': the odometry)."""
         self.held = 0
         """Scan matching: matched scans with a direction held at the prediction (``held``)."""
         self._found = False
@@ -2247,7 +2255,7 @@ class MappingSession:
         """
         local = spread(local, MATCH_POINTS)
         stamp, window, estimate = gap
-        step = self._odometry_jumped(local, given, base, stamp, window)   # (re-anchored if so)
+        step = self._odometry_jumped(local, given, base, stamp, window)
         prediction = _compose(self._correction, given)
         cov = None
         if self.options.pose_source != 'scan' and self._anchor is not None:
@@ -2360,57 +2368,68 @@ class MappingSession:
     def _odometry_jumped(self, local: np.ndarray, given: np.ndarray, base: np.ndarray, stamp,
                          window) -> Optional[np.ndarray]:
         """
-        Re-anchor ``map -> odom`` when the odometry jumped; return the base motion then, or None.
+        Judge an odometry jump; return the base motion the prediction carries then, or None.
 
         An odometry driver that restarts (its pose back to 0 while the robot drives on) or a
         slip moves the odometry frame under the robot. Predicted from it, the scans were
         matched onto copies of the map shifted by the jump (measured: sim:office reset at scan
         150, poses 16.6 m off, walls F1 0.65), or searched for within 1 m only. The odometry's
         motion since the last matched scan is judged against its previous step, carried on at
-        that pace (constant velocity): off by more than ``ODOM_JUMP``, the scan is matched
-        (``_trial_match``) from both: from where the pace puts the robot (or that pace without
-        its turn, or standing still: whichever the scan fits best), and from where the
-        odometry does (a recording played again with ``play --loop``, a simulation's robot
-        moved: the scans jumped with the odometry). The odometry is followed when its match
-        explains more of the scan; else the robot is predicted at the pace and map -> odom
-        re-anchored on the odometry's new pose. ``_localize`` warns either way. A turn of more
-        than the matcher's heading search (0.2 rad) in the step the odometry jumped over is
-        lost with it (the simulated drives' instant U-turns).
+        that pace (constant velocity; neither may span more than ``MAX_MOTION_GAP``): off by
+        more than ``ODOM_JUMP``, the scan is matched (``_trial_match``) from both: from where
+        the pace puts the robot (or that pace without its turn, or standing still: whichever
+        the scan fits best), and from where the odometry does (a recording played again with
+        ``play --loop``, a simulation's robot moved: the scans jumped with the odometry). The
+        odometry is followed unless a pace's match explains clearly more of the scan
+        (``ODOM_JUMP_MARGIN``), and kept when no pace's match is taken; else map -> odom is
+        re-anchored where the pace's match put the scan.
+        ``_localize`` warns either way. A turn of more than the matcher's heading search (0.2
+        rad) in the step the odometry jumped over is lost with it (the simulated drives'
+        instant U-turns).
         """
         if (self.options.pose_source == 'scan' or self._anchor is None or window is not None
                 or stamp is None or self._anchor_at is None or self._anchor_at[0] is None):
             return None
-        step = _compose(_inverse(self._anchor), base)
         dt = stamp - self._anchor_at[0]
+        if dt > MAX_MOTION_GAP:             # no pace carries over a gap: not judged
+            return None
+        step = _compose(_inverse(self._anchor), base)
         pace = np.zeros(3)
-        if self._anchor_step is not None and self._anchor_step[1] > 0 and dt > 0:
-            pace = self._anchor_step[0] * min(dt / self._anchor_step[1], 1.0)
-        off = _compose(_inverse(pace), step)
-        shift, dt = math.hypot(off[0], off[1]), max(dt, 0.0)
+        if (self._anchor_step is not None and 0 < self._anchor_step[1] <= MAX_MOTION_GAP
+                and dt > 0):
+            pace = self._anchor_step[0] * (dt / self._anchor_step[1])
+        shift, dt = math.hypot(step[0] - pace[0], step[1] - pace[1]), max(dt, 0.0)
         if shift <= max(ODOM_JUMP[0], ODOM_JUMP[1] * dt):
             return None
         mount = _compose(_inverse(base), given)          # the laser on the base
         was = _compose(self._anchor_at[1], _inverse(mount))     # the base, last matched
         # The pace, the pace without its turn (it may have been a turn's last step), and
-        # standing still (a robot that stopped): the first whose match explains most.
+        # standing still (a robot that stopped): the first whose match is taken, unless a
+        # later one explains clearly more.
         paces = [pace, np.array([pace[0], pace[1], 0.0]), np.zeros(3)]
         best, paced = pace, None
         for motion in paces:
             m = self._trial_match(local, _compose(was, _compose(motion, mount)))
-            if m is not None and m.ok and (paced is None or m.share > paced.share):
+            if m is not None and m.ok and (
+                    paced is None or m.share > paced.share + ODOM_JUMP_MARGIN):
                 best, paced = motion, m
         followed = self._trial_match(local, _compose(self._correction, given))
-        if followed is not None and followed.ok and (
-                paced is None or followed.share > paced.share):
-            self._odom_jump = (shift, dt, False)
-            return None
-        pace = best
-        laser = _compose(was, _compose(pace, mount))
-        self._correction = _compose(laser, _inverse(given))
+        if paced is None or (followed is not None and followed.ok
+                             and followed.share + ODOM_JUMP_MARGIN >= paced.share):
+            # The odometry is kept: its match fits better, or no pace fits (nothing to
+            # re-anchor on). Its step is no pace for the next scans (a jump, or a pace that
+            # was wrong: after a gap, a turn).
+            self._odom_jump = (shift, dt, 'followed' if followed is not None and followed.ok
+                               else 'kept')
+            self._anchor_step = None
+            self._anchor = np.asarray(base, dtype=np.float64).copy()    # (judged once)
+            self._anchor_at = (stamp, _compose(self._correction, given))
+            return step
+        self._correction = _compose(paced.pose, _inverse(given))
         self._anchor = np.asarray(base, dtype=np.float64).copy()
-        self._anchor_at = (stamp, laser)
-        self._odom_jump = (shift, dt, True)
-        return pace
+        self._anchor_at = (stamp, np.asarray(paced.pose, dtype=np.float64).copy())
+        self._odom_jump = (shift, dt, 'anchored')
+        return best
 
     def _trial_match(self, local: np.ndarray, prediction: np.ndarray) -> Optional[ScanMatch]:
         """
@@ -2623,13 +2642,16 @@ class MappingSession:
         jumped, self._odom_jump = self._odom_jump, None
         if jumped is not None:
             self.jumps['odometry'] += 1
-            shift, seconds, anchored = jumped
+            shift, seconds, outcome = jumped
             notes.append(('odom_jump', f'the odometry jumped at {stamp:.3f} s: {shift:.2f} m '
-                          f'off its pace in {seconds:.3f} s; ' + (
-                              'the scan fits the last pace better (its driver restarted, a '
-                              'slip?): predicted so, map -> odom re-anchored' if anchored else
-                              'the scan fits the odometry better (a recording played again, a '
-                              'robot carried?): followed')))
+                          f'off its pace in {seconds:.3f} s; ' + {
+                              'anchored': 'the scan fits the last pace better (its driver '
+                                          'restarted, a slip?): predicted so, map -> odom '
+                                          're-anchored',
+                              'followed': 'the scan fits the odometry better (a recording '
+                                          'played again, a robot carried?): followed',
+                              'kept': 'the scan fits neither the last pace nor the odometry: '
+                                      'the odometry kept'}[outcome]))
         elif (math.hypot(dx, dy) > JUMP_SHIFT or abs(dyaw) > JUMP_TURN) and not found:
             self.jumps['correction'] += 1
             notes.append(('correction_jump', f'map -> odom jumped at {stamp:.3f} s: the scan '
