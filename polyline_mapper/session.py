@@ -2356,10 +2356,8 @@ class MappingSession:
         one before is kept.
         """
         base = np.asarray(base, dtype=np.float64).copy()
-        if self._odom_jump is not None:
-            pass
-        elif self._anchor is not None and self._anchor_at is not None and stamp is not None \
-                and self._anchor_at[0] is not None:
+        if (self._odom_jump is None and self._anchor is not None and stamp is not None
+                and self._anchor_at is not None and self._anchor_at[0] is not None):
             self._anchor_step = (_compose(_inverse(self._anchor), base),
                                  stamp - self._anchor_at[0])
         self._anchor = base
@@ -2648,8 +2646,9 @@ class MappingSession:
                               'anchored': 'the scan fits the last pace better (its driver '
                                           'restarted, a slip?): predicted so, map -> odom '
                                           're-anchored',
-                              'followed': 'the scan fits the odometry better (a recording '
-                                          'played again, a robot carried?): followed',
+                              'followed': 'the scan fits the odometry at least as well (a '
+                                          'recording played again, a robot carried?): '
+                                          'followed',
                               'kept': 'the scan fits neither the last pace nor the odometry: '
                                       'the odometry kept'}[outcome]))
         elif (math.hypot(dx, dy) > JUMP_SHIFT or abs(dyaw) > JUMP_TURN) and not found:
