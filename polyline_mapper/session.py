@@ -95,9 +95,16 @@ first and than the second times the time between the scans is no motion but a ju
 (``_odometry_jumped``): of the odometry frame under the robot (a driver that restarted, a wheel
 that slipped) or of the robot with it (a recording played again). 5 m/s gained within one
 scan (at 10 Hz: 50 m/s^2) is beyond any ground robot; 1 m is the relocalization's reach
-(``RELOCALIZE``), which finds smaller jumps. Headings are not judged: the simulated drives turn
-90 deg within a scan, and a reset that moves the robot little (near the odometry's origin) is
-left to the match."""
+(``RELOCALIZE``), which finds smaller jumps. Headings: ``ODOM_JUMP_TURN``."""
+ODOM_JUMP_TURN = (0.5, 5.0)
+"""Scan matching with odometry: (rad, rad/s). An odometry step whose heading departs from its
+previous step's, carried on at its pace, by more than the first and than the second times the
+time between the scans may be a jump too (``_odometry_jumped``): a reset near the odometry's
+origin moves the robot under ``ODOM_JUMP`` but turns it by its heading (a helper audit: 0.84 m
+and 83 deg, beyond the matcher's heading search; mapped 20 m off after it). 5 rad/s gained
+within one scan (at 10 Hz: 50 rad/s^2) is beyond a ground robot's turn; the simulated drives
+turn 90 deg within a scan, and such a turn, which the scan confirms (the odometry's match fits
+at least as well as the pace's), is motion: not warned, nothing changed."""
 ODOM_JUMP_MARGIN = 0.05
 """Share of a scan's points: at an odometry jump (``_odometry_jumped``) the odometry is kept
 unless a pace's match puts this much more of the scan on the map than the odometry's, and the
@@ -2374,16 +2381,16 @@ class MappingSession:
         150, poses 16.6 m off, walls F1 0.65), or searched for within 1 m only. The odometry's
         motion since the last matched scan is judged against its previous step, carried on at
         that pace (constant velocity; neither may span more than ``MAX_MOTION_GAP``): off by
-        more than ``ODOM_JUMP``, the scan is matched (``_trial_match``) from both: from where
-        the pace puts the robot (or that pace without its turn, or standing still: whichever
-        the scan fits best), and from where the odometry does (a recording played again with
-        ``play --loop``, a simulation's robot moved: the scans jumped with the odometry). The
-        odometry is followed unless a pace's match explains clearly more of the scan
-        (``ODOM_JUMP_MARGIN``), and kept when no pace's match is taken; else map -> odom is
-        re-anchored where the pace's match put the scan.
-        ``_localize`` warns either way. A turn of more than the matcher's heading search (0.2
-        rad) in the step the odometry jumped over is lost with it (the simulated drives'
-        instant U-turns).
+        more than ``ODOM_JUMP`` (or its heading by more than ``ODOM_JUMP_TURN``), the scan is
+        matched (``_trial_match``) from both: from where the pace puts the robot (or that pace
+        without its turn, or standing still: whichever the scan fits best), and from where the
+        odometry does (a recording played again with ``play --loop``, a simulation's robot
+        moved: the scans jumped with the odometry). The odometry is followed unless a pace's
+        match explains clearly more of the scan (``ODOM_JUMP_MARGIN``), and kept when no
+        pace's match is taken; else map -> odom is re-anchored where the pace's match put the
+        scan. ``_localize`` warns either way, except of a turn alone that is followed or kept.
+        A turn of more than the matcher's heading search (0.2 rad) in the step the odometry
+        jumped over is lost with it (the simulated drives' instant U-turns).
         """
         if (self.options.pose_source == 'scan' or self._anchor is None or window is not None
                 or stamp is None or self._anchor_at is None or self._anchor_at[0] is None):
@@ -2397,7 +2404,9 @@ class MappingSession:
                 and dt > 0):
             pace = self._anchor_step[0] * (dt / self._anchor_step[1])
         shift, dt = math.hypot(step[0] - pace[0], step[1] - pace[1]), max(dt, 0.0)
-        if shift <= max(ODOM_JUMP[0], ODOM_JUMP[1] * dt):
+        turn = abs(math.remainder(float(step[2] - pace[2]), 2.0 * math.pi))
+        moved = shift > max(ODOM_JUMP[0], ODOM_JUMP[1] * dt)
+        if not moved and turn <= max(ODOM_JUMP_TURN[0], ODOM_JUMP_TURN[1] * dt):
             return None
         mount = _compose(_inverse(base), given)          # the laser on the base
         was = _compose(self._anchor_at[1], _inverse(mount))     # the base, last matched
@@ -2415,10 +2424,13 @@ class MappingSession:
         if paced is None or (followed is not None and followed.ok
                              and followed.share + ODOM_JUMP_MARGIN >= paced.share):
             # The odometry is kept: its match fits better, or no pace fits (nothing to
-            # re-anchor on). Its step is no pace for the next scans (a jump, or a pace that
-            # was wrong: after a gap, a turn).
-            self._odom_jump = (shift, dt, 'followed' if followed is not None and followed.ok
-                               else 'kept')
+            # re-anchor on). A turn alone is motion then (ODOM_JUMP_TURN): nothing changes.
+            # Else its step is no pace for the next scans (a jump, or a pace that was wrong:
+            # after a gap, a turn).
+            if not moved:
+                return None
+            self._odom_jump = (shift, turn, dt, 'followed' if followed is not None
+                               and followed.ok else 'kept')
             self._anchor_step = None
             self._anchor = np.asarray(base, dtype=np.float64).copy()    # (judged once)
             self._anchor_at = (stamp, _compose(self._correction, given))
@@ -2426,7 +2438,7 @@ class MappingSession:
         self._correction = _compose(paced.pose, _inverse(given))
         self._anchor = np.asarray(base, dtype=np.float64).copy()
         self._anchor_at = (stamp, np.asarray(paced.pose, dtype=np.float64).copy())
-        self._odom_jump = (shift, dt, 'anchored')
+        self._odom_jump = (shift, turn, dt, 'anchored')
         return best
 
     def _trial_match(self, local: np.ndarray, prediction: np.ndarray) -> Optional[ScanMatch]:
@@ -2640,9 +2652,10 @@ class MappingSession:
         jumped, self._odom_jump = self._odom_jump, None
         if jumped is not None:
             self.jumps['odometry'] += 1
-            shift, seconds, outcome = jumped
+            shift, turn, seconds, outcome = jumped
             notes.append(('odom_jump', f'the odometry jumped at {stamp:.3f} s: {shift:.2f} m '
-                          f'off its pace in {seconds:.3f} s; ' + {
+                          f'and {math.degrees(turn):.0f} deg off its pace in {seconds:.3f} s; '
+                          + {
                               'anchored': 'the scan fits the last pace better (its driver '
                                           'restarted, a slip?): predicted so, map -> odom '
                                           're-anchored',

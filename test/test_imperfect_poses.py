@@ -24,7 +24,7 @@ from polyline_mapper.recordings import (drive_messages, make_drive, OdometryDrif
                                         SIM_MOUNT, sim_options)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.scan import scan_to_points
-from polyline_mapper.session import MappingSession, SessionOptions
+from polyline_mapper.session import MappingSession, ODOM_JUMP, SessionOptions
 from polyline_mapper.sim import corridor_loop, LaserSpec, office_floor, simulate_drive
 import pytest
 
@@ -839,6 +839,33 @@ def test_an_odometry_reset_mid_drive_is_warned_and_maps_no_shifted_copy(spec, po
     # (the corridor loop drifts without loop closure, reset or not: its control's F1 is 0.37)
     assert got['reset']['walls']['f1'] >= got['control']['walls']['f1'], got
     assert got['control']['walls']['f1'] == 1.0 or 'corridors' in spec, got['control']['walls']
+    assert got['reset']['rms'] < 1.2 * got['control']['rms'] + 0.005, (
+        got['reset']['rms'], got['control']['rms'])
+
+
+def test_a_second_reset_near_the_odometry_origin_is_judged_by_its_heading():
+    # A helper audit: the odometry reset at scan 150 and again at 200, where it had driven only
+    # back near its new origin: the second jump moves the robot 0.84 m off its pace (under
+    # ODOM_JUMP's 1 m, left to the relocalization) but turns it by 83 deg, beyond the
+    # matcher's heading search: mapped 19 m off after it (walls F1 0.63). Its heading is
+    # judged too now (ODOM_JUMP_TURN); the simulated drives' 90 deg turns within a scan, which
+    # the scans confirm, change nothing (the control: no jump).
+    drive = make_drive('sim:office', 1)
+    base = np.asarray(drive.poses, dtype=np.float64)
+    odometry = OdometryDrift().apply(base, 1, stamps=drive.stamps)
+    reset = odometry.copy()
+    for k in (150, 200):
+        reset[k:] = se2_compose(se2_inverse(reset[k]), reset[k:])
+    pace = se2_compose(se2_inverse(reset[198]), reset[199])
+    off = se2_compose(se2_inverse(pace), se2_compose(se2_inverse(reset[199]), reset[200]))
+    assert np.hypot(off[0], off[1]) < ODOM_JUMP[0] and abs(off[2]) > 1.4, off
+    got = {'reset': _odometry_run(drive, reset), 'control': _odometry_run(drive, odometry)}
+    jumps = got['reset']['odom_jump']
+    assert len(jumps) == 2 and all('its driver restarted' in j for j in jumps), jumps
+    assert '0.84 m and 83 deg off its pace' in jumps[1], jumps
+    assert got['control']['odom_jump'] == [] and 'odometry' not in got['control']['jumps']
+    assert got['reset']['used'] == len(drive.stamps)
+    assert got['reset']['walls']['f1'] == got['control']['walls']['f1'] == 1.0, got
     assert got['reset']['rms'] < 1.2 * got['control']['rms'] + 0.005, (
         got['reset']['rms'], got['control']['rms'])
 
