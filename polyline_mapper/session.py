@@ -97,14 +97,21 @@ that slipped) or of the robot with it (a recording played again). 5 m/s gained w
 scan (at 10 Hz: 50 m/s^2) is beyond any ground robot; 1 m is the relocalization's reach
 (``RELOCALIZE``), which finds smaller jumps. Headings: ``ODOM_JUMP_TURN``."""
 ODOM_JUMP_TURN = (0.5, 5.0)
-"""Scan matching with odometry: (rad, rad/s). An odometry step whose heading departs from its
-previous step's, carried on at its pace, by more than the first and than the second times the
-time between the scans may be a jump too (``_odometry_jumped``): a reset near the odometry's
-origin moves the robot under ``ODOM_JUMP`` but turns it by its heading (a helper audit: 0.84 m
-and 83 deg, beyond the matcher's heading search; mapped 20 m off after it). 5 rad/s gained
-within one scan (at 10 Hz: 50 rad/s^2) is beyond a ground robot's turn; the simulated drives
-turn 90 deg within a scan, and such a turn, which the scan confirms (the odometry's match fits
-at least as well as the pace's), is motion: not warned, nothing changed."""
+"""Scan matching with odometry: (rad, rad/s). An odometry step into a pose near the odometry's
+origin (``ODOM_RESET_REACH``) whose heading departs from the previous step's, carried on at its
+pace, by more than the first and than the second times the time between the scans may be a
+reset too (``_odometry_jumped``): a reset near the origin moves the robot less than
+``ODOM_JUMP`` but turns it by its heading (a helper audit: 0.84 m and 83 deg, beyond the
+matcher's heading search; the drive ended 20 m off). 5 rad/s gained within one scan (at 10 Hz:
+50 rad/s^2) is beyond a ground robot's turn. Only near the origin: odometry at 5 Hz under 10 Hz
+scans, interpolated across the simulated drives' 90 deg turns within a scan, steps so anywhere,
+and re-anchored on the pace there the drive ended 35 m off (at most 0.82 m when not judged).
+A turn the scan confirms (the odometry's match fits at least as well as the pace's) is motion:
+not warned, nothing changed."""
+ODOM_RESET_REACH = 1.0
+"""Metres: an odometry pose within this of its origin, its heading within ``ODOM_JUMP_TURN[0]``
+of the origin's, may have just been reset (``ODOM_JUMP_TURN``): the reach of the relocalization
+(``RELOCALIZE``) that the smaller jumps are left to."""
 ODOM_JUMP_MARGIN = 0.05
 """Share of a scan's points: at an odometry jump (``_odometry_jumped``) the odometry is kept
 unless a pace's match puts this much more of the scan on the map than the odometry's, and the
@@ -603,6 +610,8 @@ class GapTrack:
         self.why = ''
         self.paused = True
         """Whether the scans paused before it (else they came, and did not match)."""
+        self.reset = False
+        """Whether the odometry came back near its origin after the gap (a driver restart)."""
 
     def add(self, stamp: float, local: np.ndarray, sigma: float, degenerate: float,
             given: np.ndarray = None) -> bool:
@@ -1545,9 +1554,13 @@ class MappingSession:
         """Scan matching: (base motion (x, y, yaw) in the base frame, seconds) between the two
         last matched scans: the pace an odometry jump is judged against and predicted with."""
         self._odom_jump = None
-        """Scan matching: an odometry jump judged at this scan, to warn of: (its metres off the
-        pace, seconds since the last matched scan, 'anchored' on the pace, 'followed' or
-        'kept': the odometry)."""
+        """Scan matching: an odometry jump judged at this scan, to warn of: (its metres and
+        radians off the pace, seconds since the last matched scan, 'anchored' on the pace,
+        'followed' or 'kept': the odometry, 'searched': after a gap)."""
+        self._reset_window = self._reset_at = None
+        """Scan matching: (m, rad) around ``_reset_at`` (the laser pose the last matched scan's
+        pace leads to) to search the scan in, when the odometry came back near its origin
+        after a gap (``_reset_after_gap``)."""
         self.held = 0
         """Scan matching: matched scans with a direction held at the prediction (``held``)."""
         self._found = False
@@ -1761,6 +1774,7 @@ class MappingSession:
         self._proposals.clear()
         self._shares.clear()
         self._anchor = self._anchor_at = self._anchor_step = self._odom_jump = None
+        self._reset_window = None
         self._motion.clear()
         self._intervals.clear()
         self._found = False
@@ -2068,6 +2082,8 @@ class MappingSession:
                         m = self._last_match
                         if self._gap is not None and (m is None or not m.ok):
                             where = ('near the pose estimate' if self._gap.estimate is not None
+                                     else 'after the odometry came back near its origin (since '
+                                     f'{self._gap.since:.3f} s)' if self._gap.reset
                                      else f'after a gap in the scans since {self._gap.since:.3f} s'
                                      if self._gap.paused else 'after scans that did not match '
                                      f'since {self._gap.since:.3f} s')
@@ -2264,6 +2280,10 @@ class MappingSession:
         stamp, window, estimate = gap
         step = self._odometry_jumped(local, given, base, stamp, window)
         prediction = _compose(self._correction, given)
+        reset = self._reset_window is not None
+        if reset:                       # searched around where the last pace leads
+            window, self._reset_window = self._reset_window, None
+            prediction = self._reset_at
         cov = None
         if self.options.pose_source != 'scan' and self._anchor is not None:
             if step is None:
@@ -2278,7 +2298,7 @@ class MappingSession:
         recent, transient = self._recent.chords(), self._recent.transient()
         if window is not None:
             return self._find_after_gap(local, given, prediction, np.concatenate([segs, recent]),
-                                        sigma, window, base, stamp, estimate)
+                                        sigma, window, base, stamp, estimate, reset)
         world = transform(local, prediction)
         reach = 0.5 + self.mapper.r
         lo, hi = world.min(axis=0) - reach, world.max(axis=0) + reach
@@ -2396,8 +2416,6 @@ class MappingSession:
                 or stamp is None or self._anchor_at is None or self._anchor_at[0] is None):
             return None
         dt = stamp - self._anchor_at[0]
-        if dt > MAX_MOTION_GAP:             # no pace carries over a gap: not judged
-            return None
         step = _compose(_inverse(self._anchor), base)
         pace = np.zeros(3)
         if (self._anchor_step is not None and 0 < self._anchor_step[1] <= MAX_MOTION_GAP
@@ -2405,8 +2423,13 @@ class MappingSession:
             pace = self._anchor_step[0] * (dt / self._anchor_step[1])
         shift, dt = math.hypot(step[0] - pace[0], step[1] - pace[1]), max(dt, 0.0)
         turn = abs(math.remainder(float(step[2] - pace[2]), 2.0 * math.pi))
+        origin = (math.hypot(base[0], base[1]) <= ODOM_RESET_REACH
+                  and abs(math.remainder(float(base[2]), 2.0 * math.pi)) <= ODOM_JUMP_TURN[0])
+        if dt > MAX_MOTION_GAP:
+            return self._reset_after_gap(local, given, base, step, dt, origin)
         moved = shift > max(ODOM_JUMP[0], ODOM_JUMP[1] * dt)
-        if not moved and turn <= max(ODOM_JUMP_TURN[0], ODOM_JUMP_TURN[1] * dt):
+        reset = origin and turn > max(ODOM_JUMP_TURN[0], ODOM_JUMP_TURN[1] * dt)
+        if not moved and not reset:
             return None
         mount = _compose(_inverse(base), given)          # the laser on the base
         was = _compose(self._anchor_at[1], _inverse(mount))     # the base, last matched
@@ -2430,7 +2453,7 @@ class MappingSession:
             if not moved:
                 return None
             self._odom_jump = (shift, turn, dt, 'followed' if followed is not None
-                               and followed.ok else 'kept')
+                               and followed.ok else 'kept', None)
             self._anchor_step = None
             self._anchor = np.asarray(base, dtype=np.float64).copy()    # (judged once)
             self._anchor_at = (stamp, _compose(self._correction, given))
@@ -2438,8 +2461,51 @@ class MappingSession:
         self._correction = _compose(paced.pose, _inverse(given))
         self._anchor = np.asarray(base, dtype=np.float64).copy()
         self._anchor_at = (stamp, np.asarray(paced.pose, dtype=np.float64).copy())
-        self._odom_jump = (shift, turn, dt, 'anchored')
+        self._odom_jump = (shift, turn, dt, 'anchored', None)
         return best
+
+    def _reset_after_gap(self, local: np.ndarray, given: np.ndarray, base: np.ndarray,
+                         step: np.ndarray, dt: float, origin: bool) -> None:
+        """
+        Judge odometry back near its origin after ``dt`` s without a matched scan (a gap).
+
+        A driver that restarts is silent for a while (its scans refused, ``odom_gap``), then
+        back at its origin: no pace carries over the gap, and predicted from it the scans
+        were matched onto a copy of the map (the simulated office, odometry silent for 1.5 s
+        and then reset: 13 m RMS, walls F1 0.49). When the odometry says the robot moved more
+        than ``ODOM_JUMP[0]`` or turned more than ``ODOM_JUMP_TURN[0]`` since the last matched
+        scan into a pose near its origin (``origin``), and its own prediction does not put the
+        scan on the map as well as the matches before it (``GAP_SHARE``), the scan is searched
+        for on the map around where the last pace leads (``_reset_at``, ``_reset_window``:
+        within ``GAP_SPEED``, or the speed before, times the gap, as in scan mode after a gap;
+        ``_find_after_gap``).
+        """
+        if not origin or (math.hypot(step[0], step[1]) <= ODOM_JUMP[0] and abs(
+                math.remainder(float(step[2]), 2.0 * math.pi)) <= ODOM_JUMP_TURN[0]):
+            return None
+        need = RELOCALIZE_SHARE
+        if self._shares:
+            need = max(need, GAP_SHARE * _median(self._shares))
+        followed = self._trial_match(local, _compose(self._correction, given))
+        if followed is not None and followed.ok and followed.share >= need:
+            return None                 # the robot came back near the origin: motion
+        speed, rate, motion = GAP_SPEED, GAP_TURN_RATE, np.zeros(3)
+        v = motion_velocity(self._motion, self._motion[-1][0]) if self._motion else None
+        if v is not None:           # the placed scans' (a late odometry may step by nothing)
+            speed, rate = max(speed, math.hypot(v[0], v[1])), max(rate, abs(v[2]))
+        if self._anchor_step is not None and 0 < self._anchor_step[1] <= MAX_MOTION_GAP:
+            pace, seconds = self._anchor_step
+            speed = max(speed, math.hypot(pace[0], pace[1]) / seconds)
+            rate = max(rate, abs(math.remainder(float(pace[2]), 2.0 * math.pi)) / seconds)
+            motion = pace * (dt / seconds)          # the robot drove on at its pace
+        mount = _compose(_inverse(base), given)    # the laser on the base
+        self._reset_at = _compose(_compose(self._anchor_at[1], _inverse(mount)),
+                                  _compose(motion, mount))
+        self._reset_window = (speed * dt, min(math.pi, rate * dt))
+        self._odom_jump = (math.hypot(step[0], step[1]),
+                           abs(math.remainder(float(step[2]), 2.0 * math.pi)), dt, 'searched',
+                           self._reset_window)
+        return None
 
     def _trial_match(self, local: np.ndarray, prediction: np.ndarray) -> Optional[ScanMatch]:
         """
@@ -2462,7 +2528,8 @@ class MappingSession:
 
     def _find_after_gap(self, local: np.ndarray, given: np.ndarray, prediction: np.ndarray,
                         segments: np.ndarray, sigma: float, window: tuple, base: np.ndarray,
-                        stamp: float, estimate: np.ndarray = None) -> tuple:
+                        stamp: float, estimate: np.ndarray = None,
+                        reset: bool = False) -> tuple:
         """
         Find the scan after a gap (or a pose ``estimate``: its base pose) on the map; (pose, note).
 
@@ -2473,7 +2540,8 @@ class MappingSession:
         most of them on the map is taken (``GAP_SHARE``, ``GAP_RIVAL``). Until then the session
         is lost (``_gap``): no scan is mapped; after them, or at once when the window is wider
         than ``GAP_REACH``, for good (until ``reset``). A warning when the session is lost
-        and when it gives up.
+        and when it gives up. ``reset``: the odometry came back near its origin after a gap
+        (``_reset_after_gap``; ``_localize`` warns that it is lost).
         """
         degenerate = MATCH_DEGENERATE['scan']
         track = self._gap
@@ -2483,6 +2551,8 @@ class MappingSession:
                                          self.options.chord_knots)
             # a gap in the scans themselves, or scans that kept coming and did not match
             track.paused = self._quiet is None or not 0 <= self._quiet <= self._gap_limit()
+            track.reset = bool(reset)
+            track.warned = int(track.reset)     # (lost: said by the odom_jump warning)
             if window[0] > GAP_REACH:
                 track.why = (f'the robot may be anywhere within {window[0]:.1f} m, beyond the '
                              f'{GAP_REACH:g} m scan matching searches')
@@ -2523,7 +2593,12 @@ class MappingSession:
                   else 'not found near the estimate')
         self._last_match = ScanMatch(prediction, _PRIOR, False, reason, 0, math.nan, 3)
         self.matches[reason] += 1
-        if track.estimate is not None:
+        if track.reset:
+            cause, what = 'odom_reset', (
+                f'the scans after the odometry came back near its origin (from '
+                f'{track.since:.3f} s)')
+            lost = f'has not found {what}'
+        elif track.estimate is not None:
             x, y, yaw = track.estimate
             cause, what = 'pose_estimate', (
                 f'the scans near the pose estimate ({x:.2f}, {y:.2f}, {yaw:.2f}; within '
@@ -2562,6 +2637,8 @@ class MappingSession:
         self._found = True          # the gap, not the prediction, made the jump
         self._proposals.clear()
         self._set_anchor(base, motion[-1][0], pose)
+        if track.reset:             # (the step across the reset is no pace)
+            self._anchor_step = None
         self._shares.append(m.share)
         self._keyframe(local, pose)
         self._correction = _compose(pose, _inverse(given))
@@ -2652,7 +2729,18 @@ class MappingSession:
         jumped, self._odom_jump = self._odom_jump, None
         if jumped is not None:
             self.jumps['odometry'] += 1
-            shift, turn, seconds, outcome = jumped
+            shift, turn, seconds, outcome, window = jumped
+            if outcome == 'searched':
+                notes.append(('odom_jump', f'the odometry came back near its origin at '
+                              f'{stamp:.3f} s, {seconds:.1f} s after the last matched scan, '
+                              f'{shift:.2f} m and {math.degrees(turn):.0f} deg from where it '
+                              'had the robot then, and its prediction does not fit the scan '
+                              '(its driver restarted?): ' + (
+                                  'found on the map, map -> odom re-anchored' if found else
+                                  f'searching the map within {window[0]:.1f} m and '
+                                  f'{math.degrees(window[1]):.0f} deg of where its last pace led;'
+                                  ' scans are not mapped until found')))
+                return notes
             notes.append(('odom_jump', f'the odometry jumped at {stamp:.3f} s: {shift:.2f} m '
                           f'and {math.degrees(turn):.0f} deg off its pace in {seconds:.3f} s; '
                           + {

@@ -847,9 +847,10 @@ def test_a_second_reset_near_the_odometry_origin_is_judged_by_its_heading():
     # A helper audit: the odometry reset at scan 150 and again at 200, where it had driven only
     # back near its new origin: the second jump moves the robot 0.84 m off its pace (under
     # ODOM_JUMP's 1 m, left to the relocalization) but turns it by 83 deg, beyond the
-    # matcher's heading search: mapped 19 m off after it (walls F1 0.63). Its heading is
-    # judged too now (ODOM_JUMP_TURN); the simulated drives' 90 deg turns within a scan, which
-    # the scans confirm, change nothing (the control: no jump).
+    # matcher's heading search: mapped 19 m off after it (walls F1 0.63). Into a pose near the
+    # odometry's origin its heading is judged too now (ODOM_JUMP_TURN, ODOM_RESET_REACH); the
+    # simulated drives' 90 deg turns within a scan, which the scans confirm, change nothing
+    # (the control: no jump).
     drive = make_drive('sim:office', 1)
     base = np.asarray(drive.poses, dtype=np.float64)
     odometry = OdometryDrift().apply(base, 1, stamps=drive.stamps)
@@ -859,6 +860,7 @@ def test_a_second_reset_near_the_odometry_origin_is_judged_by_its_heading():
     pace = se2_compose(se2_inverse(reset[198]), reset[199])
     off = se2_compose(se2_inverse(pace), se2_compose(se2_inverse(reset[199]), reset[200]))
     assert np.hypot(off[0], off[1]) < ODOM_JUMP[0] and abs(off[2]) > 1.4, off
+    assert np.allclose(reset[200], 0.0)           # (the reset: back at the origin)
     got = {'reset': _odometry_run(drive, reset), 'control': _odometry_run(drive, odometry)}
     jumps = got['reset']['odom_jump']
     assert len(jumps) == 2 and all('its driver restarted' in j for j in jumps), jumps
@@ -868,6 +870,84 @@ def test_a_second_reset_near_the_odometry_origin_is_judged_by_its_heading():
     assert got['reset']['walls']['f1'] == got['control']['walls']['f1'] == 1.0, got
     assert got['reset']['rms'] < 1.2 * got['control']['rms'] + 0.005, (
         got['reset']['rms'], got['control']['rms'])
+
+
+def test_odometry_at_half_the_scan_rate_is_no_heading_jump_away_from_its_origin(monkeypatch):
+    # Odometry at 5 Hz under 10 Hz scans (every other message of a 5 m/s drive), interpolated
+    # across the simulated office's 90 deg turns within a scan, steps its heading 0.5 rad and
+    # more off its pace with no reset. Judged everywhere, the pace's match won there and
+    # map -> odom was re-anchored on it: the drive ended 35 m off (walls F1 0.04; not judged:
+    # at most 0.82 m off). Away from the odometry's origin a heading jump alone is not judged.
+    import polyline_mapper.session as session_module
+    drive = make_drive('sim:office,step=0.5', 1)
+    odometry = OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
+                                     stamps=drive.stamps)
+    index = {round(1000.0 + t, 6): i for i, t in enumerate(drive.stamps)}
+    recs = []
+    for _, topic, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry):
+        if topic != '/odom' or index[round(rec.stamp, 6)] % 2 == 0:
+            recs.extend(rec if isinstance(rec, list) else [rec])
+    assert 0 < sum(isinstance(r, Odometry) for r in recs) < len(drive.stamps) / 2 + 1
+
+    def trajectory():
+        warned = []
+        session = replay_records(recs, options=SessionOptions(
+            pose_source='odom', scan_matching=True, keep_points=True),
+            warn=lambda c, t: warned.append(c))
+        return np.asarray(session.map_value().trajectory), warned
+    rows, warned = trajectory()
+    assert 'odom_jump' not in warned, warned
+    monkeypatch.setattr(session_module, 'ODOM_JUMP_TURN', (math.inf, math.inf))
+    before, _ = trajectory()
+    assert len(rows) > 150 and np.array_equal(rows, before)
+    truth = np.asarray(drive.poses)[np.searchsorted(1000.0 + drive.stamps, rows[:, 0] - 1e-6)]
+    assert np.max(np.hypot(*(rows[:, 1:3] - truth[:, :2]).T)) < 1.0
+
+
+@pytest.mark.parametrize('spec, found', [('sim:office,step=0.05', True), ('sim:office', False)])
+def test_an_odometry_driver_restart_after_a_silence_is_searched_for_on_the_map(spec, found):
+    # A driver that restarts is silent for a while (1.2 s here: its scans are refused for the
+    # gap in the odometry) and back at its origin. No pace carries over the gap, so it was
+    # not judged: the scans after it were matched onto a copy of the map (the simulated office
+    # at 0.5 m/s, reset at scan 615: 10.4 m RMS, walls F1 0.53). The scan is now searched for
+    # around where the last pace leads, as after a gap in scan mode; at 2.5 m/s the robot may
+    # be anywhere within 3 m and more: no scan is mapped after it (the map stays right), said.
+    full = make_drive(spec, 1)
+    n, k, silent = (700, 615, 12) if found else (200, 150, 12)
+    drive = dataclasses.replace(full, poses=full.poses[:n], stamps=full.stamps[:n],
+                                ranges=full.ranges[:n])
+    base = np.asarray(drive.poses, dtype=np.float64)
+    odometry = OdometryDrift().apply(base, 1, stamps=drive.stamps)
+    reset = odometry.copy()
+    reset[k:] = se2_compose(se2_inverse(odometry[k]), odometry[k:])
+
+    def run(odometry):
+        recs, warned = [], []
+        for _, topic, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry):
+            if topic != '/odom' or not 1000.0 + drive.stamps[k - silent] - 1e-6 <= rec.stamp \
+                    < 1000.0 + drive.stamps[k] - 1e-6:
+                recs.extend(rec if isinstance(rec, list) else [rec])
+        session = replay_records(recs, options=SessionOptions(
+            pose_source='odom', scan_matching=True, keep_points=True),
+            warn=lambda cause, text: warned.append((cause, text)))
+        return score(drive, session), warned
+    got, warned = run(reset)
+    jumps = [text for cause, text in warned if cause == 'odom_jump']
+    assert len(jumps) == 1 and 'came back near its origin' in jumps[0], jumps
+    given_up = [text for cause, text in warned if cause == 'odom_reset_given_up']
+    if found:
+        # as the same silence without the reset (its scans are not mapped either)
+        control, quiet = run(odometry)
+        assert not [cause for cause, _ in quiet if cause.startswith('odom_')
+                    and cause != 'odom_gap'], quiet
+        assert 'found on the map' in jumps[0] and not given_up, jumps
+        assert got['used'] == control['used'] == n - silent, (got['used'], control['used'])
+        assert got['rms'] < 0.02, got['rms']
+        assert got['walls']['f1'] == control['walls']['f1'] > 0.9, (got['walls'], control['walls'])
+    else:
+        assert 'searching the map within' in jumps[0] and len(given_up) == 1, warned
+        assert got['used'] == k - silent and got['rms'] < 0.02, got
+        assert got['walls']['precision'] == 1.0, got['walls']
 
 
 def test_a_recording_played_again_follows_its_odometry_back_to_the_start(monkeypatch):

@@ -49,8 +49,12 @@ def _planar(pose) -> np.ndarray:
     return np.array([p.x, p.y, 2.0 * np.arctan2(q.z, q.w)])
 
 
-def _run(drive, folder, mode: str, params: dict, reset: int = None) -> tuple:
+def _run(drive, folder, mode: str, params: dict, reset: int = None, silent: int = 0) -> tuple:
     msgs, truth, odom = _drifted(drive, reset)
+    if silent:      # the odometry of the ``silent`` scans before ``reset`` is not published
+        scans = np.cumsum([topic == '/scan' for _, topic, _ in msgs])
+        msgs = [m for m, k in zip(msgs, scans) if m[1] != '/odom'
+                or not reset - silent <= k < reset]         # (each /odom before its scan)
     if mode == 'odom':
         # Lossless odometry (test_node_modes.py): a message lost at a corner of this 0.4 m-step
         # drive costs its scan (skipped as odom_gap, test_odom_gaps.py); lossless, the run is
@@ -69,6 +73,10 @@ def _run(drive, folder, mode: str, params: dict, reset: int = None) -> tuple:
                     for topic in ('odom', 'scan')] == ['reliable', 'best_effort']
         t0 = time.time()
         last = peer.play(msgs, RATE, mode=mode, t0=t0)
+        if silent:          # (no scan is mapped after it: the map's stamp stops there)
+            assert peer.spin_until(lambda: node.lines('gave up'), TIMEOUT), node.stderr()[-3000:]
+            peer.spin_for(1.0)
+            return {'node': node, 'peer': peer}
         assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
             last, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
         if params.get('scan_matching'):
@@ -146,6 +154,27 @@ def test_an_odometry_driver_restart_is_warned_and_the_robot_stays_localized(
     err = np.hypot(*(localized[:, :2] - truth[k, :2]).T)
     assert k[-1] == len(truth) - 1 and (k > 100).sum() > 0.4 * len(truth)
     assert np.sqrt(np.mean(err ** 2)) < 0.05 and err.max() < 0.15, (err.max(), k[err.argmax()])
+    samples, _ = sample_segments(map_segments(peer.maps[-1]), 0.05)
+    assert np.percentile(office_drive.world.distance(samples), 95) < 0.05
+
+
+def test_an_odometry_driver_restart_after_a_silence_is_said_and_maps_no_copy(
+        office_drive, tmp_path):
+    # The driver silent for 1.2 s before it comes back at its origin (scan 100): no pace
+    # carries over the silence, and predicted from the reset odometry the scans were matched
+    # onto a shifted copy of the map. The scan is searched for around where the last pace
+    # leads (session._reset_after_gap); this drive's 8 m/s puts the robot anywhere within 10 m,
+    # beyond the search: the node says so and maps nothing after it, the map stays right.
+    params = {'scan_matching': True, 'map_odom_post_date': 0.0, 'laser_x': SIM_MOUNT[0],
+              'laser_y': SIM_MOUNT[1], 'laser_yaw': SIM_MOUNT[2]}
+    run = _run(office_drive, tmp_path, 'odom', params, reset=100, silent=24)
+    node, peer = run['node'], run['peer']
+    came = node.lines('the odometry came back near its origin at')
+    assert len(came) == 1 and came[0].endswith('[odom_jump]'), node.stderr()[-3000:]
+    gave_up = node.lines('gave up finding the scans after the odometry came back')
+    assert len(gave_up) == 1 and 'the robot may be anywhere within' in gave_up[0], \
+        node.stderr()[-3000:]
+    assert not node.lines('the odometry jumped'), node.stderr()[-3000:]
     samples, _ = sample_segments(map_segments(peer.maps[-1]), 0.05)
     assert np.percentile(office_drive.world.distance(samples), 95) < 0.05
 
