@@ -2484,11 +2484,10 @@ class MappingSession:
         (``origin``; a turn alone is not enough: a helper audit's robot, 0.3 m from where its
         odometry started, turned 93 deg in a 1.3 s silence and saw new ground, its odometry's
         match 0.66 of the scan against 0.85 needed, and the session gave up for the rest of
-        the drive), and its own prediction does not put the
-        scan on the map as well as the matches before it (``GAP_SHARE``), the scan is searched
-        for on the map around where the last pace leads (``_reset_at``, ``_reset_window``:
-        within ``GAP_SPEED``, or the speed before, times the gap, as in scan mode after a gap;
-        ``_find_after_gap``).
+        the drive), and its own prediction does not put the scan on the map as well as the
+        matches before it (``GAP_SHARE``), the scan is searched for on the map around where
+        the last pace leads (``_reset_at``, ``_reset_window``: within ``GAP_SPEED``, or the
+        speed before, times the gap, as in scan mode after a gap; ``_find_after_gap``).
         """
         if not origin or math.hypot(step[0], step[1]) <= ODOM_JUMP[0]:
             return None
