@@ -811,6 +811,31 @@ def _odometry_run(drive, odometry, pose_source='odom', again=None) -> dict:
     return got
 
 
+def _booted_behind(n: int, j: int) -> tuple:
+    """
+    Return the first ``n`` scans of the 0.5 m/s simulated office and drifting odometry (seed 1).
+
+    The odometry starts 0.3 m behind the robot's pose at scan ``j`` (the robot booted there),
+    so that pose lies near the odometry's origin: (drive, odometry).
+    """
+    full = make_drive('sim:office,step=0.05', 1)
+    drive = dataclasses.replace(full, poses=full.poses[:n], stamps=full.stamps[:n],
+                                ranges=full.ranges[:n])
+    base = np.asarray(drive.poses, dtype=np.float64)
+    origin = se2_compose(base[j], np.array([-0.3, 0.0, 0.0]))
+    return drive, se2_compose(se2_inverse(origin),
+                              OdometryDrift().apply(base, 1, stamps=drive.stamps))
+
+
+def _odom_run(recs) -> tuple:
+    """Map ``recs`` (pose_source odom, scan matching); (trajectory rows, warning causes)."""
+    warned = []
+    session = replay_records(recs, options=SessionOptions(
+        pose_source='odom', scan_matching=True, keep_points=True),
+        warn=lambda cause, text: warned.append(cause))
+    return np.asarray(session.map_value().trajectory), warned
+
+
 @pytest.mark.parametrize('spec,pose_source', [
     ('sim:office', 'odom'), ('sim:office,moving_sensor=1,turn=0.2', 'tf'),
     ('sim:corridors,moving_sensor=1,turn=0.2', 'odom')])
@@ -888,17 +913,10 @@ def test_odometry_at_half_the_scan_rate_is_no_heading_jump_away_from_its_origin(
         if topic != '/odom' or index[round(rec.stamp, 6)] % 2 == 0:
             recs.extend(rec if isinstance(rec, list) else [rec])
     assert 0 < sum(isinstance(r, Odometry) for r in recs) < len(drive.stamps) / 2 + 1
-
-    def trajectory():
-        warned = []
-        session = replay_records(recs, options=SessionOptions(
-            pose_source='odom', scan_matching=True, keep_points=True),
-            warn=lambda c, t: warned.append(c))
-        return np.asarray(session.map_value().trajectory), warned
-    rows, warned = trajectory()
+    rows, warned = _odom_run(recs)
     assert 'odom_jump' not in warned, warned
     monkeypatch.setattr(session_module, 'ODOM_JUMP_TURN', (math.inf, math.inf))
-    before, _ = trajectory()
+    before, _ = _odom_run(recs)
     assert len(rows) > 150 and np.array_equal(rows, before)
     truth = np.asarray(drive.poses)[np.searchsorted(1000.0 + drive.stamps, rows[:, 0] - 1e-6)]
     assert np.max(np.hypot(*(rows[:, 1:3] - truth[:, :2]).T)) < 1.0
@@ -958,32 +976,20 @@ def test_a_silence_across_a_turn_near_the_odometry_origin_is_no_reset(monkeypatc
     # scans mapped (not judged: all but the silent ones, F1 1.00). A turn alone is now no
     # reset after a silence (only a move of more than ODOM_JUMP[0]).
     import polyline_mapper.session as session_module
-    full = make_drive('sim:office,step=0.05', 1)
     n, j, silent = 150, 44, 12
-    drive = dataclasses.replace(full, poses=full.poses[:n], stamps=full.stamps[:n],
-                                ranges=full.ranges[:n])
-    base = np.asarray(drive.poses, dtype=np.float64)
-    origin = se2_compose(base[j], np.array([-0.3, 0.0, 0.0]))
-    odometry = se2_compose(se2_inverse(origin),
-                           OdometryDrift().apply(base, 1, stamps=drive.stamps))
+    drive, odometry = _booted_behind(n, j)
+    base = drive.poses
     assert abs(np.angle(np.exp(1j * (base[j, 2] - base[j - silent, 2])))) > 1.5
     quiet = (1000.0 + drive.stamps[j - silent] - 1e-6, 1000.0 + drive.stamps[j] - 1e-6)
     recs = [r for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry)
             for r in (rec if isinstance(rec, list) else [rec])
             if not (isinstance(r, Odometry) and quiet[0] <= r.stamp < quiet[1])]
-
-    def run():
-        warned = []
-        session = replay_records(recs, options=SessionOptions(
-            pose_source='odom', scan_matching=True, keep_points=True),
-            warn=lambda cause, text: warned.append(cause))
-        return session, warned
-    session, warned = run()
+    rows, warned = _odom_run(recs)
     assert not {'odom_jump', 'odom_reset_given_up'} & set(warned), warned
-    assert session.used == n - silent
+    assert len(rows) == n - silent              # every scan but the silent ones
     monkeypatch.setattr(session_module, 'ODOM_RESET_REACH', -1.0)   # no pose near the origin
-    before, _ = run()
-    assert np.array_equal(session.map_value().trajectory, before.map_value().trajectory)
+    before, _ = _odom_run(recs)
+    assert np.array_equal(rows, before)
 
 
 def test_half_rate_odometry_near_its_origin_is_no_heading_reset(monkeypatch):
@@ -993,29 +999,15 @@ def test_half_rate_odometry_near_its_origin_is_no_heading_reset(monkeypatch):
     # reset, re-anchored on the pace twice, 1.8 m RMS (not judged: 0.016 m). A heading jump
     # near the origin is now judged only with the position off the pace too (ODOM_RESET_SHIFT).
     import polyline_mapper.session as session_module
-    full = make_drive('sim:office,step=0.05', 1)
-    n, j = 321, 201
-    drive = dataclasses.replace(full, poses=full.poses[:n], stamps=full.stamps[:n],
-                                ranges=full.ranges[:n])
-    base = np.asarray(drive.poses, dtype=np.float64)
-    origin = se2_compose(base[j], np.array([-0.3, 0.0, 0.0]))
-    odometry = se2_compose(se2_inverse(origin),
-                           OdometryDrift().apply(base, 1, stamps=drive.stamps))
+    drive, odometry = _booted_behind(321, 201)
     index = {round(1000.0 + t, 6): i for i, t in enumerate(drive.stamps)}
     recs = [r for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry)
             for r in (rec if isinstance(rec, list) else [rec])
             if not isinstance(r, Odometry) or index[round(r.stamp, 6)] % 2 == 0]
-
-    def trajectory():
-        warned = []
-        session = replay_records(recs, options=SessionOptions(
-            pose_source='odom', scan_matching=True, keep_points=True),
-            warn=lambda cause, text: warned.append(cause))
-        return np.asarray(session.map_value().trajectory), warned
-    rows, warned = trajectory()
+    rows, warned = _odom_run(recs)
     assert 'odom_jump' not in warned, warned
     monkeypatch.setattr(session_module, 'ODOM_RESET_REACH', -1.0)   # no pose near the origin
-    before, _ = trajectory()
+    before, _ = _odom_run(recs)
     assert len(rows) > 250 and np.array_equal(rows, before)
 
 
