@@ -2428,9 +2428,9 @@ class MappingSession:
                 and dt > 0):
             pace = self._anchor_step[0] * (dt / self._anchor_step[1])
         shift, dt = math.hypot(step[0] - pace[0], step[1] - pace[1]), max(dt, 0.0)
-        turn = abs(math.remainder(float(step[2] - pace[2]), 2.0 * math.pi))
+        turn = abs(wrap_angle(float(step[2] - pace[2])))
         origin = (math.hypot(base[0], base[1]) <= ODOM_RESET_REACH
-                  and abs(math.remainder(float(base[2]), 2.0 * math.pi)) <= ODOM_JUMP_TURN[0])
+                  and abs(wrap_angle(float(base[2]))) <= ODOM_JUMP_TURN[0])
         if dt > MAX_MOTION_GAP:
             return self._reset_after_gap(local, given, base, step, dt, origin)
         moved = shift > max(ODOM_JUMP[0], ODOM_JUMP[1] * dt)
@@ -2491,11 +2491,8 @@ class MappingSession:
         """
         if not origin or math.hypot(step[0], step[1]) <= ODOM_JUMP[0]:
             return None
-        need = RELOCALIZE_SHARE
-        if self._shares:
-            need = max(need, GAP_SHARE * _median(self._shares))
         followed = self._trial_match(local, _compose(self._correction, given))
-        if followed is not None and followed.ok and followed.share >= need:
+        if followed is not None and followed.ok and followed.share >= self._gap_share():
             return None                 # the robot came back near the origin: motion
         speed, rate, motion = GAP_SPEED, GAP_TURN_RATE, np.zeros(3)
         v = motion_velocity(self._motion, self._motion[-1][0]) if self._motion else None
@@ -2504,16 +2501,21 @@ class MappingSession:
         if self._anchor_step is not None and 0 < self._anchor_step[1] <= MAX_MOTION_GAP:
             pace, seconds = self._anchor_step
             speed = max(speed, math.hypot(pace[0], pace[1]) / seconds)
-            rate = max(rate, abs(math.remainder(float(pace[2]), 2.0 * math.pi)) / seconds)
+            rate = max(rate, abs(wrap_angle(float(pace[2]))) / seconds)
             motion = pace * (dt / seconds)          # the robot drove on at its pace
         mount = _compose(_inverse(base), given)    # the laser on the base
         self._reset_at = _compose(_compose(self._anchor_at[1], _inverse(mount)),
                                   _compose(motion, mount))
         self._reset_window = (speed * dt, min(math.pi, rate * dt))
-        self._odom_jump = (math.hypot(step[0], step[1]),
-                           abs(math.remainder(float(step[2]), 2.0 * math.pi)), dt, 'searched',
-                           self._reset_window)
+        self._odom_jump = (math.hypot(step[0], step[1]), abs(wrap_angle(float(step[2]))), dt,
+                           'searched', self._reset_window)
         return None
+
+    def _gap_share(self) -> float:
+        """Return the share of a scan a pose found by a search must put on the map (GAP_SHARE)."""
+        if not self._shares:
+            return RELOCALIZE_SHARE
+        return max(RELOCALIZE_SHARE, GAP_SHARE * _median(self._shares))
 
     def _trial_match(self, local: np.ndarray, prediction: np.ndarray) -> Optional[ScanMatch]:
         """
@@ -2576,9 +2578,7 @@ class MappingSession:
                                  for c in search_after_gap(points, near, center, radius, turn))
                      if m.ok]
             found.sort(key=lambda m: -m.share)
-            need = RELOCALIZE_SHARE
-            if self._shares:
-                need = max(need, GAP_SHARE * _median(self._shares))
+            need = self._gap_share()
             track.why = 'no pose puts the scans on the map'
             if found:
                 best = found[0]
