@@ -19,8 +19,8 @@ ones (RMS and largest error, m), the scans used, the walls (F1 and precision of
 ``baselines.walls.wall_scores``) and how the reset was handled (``odom_jump`` found or
 searching, ``odom_reset_given_up``).
 
-Writes the table into benchmarks/README.md (between the ``odom-resets`` markers) and the raw
-numbers to benchmarks/results/odom_resets.json.
+Writes (not with ``--quick``) the table into benchmarks/README.md (between the ``odom-resets``
+markers) and the raw numbers to benchmarks/results/odom_resets.json.
 """
 
 import argparse
@@ -77,7 +77,8 @@ def one(drive, recs: list) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    ap.add_argument('--quick', action='store_true', help='the first three cases only')
+    ap.add_argument('--quick', action='store_true',
+                    help='the first three cases only, printed (nothing written)')
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/odom_resets.py ' + ' '.join(sys.argv[1:]))
     rows, drives = [], {}
@@ -101,8 +102,6 @@ def main() -> int:
             session_module.ODOM_RESET_REACH = saved
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    (HERE / 'results' / 'odom_resets.json').write_text(
-        json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
     lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
              f"`{meta['command']}` (drift seed 1; the odometry silent for the given scans "
              'before the reset; control: the same silence without the reset; not judged: '
@@ -121,10 +120,12 @@ def main() -> int:
             f"{j['precision']:.2f}, {j['handled']} "
             f"| {n['rms_m']:.3f} / {n['max_m']:.2f}, {n['used']}, {n['f1']:.2f} / "
             f"{n['precision']:.2f} |")
-    if not args.quick:
-        write_readme('odom-resets', '\n'.join(lines) + '\n')
-    else:
+    if args.quick:              # (a partial run: neither the results nor the README block)
         print('\n'.join(lines))
+    else:
+        (HERE / 'results' / 'odom_resets.json').write_text(
+            json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
+        write_readme('odom-resets', '\n'.join(lines) + '\n')
     return 0 if all(math.isfinite(r['judged']['rms_m']) for r in rows) else 1
 
 
