@@ -513,6 +513,8 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
         # 'map', above the odometry frame, as the node's (REP 105).
         fixed = 'map'
     extra = dict(getattr(args, 'session_extra', None) or {})   # replay --config (_node_file)
+    if getattr(args, 'scan_time_offset', None) is not None:
+        extra['scan_time_offset'] = args.scan_time_offset         # the flag wins
     if 'mount' in extra:
         mount, flip = extra.pop('mount'), extra.pop('mount_upside_down')
     return SessionOptions(pose_source=source, fixed_frame=fixed,
@@ -707,6 +709,7 @@ def _node_file(args, node_sets: dict) -> None:
         for name, field in (('odom_frame', 'odom_frame'), ('transform_tolerance', 'tolerance'),
                             ('transform_timeout', 'wait'), ('transform_cache', 'cache_seconds'),
                             ('odom_gap_factor', 'odom_gap_factor'),
+                            ('scan_time_offset', 'scan_time_offset'),
                             ('grid_resolution', 'grid_resolution')):
             if name in names:
                 value = getattr(s, name)
@@ -849,7 +852,7 @@ def cmd_replay(args) -> int:
 
 
 POSE_ARGS = (('pose_source', 'tf'), ('scan_topic', None), ('odom_topic', None),
-             ('fixed_frame', None), ('laser_mount', None))
+             ('fixed_frame', None), ('laser_mount', None), ('scan_time_offset', None))
 """The options (argparse dest, default) that place a bag's or a drive's scans."""
 
 
@@ -984,6 +987,8 @@ def _recorded_pose_args(args, stats: dict) -> tuple:
         taken.update(odom_topic=stats.get('odom_topic'), laser_mount=stats.get('laser_mount'))
     if stats.get('scan_topic'):
         taken['scan_topic'] = stats['scan_topic']
+    if stats.get('scan_time_offset'):
+        taken['scan_time_offset'] = stats['scan_time_offset']
     flags = ' '.join(f'--{name.replace("_", "-")} {value}' for name, value in taken.items()
                      if value is not None and (name, value) not in POSE_ARGS)
     return argparse.Namespace(**{**vars(args), **taken}), (
@@ -1187,6 +1192,11 @@ def _pose_args(sp, plot: bool = False, replay: bool = False) -> None:
                     help='--pose-source odom: the laser pose on the odometry child frame (m, m, '
                     "deg; flip: mounted upside down), like the node's laser_* parameters; "
                     "default: the scan frame's mount from /tf_static")
+    sp.add_argument('--scan-time-offset', type=number(-10.0, 10.0), metavar='SECONDS',
+                    help="added to every scan's stamp before it is posed (the node's "
+                    'scan_time_offset): -0.1 for a laser driver that stamps its scans 0.1 s '
+                    'late; with scan matching a replay estimates the lag and warns '
+                    '(scan_clock) with the value to give')
     from .core.register import CHORD_KNOTS
     sp.add_argument('--chord-knots', choices=CHORD_KNOTS,
                     help=('scan matching' if replay else 'with --pose-source scan')

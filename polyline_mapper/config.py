@@ -172,8 +172,8 @@ def _file_values(data: dict, keys: dict, path: str) -> dict:
 REPLAY_READS = ('fixed_frame', 'pose_source', 'scan_matching', 'odom_frame', 'chord_knots',
                 'transform_tolerance', 'transform_timeout', 'transform_cache', 'laser_x',
                 'laser_y', 'laser_yaw', 'laser_upside_down', 'odom_gap_factor',
-                'update_every_n_scans', 'grid_resolution', 'map_input_path', 'initial_pose',
-                'mapping')
+                'scan_time_offset', 'update_every_n_scans', 'grid_resolution',
+                'map_input_path', 'initial_pose', 'mapping')
 """Node parameters ``replay --config`` maps with, as the node would (``read_node_file``);
 the others only shape the live node's outputs, queues and timers."""
 

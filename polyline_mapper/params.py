@@ -116,6 +116,12 @@ NODE_PARAMS = (
               'of given a pose interpolated across motion nobody saw. 0 interpolates across '
               'any gap, as tf2 does.',
               0.0, 100.0),
+    ParamSpec('scan_time_offset', 0.0,
+              "Seconds added to every scan's stamp before it is posed, as a laser driver's "
+              'time offset: -0.1 for a driver that stamps its scans 0.1 s late (when sent, '
+              'not at the first beam). With scan matching the node estimates the lag from '
+              'its matched turns and warns (scan_clock) with the value to set.',
+              -10.0, 10.0),
     ParamSpec('scan_buffer_size', 50,
               'Scans that may wait for their pose and the next update; when updates fall '
               'behind, the oldest are dropped (and counted).', 1, 10000),
@@ -310,6 +316,7 @@ class NodeSettings:
     laser_yaw: float
     laser_upside_down: bool
     odom_gap_factor: float
+    scan_time_offset: float
     scan_buffer_size: int
     max_scan_latency: float
     update_every_n_scans: int
@@ -426,7 +433,7 @@ def settings_from(values: dict) -> tuple:
                          f"scan_buffer_size ({node['scan_buffer_size']})")
     for name in ('map_odom_post_date', 'transform_tolerance', 'transform_timeout',
                  'transform_cache', 'max_scan_latency', 'laser_x', 'laser_y', 'laser_yaw',
-                 'odom_gap_factor',
+                 'odom_gap_factor', 'scan_time_offset',
                  'map_publish_period', 'marker_width', 'warning_period', 'stats_period',
                  'grid_resolution', 'grid_publish_period'):
         node[name] = float(node[name])

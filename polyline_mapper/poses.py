@@ -552,3 +552,76 @@ def planar_edge(translation, quaternion) -> PlanarPose:
 def _frame(name: str) -> str:
     """Frame ids as tf2 keeps them: no leading slash."""
     return str(name).lstrip('/')
+
+
+LAG_SPAN = 1.0
+"""Seconds between the two scans whose turns ``lag_costs`` compares (the matched turn against
+the odometry's): long enough for a turn to show, short enough that the odometry's drift in it
+is small."""
+LAG_GRID = np.arange(-100, 101) * 0.005
+"""The lags ``lag_costs`` tries, seconds (5 ms apart, at most half a second either way)."""
+LAG_CLIP = 0.1
+"""Radians: a pair's disagreement counts at most this much (a wrong match, a slip)."""
+LAG_EXCITED = 0.2
+"""Radians the odometry's turn over a pair must change across ``LAG_GRID`` for the pair to
+count: its turn rate changed within half a second of its ends. Pairs of straight driving or of
+a steady turn explain every lag alike and would only dilute the comparison."""
+
+
+class StampLag(NamedTuple):
+    """How late a laser's stamps are against the pose data, from matched turns."""
+
+    lag: float
+    """Seconds the scans are stamped after the time they were taken (negative: before); nan
+    when no pair counted or the best lag is at the end of ``LAG_GRID`` (no minimum found)."""
+    rms: float
+    """RMS (rad) of the matched turns' disagreement with the odometry's at ``lag``."""
+    rms_zero: float
+    """The same with the stamps taken as they are (lag 0)."""
+    pairs: float
+    """Scan pairs (``LAG_SPAN`` apart, ``LAG_EXCITED``) the estimate rests on."""
+
+
+def lag_costs(stamps, given_yaw, matched_yaw, first: int = 0) -> tuple:
+    """
+    Return (cost per ``LAG_GRID`` lag, pairs) of matched scans' turns against the odometry's.
+
+    ``stamps`` (s, increasing), ``given_yaw`` and ``matched_yaw`` (rad): the laser's heading
+    the pose data gave at each stamp, and the heading the scan matched at. A scan stamped
+    ``lag`` seconds after it was taken is posed where the odometry was then, so over a turn its
+    matched heading runs ``lag`` ahead of the odometry's at its stamp. Each pair of scans
+    ``LAG_SPAN`` apart whose later one is at index ``first`` or after, and whose odometry turn
+    depends on the lag (``LAG_EXCITED``), adds its squared disagreement (clipped at
+    ``LAG_CLIP``) between the matched turn and the odometry's turn read ``lag`` earlier
+    (between the scans' samples); differences, so the slow drift of map -> odom cancels. Sums,
+    so batches add up (``estimate_lag``). Vectorised: one pass over (grid x pairs).
+    """
+    t = np.asarray(stamps, dtype=np.float64)
+    g = np.unwrap(np.asarray(given_yaw, dtype=np.float64))
+    y = np.unwrap(np.asarray(matched_yaw, dtype=np.float64))
+    k = np.arange(max(int(first), 0), len(t))
+    j = np.searchsorted(t, t[k] - LAG_SPAN)
+    use = (j < k) & (t[k] - t[np.minimum(j, k)] < 2.0 * LAG_SPAN)
+    k, j = k[use], j[use]
+    shift = LAG_GRID[:, None]
+    odom = np.interp(t[k] - shift, t, g) - np.interp(t[j] - shift, t, g)
+    excited = np.ptp(odom, axis=0) > LAG_EXCITED if len(k) else np.zeros(0, dtype=bool)
+    r = np.clip((y[k] - y[j])[excited] - odom[:, excited], -LAG_CLIP, LAG_CLIP)
+    return np.sum(r * r, axis=1), int(np.count_nonzero(excited))
+
+
+def estimate_lag(costs, pairs: float) -> StampLag:
+    """Return the ``StampLag`` of summed ``lag_costs`` (the grid's best lag)."""
+    costs = np.asarray(costs, dtype=np.float64)
+    zero = int(np.argmin(np.abs(LAG_GRID)))
+    if pairs <= 0:
+        return StampLag(math.nan, math.nan, math.nan, 0.0)
+    best = int(np.argmin(costs))
+    rms, rms_zero = (math.sqrt(max(costs[i], 0.0) / pairs) for i in (best, zero))
+    lag = float(LAG_GRID[best]) if 0 < best < len(LAG_GRID) - 1 else math.nan
+    return StampLag(lag, rms, rms_zero, float(pairs))
+
+
+def stamp_lag(stamps, given_yaw, matched_yaw) -> StampLag:
+    """Estimate how late the scans are stamped against the pose data (``lag_costs``)."""
+    return estimate_lag(*lag_costs(stamps, given_yaw, matched_yaw))

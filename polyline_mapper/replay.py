@@ -149,11 +149,13 @@ def free_space_text(stats: dict) -> str:
 
 
 REPORTED = ('time_increment', 'time_jump', 'scan_gap', 'scan_gap_given_up', 'pose_estimate',
-            'pose_estimate_given_up', 'wrong_start', 'odom_jump', 'odom_reset_given_up')
+            'pose_estimate_given_up', 'wrong_start', 'odom_jump', 'odom_reset_given_up',
+            'scan_clock')
 """Session warnings a replay prints (the first, with a count): input problems that no skip
 count shows (a scan used without motion compensation, pose data dropped at a clock jump, scans
 not found after a gap in them or near a pose estimate on /initialpose, a localization that
-starts on a wrong place, an odometry that jumped: a driver restart)."""
+starts on a wrong place, an odometry that jumped: a driver restart, scans stamped off the
+pose data's clock)."""
 
 
 def replay_records(records, config: IncrementalConfig = None,
@@ -263,6 +265,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
               update_ms_median=round(ms['p50'], 3) if ms else None,
               update_ms_p99=round(ms['p99'], 3) if ms else None,
               seconds=round(time.perf_counter() - t0, 3))
+    if options.scan_time_offset:
+        st['scan_time_offset'] = options.scan_time_offset
     warnings = list(source.warnings) + [f'{text} ({n} time{"s" if n > 1 else ""})'
                                         for n, text in noted.values()]
     if mapping and session.used and not len(value.segments) and session.mapper.sigma is None:

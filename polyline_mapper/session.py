@@ -47,7 +47,7 @@ is always the one published.
 
 import bisect
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import itertools
 import math
 import threading
@@ -68,8 +68,8 @@ from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, DEFAULT_CHORD_KNOTS, 
                             search_after_gap, spread, transform)
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
-from .poses import (mount_quaternion, planar_edge, PlanarPose, TransformBuffer2D,
-                    TransformLookupError)
+from .poses import (estimate_lag, lag_costs, LAG_GRID, mount_quaternion, planar_edge, PlanarPose,
+                    TransformBuffer2D, TransformLookupError)
 from .scan import (beams_to_points, check_scan, scan_to_points, ScanError, usable_beams,
                    valid_ranges)
 
@@ -129,6 +129,9 @@ TRAJECTORY_ROWS = 100000
 """Live (no ``keep_points``) with scan matching: the newest poses kept for ``map_value``."""
 MOUNT_FRAME = '_laser_mount'
 """Odom mode with an explicit mount: the laser frame hung under the odometry child frame."""
+MAX_SCAN_TIME_OFFSET = 10.0
+"""Seconds ``scan_time_offset`` may move a scan's stamp, either way (more is another clock, not
+a driver's latency: fix the clock)."""
 
 
 ESTABLISHED_SUPPORT = 100.0
@@ -761,6 +764,11 @@ class SessionOptions:
     (``no pose: odom_gap``) instead of given a pose interpolated across the gap, where a lost
     message hides the motion (a turn begun or ended in it). One lost message doubles an
     interval; 0 interpolates across any gap, as tf2 does."""
+    scan_time_offset: float = 0.0
+    """Seconds added to every scan's stamp as it arrives, before anything reads it (its pose,
+    its beams' times, the trajectory), as a laser driver's time offset does: a driver that
+    stamps its scans 0.1 s late (when sent, not at the first beam) needs -0.1. With scan
+    matching the session estimates the lag and warns (``scan_clock``) with the value to set."""
     grid_resolution: Optional[float] = 0.05
     """Cell size (m) of the planner map (``occupancy``): the beams of every mapped scan are
     traced into a free-space grid. None: no grid (and no cost)."""
@@ -789,6 +797,11 @@ class SessionOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name} must be a finite number >= 0, got {v!r}')
+        v = self.scan_time_offset
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
+                                       and abs(v) <= MAX_SCAN_TIME_OFFSET):
+            raise ValueError(f'scan_time_offset must be a number of seconds within '
+                             f'+-{MAX_SCAN_TIME_OFFSET:g}, got {v!r}')
         if self.fixed_frame is not None and not str(self.fixed_frame).strip():
             raise ValueError('fixed_frame must be a frame name, got an empty string')
         if self.grid_resolution is not None:
@@ -1420,6 +1433,29 @@ Intel, CSAIL and fr079 logs (seed 0) it peaks at 1.87x, 2.14x and 2.38x."""
 JUMP_SHIFT, JUMP_TURN = 0.3, 0.2
 """A match this far (m, rad) from its odometry prediction (map -> odom changing by as much at
 the laser in one scan) is a jump."""
+LAG_ROWS = 300
+"""Matched scans (stamp, the odometry's heading, the matched heading) kept to pair the newest
+ones with those ``poses.LAG_SPAN`` before (the stamp-lag estimate, ``poses.lag_costs``)."""
+LAG_EVERY = 100
+"""Matched scans between two stamp-lag estimates (each adds its pairs' costs, one grid pass)."""
+LAG_DECAY = 0.95
+"""Weight the costs summed so far keep at each estimate: the evidence of turns a few minutes
+old fades (half of it after 14 estimates, 2.3 minutes at 10 Hz), so a lag that changes (a
+driver restarted on another clock) shows."""
+LAG_PAIRS = 30.0
+"""Weighted pairs (of scans whose odometry turn depends on the lag) an estimate needs."""
+LAG_WARN = 0.03
+"""Seconds of stamp lag that are warned about (``scan_clock``), when the matched turns agree
+with the odometry shifted by it at least ``LAG_SURE`` times better than unshifted. A 10 Hz
+simulated office drive at 0.5 m/s, turning 1 rad/s, maps as with right stamps at 0.05 s and
+not at 0.1 s (walls F1 0.85, benchmarks/scan_clock.py)."""
+LAG_MOVED = 0.1
+"""Seconds the estimate must move from the one warned about to be warned again (the laser's
+clock changed: its driver restarted on another clock)."""
+LAG_SURE = 1.5
+"""The estimate's RMS disagreement must be at most 1 / this of the unshifted one's. On the
+simulated drives of benchmarks/scan_clock.py the ratio is 1.00-1.20 with right stamps and
+2.3-3.3 with stamps 0.1 s late."""
 
 
 class WarningThrottle:
@@ -1619,6 +1655,17 @@ class MappingSession:
         """Scan matching: 'residual', 'correction' and 'odometry' jumps warned about
         (``_localize``)."""
         self._residuals = deque(maxlen=JUMP_WINDOW)
+        self._turns = deque(maxlen=LAG_ROWS)
+        """(stamp, the laser's heading from the pose data, matched heading) of the matched
+        scans of ``_lag_frame`` (TF or odometry with scan matching): ``lag_costs``' rows."""
+        self._lag_frame = None              # the first matched laser (lasers lag apart)
+        self._lag_costs = np.zeros(len(LAG_GRID))
+        self._lag_pairs = 0.0
+        self._lag_new = 0
+        self._lag_warned = None
+        self.stamp_lag = None
+        """The newest ``poses.StampLag`` estimate (every ``LAG_EVERY`` matched scans once
+        ``LAG_PAIRS`` pairs count), or None."""
         self._last_match = None
         self._news = False
         self._estimating_noted = False
@@ -1806,6 +1853,8 @@ class MappingSession:
 
     def _add(self, record) -> Optional[tuple]:
         if isinstance(record, Scan):
+            if self.options.scan_time_offset:
+                record = replace(record, stamp=record.stamp + self.options.scan_time_offset)
             self.received += 1
             if (self.received - 1) % self.options.every:
                 return None
@@ -2730,6 +2779,8 @@ class MappingSession:
                               f'{100 * residual:.1f} cm, {ratio:.1f} x the running median (moved '
                               'objects, a new place, or a bad pose)'))
             self._residuals.append(residual)
+            if self.options.pose_source != 'scan':
+                notes += self._check_stamp_lag(stamp, given, laser, scan_frame)
         # The jump of map -> odom, seen at the laser: the match against the prediction.
         dx, dy, dyaw = _compose(_inverse(_compose(before, given)), laser)
         dyaw = wrap_angle(dyaw)
@@ -2773,6 +2824,56 @@ class MappingSession:
                           'more than scan matching accepts: map -> odom kept (wheel slip, a '
                           'kidnapped robot?)'))
         return notes
+
+    def _check_stamp_lag(self, stamp: float, given: np.ndarray, laser: np.ndarray,
+                         frame: Optional[str]) -> list:
+        """
+        Keep a matched scan's headings; every ``LAG_EVERY`` scans estimate the stamp lag.
+
+        Returns a ``scan_clock`` warning when the scans are stamped ``LAG_WARN`` or more off
+        the pose data's clock (once, and again when the estimate moves by ``LAG_MOVED``): a
+        driver that stamps a scan when it is sent rather than at its first beam, or runs on
+        another machine's clock. Such a lag poses every scan where the robot was at another
+        time, which no match fully repairs over turns (``scan_time_offset`` shifts the stamps).
+        """
+        if self._lag_frame is None:
+            self._lag_frame = frame
+        elif frame != self._lag_frame:
+            return []
+        turns = self._turns
+        if turns and stamp <= turns[-1][0]:
+            self._forget_lag()              # the clock went back: a new time line
+        turns.append((float(stamp), float(given[2]), float(laser[2])))
+        self._lag_new += 1
+        if self._lag_new < LAG_EVERY:
+            return []
+        rows = np.array(turns)
+        costs, pairs = lag_costs(rows[:, 0], rows[:, 1], rows[:, 2], len(rows) - self._lag_new)
+        self._lag_new = 0
+        self._lag_costs = LAG_DECAY * self._lag_costs + costs
+        self._lag_pairs = LAG_DECAY * self._lag_pairs + pairs
+        if self._lag_pairs < LAG_PAIRS:
+            return []
+        est = self.stamp_lag = estimate_lag(self._lag_costs, self._lag_pairs)
+        if not (abs(est.lag) >= LAG_WARN and est.rms * LAG_SURE <= est.rms_zero):
+            return []                       # (nan: no minimum on the grid)
+        if self._lag_warned is not None and abs(est.lag - self._lag_warned) < LAG_MOVED:
+            return []
+        self._lag_warned = est.lag
+        fix = self.options.scan_time_offset - est.lag
+        word = 'late' if est.lag > 0 else 'early'
+        return [('scan_clock', f'the scans of {frame!r} look stamped {1000 * abs(est.lag):.0f} '
+                 f'ms {word} against the pose data (at {stamp:.3f} s their matched turns agree '
+                 f'{est.rms_zero / est.rms:.1f} x better with the odometry shifted so): each '
+                 'scan is posed where the robot was at another time, which smears the map in '
+                 "turns. Fix the laser driver's stamps (the first beam's time, on the pose "
+                 f"data's clock) or set scan_time_offset to {fix:.3f}")]
+
+    def _forget_lag(self) -> None:
+        self._turns.clear()
+        self._lag_costs[:] = 0.0
+        self._lag_pairs = 0.0
+        self._lag_new = 0
 
     def _run(self, max_updates: Optional[int], partial: bool) -> int:
         n = self.options.update_every_n_scans
@@ -2985,6 +3086,7 @@ class MappingSession:
             self._generation += 1
             self.localization = None
             self._residuals.clear()
+            self._forget_lag()
             self._waiting.clear()
             self._scan_stamps.clear()
             self._ready.clear()

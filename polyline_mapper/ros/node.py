@@ -668,7 +668,7 @@ def session_options(settings) -> SessionOptions:
         tolerance=settings.transform_tolerance, wait=settings.transform_timeout,
         mount=(settings.laser_x, settings.laser_y, settings.laser_yaw) if odom else None,
         mount_upside_down=settings.laser_upside_down, cache_seconds=settings.transform_cache,
-        odom_gap_factor=settings.odom_gap_factor,
+        odom_gap_factor=settings.odom_gap_factor, scan_time_offset=settings.scan_time_offset,
         update_every_n_scans=settings.update_every_n_scans,
         max_waiting=settings.scan_buffer_size, max_queue=settings.scan_buffer_size,
         max_latency=settings.max_scan_latency or None, grid_resolution=settings.grid_resolution,
