@@ -2842,6 +2842,8 @@ class MappingSession:
             return []
         turns = self._turns
         if turns and stamp <= turns[-1][0]:
+            if stamp >= turns[-1][0] - TIME_JUMP_BACK:
+                return []                   # out of order: the rows stay in stamp order
             self._forget_lag()              # the clock went back: a new time line
         turns.append((float(stamp), float(given[2]), float(laser[2])))
         self._lag_new += 1
