@@ -885,8 +885,9 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
     st = res.map_value.stats
     posed = {key: st.get(key) for key in ('pose_source', 'scan_topic', 'odom_topic',
                                           'fixed_frame')}
+    extra = {'scan_time_offset': args.scan_time_offset} if args.scan_time_offset else {}
     return (res.points, res.session.origins(), st.get('input_type', 'scans'),
-            {**posed, 'laser_mount': args.laser_mount})
+            {**posed, 'laser_mount': args.laser_mount, **extra})
 
 
 def _register(path: str, args):
@@ -981,6 +982,14 @@ def _recorded_pose_args(args, stats: dict) -> tuple:
                   f'--pose-source {recorded}; registered with --pose-source '
                   f'{args.pose_source}, its scans may be drawn off where the map placed them '
                   "(leave the pose options out to use the map's own)", file=sys.stderr)
+        offset = stats.get('scan_time_offset') or 0.0
+        if offset != (args.scan_time_offset or 0.0):
+            # (the scans are matched to the trajectory by stamp: another offset pairs each
+            # with another scan's pose, silently)
+            print(f'polyline-mapper: warning: {args.points}: the map was made with '
+                  f'--scan-time-offset {offset:g}; registered with {args.scan_time_offset or 0:g}'
+                  ", its scans are drawn at other scans' poses (give the same value, or leave "
+                  "the pose options out to use the map's own)", file=sys.stderr)
         return args, ''
     taken = {'pose_source': stats['pose_source']}
     if stats['pose_source'] == 'odom':

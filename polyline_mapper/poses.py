@@ -558,13 +558,13 @@ LAG_SPAN = 1.0
 """Seconds between the two scans whose turns ``lag_costs`` compares (the matched turn against
 the odometry's): long enough for a turn to show, short enough that the odometry's drift in it
 is small."""
-LAG_GRID = np.arange(-100, 101) * 0.005
-"""The lags ``lag_costs`` tries, seconds (5 ms apart, at most half a second either way)."""
+LAG_GRID = np.arange(-200, 201) * 0.005
+"""The lags ``lag_costs`` tries, seconds (5 ms apart, at most a second either way)."""
 LAG_CLIP = 0.1
 """Radians: a pair's disagreement counts at most this much (a wrong match, a slip)."""
 LAG_EXCITED = 0.2
 """Radians the odometry's turn over a pair must change across ``LAG_GRID`` for the pair to
-count: its turn rate changed within half a second of its ends. Pairs of straight driving or of
+count: its turn rate changed within a second of its ends. Pairs of straight driving or of
 a steady turn explain every lag alike and would only dilute the comparison."""
 
 
@@ -573,7 +573,7 @@ class StampLag(NamedTuple):
 
     lag: float
     """Seconds the scans are stamped after the time they were taken (negative: before); nan
-    when no pair counted or the best lag is at the end of ``LAG_GRID`` (no minimum found)."""
+    when no pair counted; +-inf when the best lag is at an end of ``LAG_GRID`` (beyond it)."""
     rms: float
     """RMS (rad) of the matched turns' disagreement with the odometry's at ``lag``."""
     rms_zero: float
@@ -618,7 +618,8 @@ def estimate_lag(costs, pairs: float) -> StampLag:
         return StampLag(math.nan, math.nan, math.nan, 0.0)
     best = int(np.argmin(costs))
     rms, rms_zero = (math.sqrt(max(costs[i], 0.0) / pairs) for i in (best, zero))
-    lag = float(LAG_GRID[best]) if 0 < best < len(LAG_GRID) - 1 else math.nan
+    lag = (float(LAG_GRID[best]) if 0 < best < len(LAG_GRID) - 1
+           else math.copysign(math.inf, LAG_GRID[best]))
     return StampLag(lag, rms, rms_zero, float(pairs))
 
 

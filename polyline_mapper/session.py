@@ -1446,12 +1446,11 @@ LAG_PAIRS = 30.0
 """Weighted pairs (of scans whose odometry turn depends on the lag) an estimate needs."""
 LAG_WARN = 0.03
 """Seconds of stamp lag that are warned about (``scan_clock``), when the matched turns agree
-with the odometry shifted by it at least ``LAG_SURE`` times better than unshifted. A 10 Hz
+with the odometry shifted by it at least ``LAG_SURE`` times better than unshifted; warned again
+when the estimate moves as much from the value warned about (a lag that changed: a driver
+restarted on another clock; the faded older evidence delays that, ``LAG_DECAY``). A 10 Hz
 simulated office drive at 0.5 m/s, turning 1 rad/s, maps as with right stamps at 0.05 s and
 not at 0.1 s (walls F1 0.85, benchmarks/scan_clock.py)."""
-LAG_MOVED = 0.1
-"""Seconds the estimate must move from the one warned about to be warned again (the laser's
-clock changed: its driver restarted on another clock)."""
 LAG_SURE = 1.5
 """The estimate's RMS disagreement must be at most 1 / this of the unshifted one's. On the
 simulated drives of benchmarks/scan_clock.py the ratio is 1.00-1.20 with right stamps and
@@ -2831,7 +2830,7 @@ class MappingSession:
         Keep a matched scan's headings; every ``LAG_EVERY`` scans estimate the stamp lag.
 
         Returns a ``scan_clock`` warning when the scans are stamped ``LAG_WARN`` or more off
-        the pose data's clock (once, and again when the estimate moves by ``LAG_MOVED``): a
+        the pose data's clock (once, and again when the estimate moves as much from it): a
         driver that stamps a scan when it is sent rather than at its first beam, or runs on
         another machine's clock. Such a lag poses every scan where the robot was at another
         time, which no match fully repairs over turns (``scan_time_offset`` shifts the stamps).
@@ -2858,18 +2857,24 @@ class MappingSession:
             return []
         est = self.stamp_lag = estimate_lag(self._lag_costs, self._lag_pairs)
         if not (abs(est.lag) >= LAG_WARN and est.rms * LAG_SURE <= est.rms_zero):
-            return []                       # (nan: no minimum on the grid)
-        if self._lag_warned is not None and abs(est.lag - self._lag_warned) < LAG_MOVED:
-            return []
+            return []                       # (nan: no pair counted)
+        warned = self._lag_warned
+        if warned is not None and (warned == est.lag or abs(est.lag - warned) < LAG_WARN):
+            return []                       # (said; warned again once it moved as much)
         self._lag_warned = est.lag
-        fix = self.options.scan_time_offset - est.lag
         word = 'late' if est.lag > 0 else 'early'
-        return [('scan_clock', f'the scans of {frame!r} look stamped {1000 * abs(est.lag):.0f} '
-                 f'ms {word} against the pose data (at {stamp:.3f} s their matched turns agree '
+        size = (f'{1000 * abs(est.lag):.0f} ms' if math.isfinite(est.lag) else
+                f'{LAG_GRID[-1]:g} s or more')
+        fix = self.options.scan_time_offset - est.lag
+        advice = (f'set scan_time_offset to {fix:.3f}' if math.isfinite(fix) else
+                  'find the offset and set scan_time_offset (this estimate reaches '
+                  f'+-{LAG_GRID[-1]:g} s)')
+        return [('scan_clock', f'the scans of {frame!r} look stamped {size} {word} against '
+                 f'the pose data (at {stamp:.3f} s their matched turns agree '
                  f'{est.rms_zero / est.rms:.1f} x better with the odometry shifted so): each '
                  'scan is posed where the robot was at another time, which smears the map in '
                  "turns. Fix the laser driver's stamps (the first beam's time, on the pose "
-                 f"data's clock) or set scan_time_offset to {fix:.3f}")]
+                 f"data's clock) or {advice}")]
 
     def _forget_lag(self) -> None:
         self._turns.clear()

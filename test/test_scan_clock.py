@@ -151,6 +151,18 @@ def test_the_node_parameter_and_the_replay_flag_reach_the_session(tmp_path, caps
     for name, offset in (('flag', 0.5), ('file', 0.25), ('both', 0.5)):
         assert runs[name]['stats']['scan_time_offset'] == offset
         assert runs[name]['trajectory'][0][0] == pytest.approx(SIM_START + offset, abs=1e-9)
+    # fit records it too; plot --points takes it from a map made so, and says so when another
+    # is given (the scans are found on the trajectory by stamp: each would get another's pose)
+    fit = tmp_path / 'fit.json'
+    assert main(['fit', 'sim:hall', '-o', str(fit), '-q', '--scan-time-offset', '0.5']) == 0
+    assert json.loads(fit.read_text())['stats']['scan_time_offset'] == 0.5
+    capsys.readouterr()
+    assert main(['plot', str(tmp_path / 'flag.json'), '--points', 'sim:hall', '-o',
+                 str(tmp_path / 'p.png')]) == 0
+    assert '--scan-time-offset 0.5' in capsys.readouterr().out
+    assert main(['plot', str(tmp_path / 'flag.json'), '--points', 'sim:hall', '--pose-source',
+                 'tf', '-o', str(tmp_path / 'p.png'), '-q']) == 0
+    assert 'made with --scan-time-offset 0.5; registered with 0' in capsys.readouterr().err
     # a point file has no stamps to move
     pts = tmp_path / 'p.npy'
     np.save(pts, np.zeros((10, 2)))
