@@ -8,6 +8,7 @@ scan-only pose source; scored against the simulator's true poses and walls.
 """
 
 import dataclasses
+import functools
 import importlib
 import math
 import sys
@@ -286,7 +287,13 @@ def test_drifting_odometry_and_a_moving_sensor_map_as_true_poses_do():
     assert s['rms'] <= 0.05 and s['walls']['f1'] == 1.0, (s['rms'], s['walls'])
 
 
-def test_drifting_odometry_and_a_moving_sensor_keep_each_map_true_to_itself():
+@functools.lru_cache(maxsize=1)
+def _office_turning():
+    return make_drive('sim:office,moving_sensor=1,turn=0.2', 1)
+
+
+@pytest.mark.parametrize('drift', range(1, 13))
+def test_drifting_odometry_and_a_moving_sensor_keep_each_map_true_to_itself(drift):
     # Issue 19's office bar over twelve drift seeds, read as the absolute trajectory error
     # (the trajectory aligned rigidly to the truth, as the drifted Radish logs' 0.25 m is
     # read) with the walls of the map moved by the same alignment. As the poses stand 4 of
@@ -294,19 +301,18 @@ def test_drifting_odometry_and_a_moving_sensor_keep_each_map_true_to_itself():
     # model's white heading steps bend the first scans through the per-beam compensation and
     # turn the whole map frame by up to 0.016 rad (with the beams taken at once all 12 meet it
     # as they stand). Each map holds: ATE <= 0.040 m, aligned F1 1.00 on every seed (numpy
-    # 2.4 and 1.26).
-    drive = make_drive('sim:office,moving_sensor=1,turn=0.2', 1)
-    for drift in range(1, 13):
-        session = replay_records(records(drive, drift),
-                                 options=SessionOptions(scan_matching=True, keep_points=True))
-        value = session.map_value()
-        traj = value.trajectory
-        truth = drive.poses[np.searchsorted(1000.0 + drive.stamps, traj[:, 0] - 1e-6)]
-        te = trajectory_error(traj[:, 1:], truth)
-        moved = transform(value.segments.reshape(-1, 2), te['alignment']).reshape(-1, 2, 2)
-        walls = B.wall_scores(moved, drive.world.walls, drive.world.distance,
-                              points=drive.points())
-        assert te['ate'] <= 0.05 and walls['f1'] == 1.0, (drift, te['ate'], walls)
+    # 2.4 and 1.26). One test per seed, so the two test workers share them.
+    drive = _office_turning()
+    session = replay_records(records(drive, drift),
+                             options=SessionOptions(scan_matching=True, keep_points=True))
+    value = session.map_value()
+    traj = value.trajectory
+    truth = drive.poses[np.searchsorted(1000.0 + drive.stamps, traj[:, 0] - 1e-6)]
+    te = trajectory_error(traj[:, 1:], truth)
+    moved = transform(value.segments.reshape(-1, 2), te['alignment']).reshape(-1, 2, 2)
+    walls = B.wall_scores(moved, drive.world.walls, drive.world.distance,
+                          points=drive.points())
+    assert te['ate'] <= 0.05 and walls['f1'] == 1.0, (drift, te['ate'], walls)
 
 
 XEON_SEED3 = pytest.mark.xfail(strict=False, reason=(
@@ -317,14 +323,17 @@ XEON_SEED3 = pytest.mark.xfail(strict=False, reason=(
     'session that marked it'))
 
 
+PER_SQUARE = IncrementalConfig(free_space_window=10, free_space_ghosts=0,
+                               free_space_hit_margin=0.0, free_space_memory=0.0)
+"""The free-space evidence per square alone (no ghosts, hit margin or memory)."""
+
+
 @pytest.mark.parametrize('seed', [1, pytest.param(3, marks=XEON_SEED3)])
 def test_a_person_walking_ahead_leaves_the_walls_alone_with_the_evidence(seed):
     # The walls F1 of the second run below (the evidence per square alone), on its own: it
     # depends on the CPU for seed 3; the poses and holds below do not.
     drive = make_drive('sim:office_dynamic', seed)
-    evidence = IncrementalConfig(free_space_window=10, free_space_ghosts=0,
-                                 free_space_hit_margin=0.0, free_space_memory=0.0)
-    session = replay_records(records(drive), evidence,
+    session = replay_records(records(drive), PER_SQUARE,
                              SessionOptions(scan_matching=True, keep_points=True))
     s = score(drive, session)
     assert s['walls']['f1'] >= 0.95, (s['rms'], s['walls'])
@@ -334,7 +343,8 @@ WALKER_SEEDS = range(1, 9)
 """Drive seeds of the dynamic office (the people's paths and the robot's vary with the seed)."""
 
 
-def test_a_person_walking_ahead_does_not_drag_the_matched_poses():
+@pytest.mark.parametrize('evidence', [False, True], ids=['without evidence', 'per square'])
+def test_a_person_walking_ahead_does_not_drag_the_matched_poses(evidence):
     # The dynamic office with true odometry: a person walks along the corridor ahead of the
     # robot, in its direction, twice. The corridor's walls say nothing along its axis; the
     # person, a tenth of the scan, pulled every match back by 8-12 cm and the robot followed
@@ -351,23 +361,22 @@ def test_a_person_walking_ahead_does_not_drag_the_matched_poses():
     # Medians since: 0.060 / 0.069 m with numpy 2.4, 0.081 / 0.052 m with numpy 1.26. Since the
     # person's chords are transient (register.TRANSIENT_SHARE), over chord lengths 0.14-0.16 m
     # (benchmarks/walker_chords.py, 24 drives) 0.053 / 0.047 m where they were 0.130 / 0.073 m.
-    evidence = IncrementalConfig(free_space_window=10, free_space_ghosts=0,
-                                 free_space_hit_margin=0.0, free_space_memory=0.0)
     # (Walls F1 >= 0.95 with the evidence: test_a_person_walking_ahead_leaves_the_walls_alone_
-    # with_the_evidence, since it depends on the CPU.)
-    for config, rms, f1 in ((IncrementalConfig(free_space_window=0), 0.15, 0.4),
-                            (evidence, 0.08, None)):
-        errors = []
-        for seed in WALKER_SEEDS:
-            drive = make_drive('sim:office_dynamic', seed)
-            session = replay_records(records(drive), config,
-                                     SessionOptions(scan_matching=True, keep_points=True))
-            s = score(drive, session)
-            assert s['rms'] < 0.25 and (f1 is None or s['walls']['f1'] >= f1), \
-                (config, seed, s['rms'], s['walls'])
-            assert session.held >= 10 and session.matches['matched'] == len(drive.poses) - 1
-            errors.append(s['rms'])
-        assert np.median(errors) < rms, (config, np.round(errors, 3))
+    # with_the_evidence, since it depends on the CPU.) One test per configuration, so the two
+    # test workers share them.
+    config, rms, f1 = ((PER_SQUARE, 0.08, None) if evidence else
+                       (IncrementalConfig(free_space_window=0), 0.15, 0.4))
+    errors = []
+    for seed in WALKER_SEEDS:
+        drive = make_drive('sim:office_dynamic', seed)
+        session = replay_records(records(drive), config,
+                                 SessionOptions(scan_matching=True, keep_points=True))
+        s = score(drive, session)
+        assert s['rms'] < 0.25 and (f1 is None or s['walls']['f1'] >= f1), \
+            (config, seed, s['rms'], s['walls'])
+        assert session.held >= 10 and session.matches['matched'] == len(drive.poses) - 1
+        errors.append(s['rms'])
+    assert np.median(errors) < rms, (config, np.round(errors, 3))
 
 
 ALL_EVIDENCE = ('chaotic in the rounding: with all of the evidence (config/free_space.yaml), '
