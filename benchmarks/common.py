@@ -85,6 +85,21 @@ def write_readme(name: str, block: str) -> None:
     path.write_text(f'{pre}{begin}\n{block}{end}{post}')
 
 
+def publish(block: str, result: str, meta: dict, rows: list, lines: list,
+            quick: bool) -> None:
+    """
+    Write a run: results/``result``.json and the README block ``block``, from ``lines``.
+
+    ``quick`` (a partial run): print the lines and write nothing.
+    """
+    if quick:
+        print('\n'.join(lines))
+        return
+    (HERE / 'results' / f'{result}.json').write_text(
+        json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
+    write_readme(block, '\n'.join(lines) + '\n')
+
+
 def datasets_argument(parser) -> None:
     """Add ``--datasets`` (default: $POLYLINE_MAPPER_DATASETS, else ../shared/datasets)."""
     parser.add_argument('--datasets', default=os.environ.get(

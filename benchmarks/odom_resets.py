@@ -29,7 +29,7 @@ import math
 import sys
 
 from baselines.walls import wall_scores
-from common import HERE, stamp, write_readme
+from common import publish, stamp
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
@@ -120,12 +120,7 @@ def main() -> int:
             f"{j['precision']:.2f}, {j['handled']} "
             f"| {n['rms_m']:.3f} / {n['max_m']:.2f}, {n['used']}, {n['f1']:.2f} / "
             f"{n['precision']:.2f} |")
-    if args.quick:              # (a partial run: neither the results nor the README block)
-        print('\n'.join(lines))
-    else:
-        (HERE / 'results' / 'odom_resets.json').write_text(
-            json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
-        write_readme('odom-resets', '\n'.join(lines) + '\n')
+    publish('odom-resets', 'odom_resets', meta, rows, lines, args.quick)
     return 0 if all(math.isfinite(r['judged']['rms_m']) for r in rows) else 1
 
 

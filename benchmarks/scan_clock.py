@@ -29,7 +29,7 @@ import re
 import sys
 
 from baselines.walls import wall_scores
-from common import HERE, stamp, write_readme
+from common import publish, stamp
 from matching import flat
 import numpy as np
 from polyline_mapper.formats.records import Scan
@@ -111,12 +111,7 @@ def main() -> int:
             f"| {a['rms_m']:.3f} / {a['max_m']:.2f}, {a['f1']:.2f} / {a['precision']:.2f} "
             f"| {'-' if a['offset_advised'] is None else format(a['offset_advised'], '+.3f')} "
             f'| {fixed} |')
-    if args.quick:              # (a partial run: neither the results nor the README block)
-        print('\n'.join(lines))
-    else:
-        (HERE / 'results' / 'scan_clock.json').write_text(
-            json.dumps({'meta': meta, 'rows': rows}, indent=1) + '\n')
-        write_readme('scan-clock', '\n'.join(lines) + '\n')
+    publish('scan-clock', 'scan_clock', meta, rows, lines, args.quick)
     return 0 if all(math.isfinite(r['as_recorded']['rms_m']) for r in rows) else 1
 
 
