@@ -582,32 +582,38 @@ class StampLag(NamedTuple):
     """Scan pairs (``LAG_SPAN`` apart, ``LAG_EXCITED``) the estimate rests on."""
 
 
-def lag_costs(stamps, given_yaw, matched_yaw, first: int = 0) -> tuple:
+def lag_costs(stamps, given_yaw, matched_yaw, since: float = -math.inf) -> tuple:
     """
-    Return (cost per ``LAG_GRID`` lag, pairs) of matched scans' turns against the odometry's.
+    Return (cost per ``LAG_GRID`` lag, pairs, upto) of matched scans' turns against the odometry's.
 
     ``stamps`` (s, increasing), ``given_yaw`` and ``matched_yaw`` (rad): the laser's heading
     the pose data gave at each stamp, and the heading the scan matched at. A scan stamped
     ``lag`` seconds after it was taken is posed where the odometry was then, so over a turn its
     matched heading runs ``lag`` ahead of the odometry's at its stamp. Each pair of scans
-    ``LAG_SPAN`` apart whose later one is at index ``first`` or after, and whose odometry turn
-    depends on the lag (``LAG_EXCITED``), adds its squared disagreement (clipped at
-    ``LAG_CLIP``) between the matched turn and the odometry's turn read ``lag`` earlier
-    (between the scans' samples); differences, so the slow drift of map -> odom cancels. Sums,
-    so batches add up (``estimate_lag``). Vectorised: one pass over (grid x pairs).
+    ``LAG_SPAN`` apart whose odometry turn depends on the lag (``LAG_EXCITED``) adds its
+    squared disagreement (clipped at ``LAG_CLIP``) between the matched turn and the odometry's
+    turn read ``lag`` earlier (between the scans' samples); differences, so the slow drift of
+    map -> odom cancels. A pair counts only when the odometry is read inside the rows for every
+    lag of the grid (not held at their ends): its later scan stamped after ``since`` and at
+    most ``upto`` (the newest stamp less the grid's reach), its earlier one at least the
+    grid's reach after the first row. Sums, so batches add up (``estimate_lag``): the next
+    batch, with rows that reach back far enough, passes ``upto`` as its ``since``.
+    Vectorised: one pass over (grid x pairs).
     """
     t = np.asarray(stamps, dtype=np.float64)
     g = np.unwrap(np.asarray(given_yaw, dtype=np.float64))
     y = np.unwrap(np.asarray(matched_yaw, dtype=np.float64))
-    k = np.arange(max(int(first), 0), len(t))
+    upto = float(t[-1] + LAG_GRID[0]) if len(t) else float(since)
+    k = np.flatnonzero((t > since) & (t <= upto))
     j = np.searchsorted(t, t[k] - LAG_SPAN)
-    use = (j < k) & (t[k] - t[np.minimum(j, k)] < 2.0 * LAG_SPAN)
+    use = ((j < k) & (t[k] - t[np.minimum(j, k)] < 2.0 * LAG_SPAN)
+           & (t[np.minimum(j, k)] >= t[0] + LAG_GRID[-1]) if len(t) else j < k)
     k, j = k[use], j[use]
     shift = LAG_GRID[:, None]
     odom = np.interp(t[k] - shift, t, g) - np.interp(t[j] - shift, t, g)
     excited = np.ptp(odom, axis=0) > LAG_EXCITED if len(k) else np.zeros(0, dtype=bool)
     r = np.clip((y[k] - y[j])[excited] - odom[:, excited], -LAG_CLIP, LAG_CLIP)
-    return np.sum(r * r, axis=1), int(np.count_nonzero(excited))
+    return np.sum(r * r, axis=1), int(np.count_nonzero(excited)), max(upto, float(since))
 
 
 def estimate_lag(costs, pairs: float) -> StampLag:
@@ -625,4 +631,5 @@ def estimate_lag(costs, pairs: float) -> StampLag:
 
 def stamp_lag(stamps, given_yaw, matched_yaw) -> StampLag:
     """Estimate how late the scans are stamped against the pose data (``lag_costs``)."""
-    return estimate_lag(*lag_costs(stamps, given_yaw, matched_yaw))
+    costs, pairs, _ = lag_costs(stamps, given_yaw, matched_yaw)
+    return estimate_lag(costs, pairs)

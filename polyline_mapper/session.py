@@ -1435,7 +1435,9 @@ JUMP_SHIFT, JUMP_TURN = 0.3, 0.2
 the laser in one scan) is a jump."""
 LAG_ROWS = 300
 """Matched scans (stamp, the odometry's heading, the matched heading) kept to pair the newest
-ones with those ``poses.LAG_SPAN`` before (the stamp-lag estimate, ``poses.lag_costs``)."""
+ones with those ``poses.LAG_SPAN`` before (the stamp-lag estimate, ``poses.lag_costs``). A pair
+is scored once the rows reach the grid's second past its later scan and a second before its
+earlier one, so the rows span a ``LAG_EVERY`` batch plus 3 s: enough up to 66 Hz scans."""
 LAG_EVERY = 100
 """Matched scans between two stamp-lag estimates (each adds its pairs' costs, one grid pass)."""
 LAG_DECAY = 0.95
@@ -1661,6 +1663,7 @@ class MappingSession:
         self._lag_costs = np.zeros(len(LAG_GRID))
         self._lag_pairs = 0.0
         self._lag_new = 0
+        self._lag_since = -math.inf         # pairs up to this later stamp are counted
         self._lag_warned = None
         self.stamp_lag = None
         """The newest ``poses.StampLag`` estimate (every ``LAG_EVERY`` matched scans once
@@ -2849,7 +2852,8 @@ class MappingSession:
         if self._lag_new < LAG_EVERY:
             return []
         rows = np.array(turns)
-        costs, pairs = lag_costs(rows[:, 0], rows[:, 1], rows[:, 2], len(rows) - self._lag_new)
+        costs, pairs, self._lag_since = lag_costs(rows[:, 0], rows[:, 1], rows[:, 2],
+                                                  self._lag_since)
         self._lag_new = 0
         self._lag_costs = LAG_DECAY * self._lag_costs + costs
         self._lag_pairs = LAG_DECAY * self._lag_pairs + pairs
@@ -2871,7 +2875,8 @@ class MappingSession:
                   f'+-{LAG_GRID[-1]:g} s)')
         return [('scan_clock', f'the scans of {frame!r} look stamped {size} {word} against '
                  f'the pose data (at {stamp:.3f} s their matched turns agree '
-                 f'{est.rms_zero / est.rms:.1f} x better with the odometry shifted so): each '
+                 f'{est.rms_zero / max(est.rms, 1e-6):.1f} x better with the odometry shifted '
+                 'so): each '
                  'scan is posed where the robot was at another time, which smears the map in '
                  "turns. Fix the laser driver's stamps (the first beam's time, on the pose "
                  f"data's clock) or {advice}")]
@@ -2881,6 +2886,7 @@ class MappingSession:
         self._lag_costs[:] = 0.0
         self._lag_pairs = 0.0
         self._lag_new = 0
+        self._lag_since = -math.inf
 
     def _run(self, max_updates: Optional[int], partial: bool) -> int:
         n = self.options.update_every_n_scans
