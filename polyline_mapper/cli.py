@@ -1403,23 +1403,28 @@ def _names_printable() -> None:
             pass
 
 
-_POSE_VALUED = ('--initial-pose', '--laser-mount')
 _NEGATIVE_LIST = re.compile(r'-[0-9.][0-9.eE+-]*(,[^,]*){2,3}$')
+_NEGATIVE_NUMBER = re.compile(r'-([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?$')
+_NEGATIVE_VALUED = {'--initial-pose': _NEGATIVE_LIST, '--laser-mount': _NEGATIVE_LIST,
+                    '--scan-time-offset': _NEGATIVE_NUMBER}
+"""Options whose value may start with '-', and the form such a value takes."""
 
 
-def _join_negative_poses(argv: list) -> list:
+def _join_negative_values(argv: list) -> list:
     """
-    Join a negative pose to its option: ``--laser-mount -0.1,0,180`` -> ``--laser-mount=...``.
+    Join a negative value to its option: ``--laser-mount -0.1,0,180`` -> ``--laser-mount=...``.
 
     argparse takes a value starting with '-' for an option and stops with 'expected one
-    argument'.
+    argument', unless it is a plain negative number: a pose list, or a number in exponent form
+    (``--scan-time-offset -1e-1``).
     """
     out, it = [], iter(argv)
     for item in it:
         out.append(item)
-        nxt = next(it, None) if item in _POSE_VALUED else None
+        form = _NEGATIVE_VALUED.get(item)
+        nxt = next(it, None) if form is not None else None
         if nxt is not None:
-            out[-1:] = [f'{item}={nxt}'] if _NEGATIVE_LIST.match(nxt) else [item, nxt]
+            out[-1:] = [f'{item}={nxt}'] if form.match(nxt) else [item, nxt]
     return out
 
 
@@ -1428,7 +1433,7 @@ def main(argv=None) -> int:
     _names_printable()
     parser = build_parser()
     try:
-        args = parser.parse_args(_join_negative_poses(sys.argv[1:] if argv is None else argv))
+        args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
     except SystemExit as exc:            # usage errors (exit 2) and --help (0), already printed
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     try:

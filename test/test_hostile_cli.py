@@ -649,14 +649,21 @@ def test_a_bad_option_value_is_one_line(ws, capsys, argv, needle):
     assert snapshot(ws['dir']) == before
 
 
-def test_a_negative_pose_is_the_option_s_value():
-    from polyline_mapper.cli import _join_negative_poses
-    assert _join_negative_poses(['replay', 'b', '--laser-mount', '-0.1,0,180', '--initial-pose',
-                                 '-1,-2,-90', '--laser-mount', '-0.1,0.2,180,flip', '-q']) == [
+def test_a_negative_value_is_the_option_s_value():
+    from polyline_mapper.cli import _join_negative_values, build_parser
+    assert _join_negative_values(['replay', 'b', '--laser-mount', '-0.1,0,180', '--initial-pose',
+                                  '-1,-2,-90', '--laser-mount', '-0.1,0.2,180,flip', '-q']) == [
         'replay', 'b', '--laser-mount=-0.1,0,180', '--initial-pose=-1,-2,-90',
         '--laser-mount=-0.1,0.2,180,flip', '-q']
     # an option after the flag stays an option (argparse then says the value is missing)
-    assert _join_negative_poses(['--laser-mount', '-q']) == ['--laser-mount', '-q']
+    assert _join_negative_values(['--laser-mount', '-q']) == ['--laser-mount', '-q']
+    # a number in exponent form, which argparse alone takes for an option (a helper audit)
+    parser = build_parser()
+    for text, value in (('-1e-1', -0.1), ('-.5E1', -5.0), ('-2.', -2.0), ('-0.25', -0.25)):
+        args = parser.parse_args(_join_negative_values(
+            ['replay', 'b', '--scan-time-offset', text, '-o', 'm.json']))
+        assert args.scan_time_offset == value, text
+    assert _join_negative_values(['--scan-time-offset', '-o']) == ['--scan-time-offset', '-o']
 
 
 def test_the_live_demo_takes_fit_s_short_keys_as_the_node_s():
