@@ -294,7 +294,9 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
     summary = node.lines('summary: ')
     assert summary, node.stderr()[-3000:]
     counts = re.search(r'summary: (\d+) scans received, (\d+) used', summary[-1])
-    assert int(counts[2]) == int(counts[1]) == scans, summary
+    # (the node's log with it: which inputs matched when, what was skipped; once in a loaded
+    # run, 2026-11-30, 139 of 230 scans came over reliable transport, cause unknown)
+    assert int(counts[2]) == int(counts[1]) == scans, (summary, node.stderr()[-6000:])
     assert node.lines(f'wrote {out}: {len(saved.value.segments)} segments')
     # the summary counts the map as written (it counted the mapper's segments before polylines()
     # joined them: 25 against 24 on the office drive)
