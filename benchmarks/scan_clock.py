@@ -50,11 +50,12 @@ def records(drive, odometry: np.ndarray, lag: float) -> list:
     return [replace(r, stamp=r.stamp + lag) if isinstance(r, Scan) else r for r in out]
 
 
-def one(drive, recs: list, lag: float, offset: float = 0.0) -> dict:
+def one(drive, recs: list, lag: float, offset: float = 0.0, pose_source: str = 'odom') -> dict:
     """Map ``recs`` with ``scan_time_offset`` ``offset``; return the scores."""
     warned = []
     session = replay_records(recs, options=SessionOptions(
-        pose_source='odom', scan_matching=True, keep_points=True, scan_time_offset=offset),
+        pose_source=pose_source, scan_matching=True, keep_points=True,
+        scan_time_offset=offset),
         warn=lambda cause, text: warned.append((cause, text)))
     value = session.map_value()
     rows = np.asarray(value.trajectory)

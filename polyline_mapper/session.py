@@ -88,6 +88,16 @@ ODOM_GAP_MIN = 0.05
 """Seconds: a gap in the odometry shorter than this is never one (``_check_odom_gap``): at 1 kHz
 /tf a 2 ms gap is twice the usual interval but hides no motion worth a scan (a live-node
 audit: 43 of 100 scans refused so)."""
+ODOM_SLOW = (0.4, 2.5, 11)
+"""
+(s, ratio, intervals): odometry whose typical interval (the median of its newest ``intervals``)
+is this long and this many times the scans' typical interval is warned about, once
+(``odom_rate``): each scan between two of its messages, and each of its beams, is posed by
+interpolating across the interval, which spreads every change of the turn rate over it. A
+simulated office drive turning in place at 1 rad/s under 10 Hz scans, matched: walls F1 1.00 with
+odometry at 10 and 5 Hz, 0.96 at 2 Hz, 0.84 at 1 Hz (benchmarks/odom_rate.py). Converted
+CARMEN logs and the simulator give one odometry message per scan: never warned.
+"""
 ODOM_JUMP = (1.0, 5.0)
 """Scan matching with odometry: (m, m/s). An odometry step (the base's motion between two matched
 scans) that departs from the odometry's previous step, carried on at its pace, by more than the
@@ -875,6 +885,11 @@ class PoseSource:
         self._odom_refused = None
         """(frame, count) of the odometry refused for its frame, while none was taken."""
         self._odom_taken = False
+        self._scan_edge = None
+        """(frame, target) of the newest scan's own pose lookup (``rate_notes``)."""
+        self._scan_stamps = deque(maxlen=ODOM_SLOW[2] + 1)
+        self._rate_scans = 0
+        self._rate_said = False
         self._tree = {}
         """Scan mode: child frame -> (parent, static, (x, y, yaw) of the edge or None when not
         planar) from the transforms seen (``scan_root``)."""
@@ -1101,13 +1116,47 @@ class PoseSource:
         pose = self.buffer.lookup_planar(target, frame, scan.stamp if stamp is None else stamp,
                                          self.options.tolerance if tolerance is None
                                          else tolerance)
-        if stamp is None and self.options.odom_gap_factor:
-            self._check_odom_gap(frame, target, scan.stamp)
+        if stamp is None:
+            self._scan_edge = (frame, target)
+            if self.options.odom_gap_factor:
+                self._check_odom_gap(frame, target, scan.stamp)
         if self.localizer:
             self.odom_frame = target
         else:
             self.fixed_frame = self.odom_frame = target
         return pose
+
+    def rate_notes(self, stamp: float) -> list:
+        """
+        Return an ``odom_rate`` warning (once) when the odometry is much slower than the scans.
+
+        Called with each posed scan's stamp (after ``pose``); see ``ODOM_SLOW``. The odometry:
+        the stamps of the odometry edge of the scan's own lookup (``_odometry_edge``), read
+        every ``ODOM_SLOW[2]`` scans.
+        """
+        scans = self._scan_stamps
+        if self._rate_said or self._scan_edge is None or (scans and stamp <= scans[-1]):
+            return []
+        scans.append(stamp)
+        self._rate_scans += 1
+        if len(scans) < scans.maxlen or self._rate_scans % ODOM_SLOW[2]:
+            return []
+        child = self._odometry_edge(*self._scan_edge)
+        odom = self.buffer.stamps(child)[-scans.maxlen:] if child is not None else []
+        if len(odom) < scans.maxlen:
+            return []
+        period = float(np.median(np.diff(odom)))
+        scan_period = float(np.median(np.diff(np.asarray(scans))))
+        if not (period >= ODOM_SLOW[0] and period >= ODOM_SLOW[1] * scan_period):
+            return []
+        self._rate_said = True
+        what = ('the odometry' if self.options.pose_source == 'odom' else
+                f'the transform {self._parents[child]} -> {child}')
+        return [('odom_rate', f'{what} comes every {1e3 * period:.0f} ms ({1 / period:.1f} '
+                 f"Hz), {period / scan_period:.0f} x the scans' interval: each scan and its "
+                 'beams are posed by interpolating across it, which spreads every change of '
+                 'the turn rate over it and smears the map in turns. Publish it at 5 Hz or '
+                 'more (diff_drive_controller: publish_rate)')]
 
     def held_notes(self) -> list:
         """
@@ -2052,6 +2101,7 @@ class MappingSession:
                     continue
                 self._waiting.popleft()
                 notes.extend(self.poses.held_notes())
+                notes.extend(self.poses.rate_notes(scan.stamp))
                 notes.extend(self._convert(scan, pose, arrived))
             if opts.max_queue is not None:
                 while len(self._ready) > opts.max_queue:
