@@ -1,16 +1,18 @@
 """Helpers shared by the benchmark scripts: machine description, commit, README blocks."""
 
+import argparse
 import datetime
 import json
 import os
 import pathlib
 import platform
 import subprocess
+import sys
 
 import numpy as np
 from polyline_mapper.core.freespace import judge
 from polyline_mapper.core.register import transform
-from polyline_mapper.recordings import SIM_START
+from polyline_mapper.recordings import make_drive, OdometryDrift, SIM_START
 
 HERE = pathlib.Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -191,3 +193,28 @@ def load_note(start) -> str:
     if max(start[1], end[1]) > 1.5:
         note += ': other jobs shared the machine, times are slower than it runs alone'
     return note
+
+
+def case_run(doc: str, script: str) -> tuple:
+    """
+    Parse the command line of a case-table benchmark; return (args, meta).
+
+    ``--quick``: the first three cases only, printed (``publish`` writes nothing). ``doc``: the
+    script's docstring (its first paragraph is the description); ``script``: its file name.
+    """
+    ap = argparse.ArgumentParser(description=doc.split('\n\n')[0].strip())
+    ap.add_argument('--quick', action='store_true',
+                    help='the first three cases only, printed (nothing written)')
+    args = ap.parse_args()
+    return args, stamp(f'.venv/bin/python benchmarks/{script} ' + ' '.join(sys.argv[1:]))
+
+
+def drifting_drive(drives: dict, spec: str) -> tuple:
+    """
+    Return (drive, odometry) of ``make_drive(spec, 1)``, kept in ``drives`` for the next case.
+
+    ``odometry``: the drive's poses with ``recordings.OdometryDrift`` seed 1 (at its stamps).
+    """
+    drive = drives.setdefault(spec, make_drive(spec, 1))
+    return drive, OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
+                                        stamps=drive.stamps)

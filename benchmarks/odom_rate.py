@@ -22,15 +22,13 @@ Writes (not with ``--quick``) the table into benchmarks/README.md (between the `
 markers) and the raw numbers to benchmarks/results/odom_rate.json.
 """
 
-import argparse
 import json
 import math
 import sys
 
-from common import publish, stamp
+from common import case_run, drifting_drive, publish
 import numpy as np
 from polyline_mapper.formats.records import Odometry, Transform
-from polyline_mapper.recordings import make_drive, OdometryDrift
 from scan_clock import CORRIDORS, OFFICE, one, records
 
 CASES = ([(OFFICE, mode, every) for every in (1, 2, 5, 10) for mode in ('odom', 'tf')]
@@ -53,16 +51,10 @@ def thinned(recs: list, every: int) -> list:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    ap.add_argument('--quick', action='store_true',
-                    help='the first three cases only, printed (nothing written)')
-    args = ap.parse_args()
-    meta = stamp('.venv/bin/python benchmarks/odom_rate.py ' + ' '.join(sys.argv[1:]))
+    args, meta = case_run(__doc__, 'odom_rate.py')
     rows, drives = [], {}
     for spec, mode, every in CASES[:3] if args.quick else CASES:
-        drive = drives.setdefault(spec, make_drive(spec, 1))
-        odometry = OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
-                                         stamps=drive.stamps)
+        drive, odometry = drifting_drive(drives, spec)
         recs = thinned(records(drive, odometry, 0.0), every)
         rate = 1.0 / (every * float(np.median(np.diff(drive.stamps))))
         row = {'drive': spec, 'scans': len(drive.stamps), 'pose_source': mode, 'every': every,

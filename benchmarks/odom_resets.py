@@ -23,18 +23,17 @@ Writes (not with ``--quick``) the table into benchmarks/README.md (between the `
 markers) and the raw numbers to benchmarks/results/odom_resets.json.
 """
 
-import argparse
 import json
 import math
 import sys
 
 from baselines.walls import wall_scores
-from common import publish, stamp
+from common import case_run, drifting_drive, publish
 from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
 from polyline_mapper.formats.records import Odometry
-from polyline_mapper.recordings import drive_messages, make_drive, OdometryDrift, SIM_START
+from polyline_mapper.recordings import drive_messages, SIM_START
 from polyline_mapper.replay import replay_records
 import polyline_mapper.session as session_module
 from polyline_mapper.session import SessionOptions
@@ -76,16 +75,10 @@ def one(drive, recs: list) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    ap.add_argument('--quick', action='store_true',
-                    help='the first three cases only, printed (nothing written)')
-    args = ap.parse_args()
-    meta = stamp('.venv/bin/python benchmarks/odom_resets.py ' + ' '.join(sys.argv[1:]))
+    args, meta = case_run(__doc__, 'odom_resets.py')
     rows, drives = [], {}
     for spec, share, silence in CASES[:3] if args.quick else CASES:
-        drive = drives.setdefault(spec, make_drive(spec, 1))
-        odometry = OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
-                                         stamps=drive.stamps)
+        drive, odometry = drifting_drive(drives, spec)
         k = int(share * len(drive.stamps))
         reset = odometry.copy()
         reset[k:] = se2_compose(se2_inverse(odometry[k]), odometry[k:])

@@ -21,7 +21,6 @@ Writes (not with ``--quick``) the table into benchmarks/README.md (between the `
 markers) and the raw numbers to benchmarks/results/scan_clock.json.
 """
 
-import argparse
 from dataclasses import replace
 import json
 import math
@@ -29,11 +28,11 @@ import re
 import sys
 
 from baselines.walls import wall_scores
-from common import publish, stamp
+from common import case_run, drifting_drive, publish
 from matching import flat
 import numpy as np
 from polyline_mapper.formats.records import Scan
-from polyline_mapper.recordings import drive_messages, make_drive, OdometryDrift, SIM_START
+from polyline_mapper.recordings import drive_messages, SIM_START
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -77,16 +76,10 @@ def one(drive, recs: list, lag: float, offset: float = 0.0, pose_source: str = '
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    ap.add_argument('--quick', action='store_true',
-                    help='the first three cases only, printed (nothing written)')
-    args = ap.parse_args()
-    meta = stamp('.venv/bin/python benchmarks/scan_clock.py ' + ' '.join(sys.argv[1:]))
+    args, meta = case_run(__doc__, 'scan_clock.py')
     rows, drives = [], {}
     for spec, lag in CASES[:3] if args.quick else CASES:
-        drive = drives.setdefault(spec, make_drive(spec, 1))
-        odometry = OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
-                                         stamps=drive.stamps)
+        drive, odometry = drifting_drive(drives, spec)
         recs = records(drive, odometry, lag)
         row = {'drive': spec, 'scans': len(drive.stamps), 'lag_s': lag,
                'as_recorded': one(drive, recs, lag)}
