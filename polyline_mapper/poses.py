@@ -431,6 +431,15 @@ class TransformBuffer2D:
             return []
         return edge.stamps[edge.start:]
 
+    def still(self, child: str, count: int) -> bool:
+        """Whether the newest ``count`` transforms of the edge above ``child`` are the same."""
+        edge = self._edges.get(_frame(child))
+        if edge is None or edge.static:
+            return True
+        data = edge.data[max(len(edge.data) - int(count), edge.start):]
+        t0, q0 = data[0] if data else (None, None)
+        return all(np.array_equal(t, t0) and np.array_equal(q, q0) for t, q in data[1:])
+
     # -- queries -------------------------------------------------------------------------------
     def lookup(self, target: str, source: str, stamp: float, tolerance: float = 0.1,
                max_tilt: float = math.radians(20.0)) -> np.ndarray:

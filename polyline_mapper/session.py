@@ -889,6 +889,7 @@ class PoseSource:
         """(frame, target) of the newest scan's own pose lookup (``rate_notes``)."""
         self._scan_stamps = deque(maxlen=ODOM_SLOW[2] + 1)
         self._rate_scans = 0
+        self._rate_frame = None
         self._rate_said = False
         self._tree = {}
         """Scan mode: child frame -> (parent, static, (x, y, yaw) of the edge or None when not
@@ -1126,24 +1127,34 @@ class PoseSource:
             self.fixed_frame = self.odom_frame = target
         return pose
 
-    def rate_notes(self, stamp: float) -> list:
+    def rate_notes(self, stamp: float, frame: str) -> list:
         """
         Return an ``odom_rate`` warning (once) when the odometry is much slower than the scans.
 
-        Called with each posed scan's stamp (after ``pose``); see ``ODOM_SLOW``. The odometry:
-        the stamps of the odometry edge of the scan's own lookup (``_odometry_edge``), read
-        every ``ODOM_SLOW[2]`` scans.
+        Called with each posed scan's stamp and frame (after ``pose``); see ``ODOM_SLOW``. The
+        scans: the first laser's (lasers interleave); a step back of more than
+        ``TIME_JUMP_BACK`` starts them again (a clock that jumped back), a smaller one is left
+        out. The odometry: the stamps of the odometry edge of the scan's own lookup
+        (``_odometry_edge``), read every ``ODOM_SLOW[2]`` scans, at least 4 of them (the
+        buffer keeps ``cache_seconds``), and only while it moves (a mount sent on /tf instead
+        of /tf_static is the lowest dynamic edge, but interpolating it is exact).
         """
         scans = self._scan_stamps
-        if self._rate_said or self._scan_edge is None or (scans and stamp <= scans[-1]):
+        if self._rate_frame is None:
+            self._rate_frame = frame
+        if self._rate_said or self._scan_edge is None or frame != self._rate_frame:
             return []
+        if scans and stamp <= scans[-1]:
+            if stamp >= scans[-1] - TIME_JUMP_BACK:
+                return []
+            scans.clear()
         scans.append(stamp)
         self._rate_scans += 1
         if len(scans) < scans.maxlen or self._rate_scans % ODOM_SLOW[2]:
             return []
         child = self._odometry_edge(*self._scan_edge)
         odom = self.buffer.stamps(child)[-scans.maxlen:] if child is not None else []
-        if len(odom) < scans.maxlen:
+        if len(odom) < 4 or self.buffer.still(child, len(odom)):
             return []
         period = float(np.median(np.diff(odom)))
         scan_period = float(np.median(np.diff(np.asarray(scans))))
@@ -1482,11 +1493,17 @@ Intel, CSAIL and fr079 logs (seed 0) it peaks at 1.87x, 2.14x and 2.38x."""
 JUMP_SHIFT, JUMP_TURN = 0.3, 0.2
 """A match this far (m, rad) from its odometry prediction (map -> odom changing by as much at
 the laser in one scan) is a jump."""
-LAG_ROWS = 300
-"""Matched scans (stamp, the odometry's heading, the matched heading) kept to pair the newest
-ones with those ``poses.LAG_SPAN`` before (the stamp-lag estimate, ``poses.lag_costs``). A pair
-is scored once the rows reach the grid's second past its later scan and a second before its
-earlier one, so the rows span a ``LAG_EVERY`` batch plus 3 s: enough up to 66 Hz scans."""
+LAG_ROWS = 5000
+"""Matched scans (stamp, the odometry's heading, the matched heading) kept at most to pair the
+newest ones with those ``poses.LAG_SPAN`` before (the stamp-lag estimate, ``poses.lag_costs``).
+A pair is scored once the rows reach the grid's second past its later scan and a second before
+its earlier one; after each estimate the rows older than ``LAG_KEEP`` before the last scored
+scan are dropped, so they hold a ``LAG_EVERY`` batch plus about 4 s of scans: 140 rows at
+10 Hz, 500 at 100 Hz (a fixed 300 rows lost pairs above 66 Hz and every one from 100 Hz on: a
+helper audit). The cap binds only beyond 1 kHz."""
+LAG_KEEP = 3.0
+"""Seconds of rows kept before the newest scored scan: the span of a pair plus the grid's reach
+before its earlier scan (``poses.LAG_SPAN`` + ``poses.LAG_GRID``'s end), and a second more."""
 LAG_EVERY = 100
 """Matched scans between two stamp-lag estimates (each adds its pairs' costs, one grid pass)."""
 LAG_DECAY = 0.95
@@ -2101,7 +2118,7 @@ class MappingSession:
                     continue
                 self._waiting.popleft()
                 notes.extend(self.poses.held_notes())
-                notes.extend(self.poses.rate_notes(scan.stamp))
+                notes.extend(self.poses.rate_notes(scan.stamp, scan.frame_id))
                 notes.extend(self._convert(scan, pose, arrived))
             if opts.max_queue is not None:
                 while len(self._ready) > opts.max_queue:
@@ -2905,6 +2922,8 @@ class MappingSession:
         costs, pairs, self._lag_since = lag_costs(rows[:, 0], rows[:, 1], rows[:, 2],
                                                   self._lag_since)
         self._lag_new = 0
+        while turns and turns[0][0] < self._lag_since - LAG_KEEP:
+            turns.popleft()                 # (no later pair reads them)
         self._lag_costs = LAG_DECAY * self._lag_costs + costs
         self._lag_pairs = LAG_DECAY * self._lag_pairs + pairs
         if self._lag_pairs < LAG_PAIRS:

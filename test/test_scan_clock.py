@@ -91,6 +91,30 @@ def test_the_odometry_is_never_read_past_the_rows_it_holds():
         assert estimate_lag(costs, pairs).lag == pytest.approx(lag, abs=1e-9)
 
 
+@pytest.mark.parametrize('rate', [10.0, 100.0, 150.0])
+def test_the_session_scores_every_pair_at_any_scan_rate(rate, monkeypatch):
+    # The session's own batching (LAG_EVERY matched scans, the rows it keeps), fed noise-free
+    # headings 0.1 s late, with no fading: the pairs and costs of one pass over all the rows,
+    # and the lag. Rows capped at 300 lost pairs above 66 Hz and all from 100 Hz on (a helper
+    # audit: 100 Hz, no estimate at all).
+    import polyline_mapper.session as session_module
+    monkeypatch.setattr(session_module, 'LAG_DECAY', 1.0)
+    session = session_module.MappingSession(options=SessionOptions(pose_source='odom',
+                                                                   scan_matching=True))
+    t = 1000.0 + np.arange(int(60 * rate)) / rate
+    yaw = np.minimum(t % 10.0, 3.0) + 3.0 * np.floor(t / 10.0)
+    given = np.interp(t + 0.1, t, yaw)
+    for stamp, g, y in zip(t, given, yaw):
+        session._check_stamp_lag(stamp, np.array([0.0, 0.0, g]), np.array([0.0, 0.0, y]),
+                                 'laser')
+    assert len(session._turns) <= LAG_EVERY + 4.5 * rate           # bounded by time
+    end = len(t) // LAG_EVERY * LAG_EVERY                           # the last batch's end
+    costs, pairs, upto = lag_costs(t[:end], given[:end], yaw[:end])
+    assert session._lag_since == upto and session._lag_pairs == pairs > 100 * rate / 10
+    np.testing.assert_allclose(session._lag_costs, costs, rtol=1e-9, atol=1e-12)
+    assert session.stamp_lag.lag == pytest.approx(0.1, abs=1e-9), session.stamp_lag
+
+
 def _swapped(records: list, every: int) -> list:
     """Return ``records`` with two neighbouring scans swapped every ``every`` scans."""
     at = [i for i, r in enumerate(records) if isinstance(r, Scan)]
