@@ -1404,7 +1404,7 @@ def _names_printable() -> None:
 
 
 _NEGATIVE_LIST = re.compile(r'-[0-9.][0-9.eE+-]*(,[^,]*){2,3}$')
-_NEGATIVE_NUMBER = re.compile(r'-([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?$')
+_NEGATIVE_NUMBER = re.compile(r'-([0-9.]\S*|inf|infinity|nan)$', re.IGNORECASE)
 _NEGATIVE_VALUED = {'--initial-pose': _NEGATIVE_LIST, '--laser-mount': _NEGATIVE_LIST,
                     '--scan-time-offset': _NEGATIVE_NUMBER}
 """Options whose value may start with '-', and the form such a value takes."""
@@ -1416,12 +1416,14 @@ def _join_negative_values(argv: list) -> list:
 
     argparse takes a value starting with '-' for an option and stops with 'expected one
     argument', unless it is a plain negative number: a pose list, or a number in exponent form
-    (``--scan-time-offset -1e-1``).
+    (``--scan-time-offset -1e-1``); ``-inf``, ``-nan`` and ``-1x`` are joined too, so the
+    option's own check names them. The options as argparse takes them, abbreviated too.
     """
     out, it = [], iter(argv)
     for item in it:
         out.append(item)
-        form = _NEGATIVE_VALUED.get(item)
+        form = next((f for name, f in _NEGATIVE_VALUED.items()
+                     if item.startswith('--') and len(item) > 2 and name.startswith(item)), None)
         nxt = next(it, None) if form is not None else None
         if nxt is not None:
             out[-1:] = [f'{item}={nxt}'] if form.match(nxt) else [item, nxt]

@@ -664,6 +664,8 @@ def test_a_negative_value_is_the_option_s_value():
             ['replay', 'b', '--scan-time-offset', text, '-o', 'm.json']))
         assert args.scan_time_offset == value, text
     assert _join_negative_values(['--scan-time-offset', '-o']) == ['--scan-time-offset', '-o']
+    assert _join_negative_values(['--scan-time', '-1e-1', '--laser-m', '-1,0,0']) == [
+        '--scan-time=-1e-1', '--laser-m=-1,0,0']
 
 
 def test_the_live_demo_takes_fit_s_short_keys_as_the_node_s():
