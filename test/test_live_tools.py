@@ -76,9 +76,12 @@ def test_play_into_the_live_node_equals_the_offline_replay(tmp_path, office_bag,
     # reliably). With the default best-effort sensor QoS, DDS may drop a sample: seen in CI as
     # 354 of 355 scans, with discovery settled. Nor may the node shed scans when a loaded
     # machine's updates fall behind the played rate (max_scan_latency off, a queue that holds
-    # the whole bag); test_node_load covers the shedding.
+    # the whole bag); test_node_load covers the shedding. Nor may the scans queued outlive the
+    # transforms they need: at rate 20 the default 30 s transform cache is 1.5 s of wall time,
+    # and a slow VM's node, 3.8 s behind, found 6 scans too_old (349 of 355 used, 2026-12-01).
     node = NodeProcess(tmp_path, {'use_sim_time': True, 'stats_period': 0.0,
                                   'update_every_n_scans': n, 'max_scan_latency': 0.0,
+                                  'transform_cache': 600.0,
                                   'scan_buffer_size': 1000, 'scan_matching': matching,
                                   'qos_overrides./scan.subscription.reliability': 'reliable',
                                   'qos_overrides./scan.subscription.depth':
