@@ -28,7 +28,7 @@ import sys
 
 from common import case_run, drifting_drive, publish
 import numpy as np
-from polyline_mapper.formats.records import Odometry, Transform
+from polyline_mapper.recordings import thin_odometry
 from scan_clock import CORRIDORS, OFFICE, one, records
 
 CASES = ([(OFFICE, mode, every) for every in (1, 2, 5, 10) for mode in ('odom', 'tf')]
@@ -36,26 +36,12 @@ CASES = ([(OFFICE, mode, every) for every in (1, 2, 5, 10) for mode in ('odom', 
 """(drive, pose source, one odometry message kept in this many)."""
 
 
-def thinned(recs: list, every: int) -> list:
-    """Return ``recs`` with one odometry message (and odom -> base_link) kept in ``every``."""
-    seen = {Odometry: 0, Transform: 0}
-    out = []
-    for r in recs:
-        moving = isinstance(r, Odometry) or (isinstance(r, Transform) and not r.static)
-        if moving:
-            seen[type(r)] += 1
-            if (seen[type(r)] - 1) % every:
-                continue
-        out.append(r)
-    return out
-
-
 def main() -> int:
     args, meta = case_run(__doc__, 'odom_rate.py')
     rows, drives = [], {}
     for spec, mode, every in CASES[:3] if args.quick else CASES:
         drive, odometry = drifting_drive(drives, spec)
-        recs = thinned(records(drive, odometry, 0.0), every)
+        recs = thin_odometry(records(drive, odometry, 0.0), every)
         rate = 1.0 / (every * float(np.median(np.diff(drive.stamps))))
         row = {'drive': spec, 'scans': len(drive.stamps), 'pose_source': mode, 'every': every,
                'odometry_hz': round(rate, 2), **one(drive, recs, 0.0, pose_source=mode)}

@@ -39,7 +39,7 @@ import numpy as np
 
 from .core.register import ODOMETRY_NOISE
 from .formats.bag import BAG_SUFFIXES
-from .formats.records import f32, last_angle, Odometry, Scan
+from .formats.records import f32, last_angle, Odometry, Scan, Transform
 from .poses import mount_quaternion, planar_transform, se2_compose, se2_inverse
 
 KINDS = ('points', 'carmen', 'bag', 'sim')
@@ -409,6 +409,25 @@ def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down
         laser, map_to_odom = se2_compose(base, m), None
     return robot_messages(stamps, laser, scans, mount=mount, upside_down=upside_down,
                           map_to_odom=map_to_odom, **options)
+
+
+def thin_odometry(records: list, every: int) -> list:
+    """
+    Return ``records`` with one odometry message in ``every`` kept, as a slower base sends it.
+
+    The odometry: the Odometry records and the dynamic transforms (odom -> base_link), each
+    kind counted on its own, its first kept; every other record as it is
+    (``benchmarks/odom_rate.py``).
+    """
+    seen = {Odometry: 0, Transform: 0}
+    out = []
+    for r in records:
+        if isinstance(r, Odometry) or (isinstance(r, Transform) and not r.static):
+            seen[type(r)] += 1
+            if (seen[type(r)] - 1) % every:
+                continue
+        out.append(r)
+    return out
 
 
 # -- opening -------------------------------------------------------------------------------------

@@ -3,8 +3,8 @@
 import dataclasses
 
 import numpy as np
-from polyline_mapper.formats.records import Odometry, Scan, Transform
-from polyline_mapper.recordings import drive_messages, make_drive, SIM_START
+from polyline_mapper.formats.records import Scan, Transform
+from polyline_mapper.recordings import drive_messages, make_drive, SIM_START, thin_odometry
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 import pytest
@@ -24,19 +24,6 @@ def records():
     return out
 
 
-def _thinned(records: list, every: int) -> list:
-    """Keep one odometry message (and odom -> base_link transform) in ``every``."""
-    seen = {Odometry: 0, Transform: 0}
-    out = []
-    for r in records:
-        if isinstance(r, Odometry) or (isinstance(r, Transform) and not r.static):
-            seen[type(r)] += 1
-            if (seen[type(r)] - 1) % every:
-                continue
-        out.append(r)
-    return out
-
-
 def _warned(records: list, pose_source: str, scan_matching: bool, **options) -> list:
     warned = []
     session = replay_records(records, options=SessionOptions(
@@ -53,7 +40,7 @@ def test_odometry_at_1_hz_under_10_hz_scans_is_warned_once(records, pose_source,
     # Interpolated across a second, the odometry spreads each change of the turn rate over
     # it: walls F1 0.84 with matching on the whole drive, against 1.00 at 10 Hz
     # (benchmarks/odom_rate.py). One warning, naming the rate and the edge.
-    said = _warned(_thinned(records, 10), pose_source, scan_matching)
+    said = _warned(thin_odometry(records, 10), pose_source, scan_matching)
     assert len(said) == 1, said
     assert 'every 1000 ms (1.0 Hz), 10 x the scans' in said[0]
     edge = 'the odometry' if pose_source == 'odom' else 'the transform odom -> base_link'
@@ -64,7 +51,7 @@ def test_odometry_at_the_scan_rate_or_at_5_hz_is_not_warned_about(records):
     # One message per scan (the simulator, converted CARMEN logs), and 5 Hz, which maps as
     # 10 Hz does (F1 1.00): silent. Scans stamped out of order change nothing.
     assert _warned(records, 'odom', True) == []
-    assert _warned(_thinned(records, 2), 'tf', False) == []
+    assert _warned(thin_odometry(records, 2), 'tf', False) == []
     scans = [i for i, r in enumerate(records) if isinstance(r, Scan)]
     swapped = list(records)
     for a in scans[20:200:30]:
@@ -90,7 +77,7 @@ def test_lasers_clocks_and_mounts_that_only_look_like_slow_odometry(records):
     scans = [r for r in records if isinstance(r, Scan)]
     first, second = {id(r) for r in scans[0::10]}, {id(r) for r in scans[1::10]}
     two = []
-    for r in _thinned(records, 10):
+    for r in thin_odometry(records, 10):
         if isinstance(r, Scan):
             if id(r) in first or id(r) in second:
                 two.append(r if id(r) in first else dataclasses.replace(r, frame_id='laser2'))
@@ -113,6 +100,6 @@ def test_the_warning_comes_after_the_clock_jumps_back(records):
     # for the new ones to pass them).
     end = SIM_START + 10.0
     before = [r for r in records if r.stamp < end]
-    after = [dataclasses.replace(r, stamp=r.stamp - 100.0) for r in _thinned(records, 10)
+    after = [dataclasses.replace(r, stamp=r.stamp - 100.0) for r in thin_odometry(records, 10)
              if r.stamp >= end]
     assert len(_warned(before + after, 'tf', False)) == 1
