@@ -55,10 +55,20 @@ class NodeProcess:
     """polyline_mapper_node in a subprocess, its stderr in a file; always stopped by stop()."""
 
     def __init__(self, folder: pathlib.Path, params: dict = None, name: str = 'node',
-                 params_file: pathlib.Path = None):
+                 params_file: pathlib.Path = None, ros_name: str = None):
+        """
+        Start the node; its stderr goes to ``folder / f'{name}.stderr'``.
+
+        ``ros_name``: the node's name in the ROS graph (``__node:=``), for a test whose node
+        runs beside another polyline_mapper_node (``Peer.wait_for_node`` then waits for this
+        one's readers by name); None keeps the default name.
+        """
         _check_alone('NodeProcess')
         self.err_path = folder / f'{name}.stderr'
+        self.ros_name = ros_name
         cmd = [str(NODE_EXE), '--ros-args']
+        if ros_name is not None:
+            cmd += ['-r', f'__node:={ros_name}']
         if params_file is not None:
             cmd += ['--params-file', str(params_file)]
         for key, value in (params or {}).items():
@@ -192,8 +202,11 @@ class Peer:
         (required then) has logged a count of publishers matched that takes in every writer
         discovered. Discovery is two-sided, and a volatile reader that matches a writer late
         starts at the writer's newest sample: a fixed wait of 3 s lost 31 of 230 scans once
-        in CI on a loaded Intel Xeon VM (2026-11-29). (Counts, not names: the module's node
-        of test_node.py still runs, and its peer still publishes, during the shutdown test.)
+        in CI on a loaded Intel Xeon VM (2026-11-29). Counts: the module's node of
+        test_node.py still runs, and its peer still publishes, during the shutdown test; there
+        the counts were met by the old node's reader before this node's was discovered, and the
+        first 107 of 230 scans were lost (2026-12-01). A ``node`` given a ``ros_name`` must
+        also have a reader of its own discovered on each input.
         """
         pub = self.odom_pub if odom else self.tf_pub
         found = self.spin_until(lambda: self.scan_pub.get_subscription_count() > 0
@@ -206,7 +219,11 @@ class Peer:
             raise ValueError('a peer with reliable_scans waits for the node: pass node=')
 
         def matched(topic):
-            readers = len(self.node.get_subscriptions_info_by_topic(topic))
+            infos = self.node.get_subscriptions_info_by_topic(topic)
+            readers = len(infos)
+            if node.ros_name is not None and not any(i.node_name == node.ros_name
+                                                     for i in infos):
+                return False
             writers = len(self.node.get_publishers_info_by_topic(topic))
             said = node.lines(f']: {topic}: ')
             count = re.search(r': (\d+) publishers? matched$', said[-1]) if said else None

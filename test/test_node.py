@@ -251,7 +251,10 @@ def test_save_map_on_shutdown_writes_the_map_with_the_queued_scans(office_drive,
                                   'update_every_n_scans': 8, 'scan_buffer_size': 400,
                                   'max_scan_latency': 0.0,
                                   'qos_overrides./scan.subscription.reliability': 'reliable',
-                                  'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH})
+                                  'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH},
+                       # named: the module's node (tf_run) still runs in this ROS domain, and
+                       # its reader alone met the peer's counts once (107 scans lost)
+                       ros_name='polyline_mapper_save')
     peer = Peer('test_peer_save', reliable_scans=True)
     try:
         assert peer.wait_for_node(TIMEOUT, node=node), 'the node did not come up:\n' + \
