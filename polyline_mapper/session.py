@@ -1137,7 +1137,8 @@ class PoseSource:
         out. The odometry: the stamps of the odometry edge of the scan's own lookup
         (``_odometry_edge``), read every ``ODOM_SLOW[2]`` scans, at least 4 of them (the
         buffer keeps ``cache_seconds``), and only while it moves (a mount sent on /tf instead
-        of /tf_static is the lowest dynamic edge, but interpolating it is exact).
+        of /tf_static is the lowest dynamic edge, but interpolating it is exact: the next
+        dynamic edge up the chain is judged then).
         """
         scans = self._scan_stamps
         if self._rate_frame is None:
@@ -1152,9 +1153,13 @@ class PoseSource:
         self._rate_scans += 1
         if len(scans) < scans.maxlen or self._rate_scans % ODOM_SLOW[2]:
             return []
-        child = self._odometry_edge(*self._scan_edge)
-        odom = self.buffer.stamps(child)[-scans.maxlen:] if child is not None else []
-        if len(odom) < 4 or self.buffer.still(child, len(odom)):
+        for child in self._dynamic_edges(*self._scan_edge):
+            odom = self.buffer.stamps(child)[-scans.maxlen:]
+            if len(odom) < 4:
+                return []
+            if not self.buffer.still(child, len(odom)):
+                break
+        else:
             return []
         period = float(np.median(np.diff(odom)))
         scan_period = float(np.median(np.diff(np.asarray(scans))))
@@ -1220,12 +1225,20 @@ class PoseSource:
         the odometry's own), with the static mount below it and a localizer's map -> odom
         above it, whose corrections come when they come and carry no motion of their own.
         """
+        return next(iter(self._dynamic_edges(frame, target)), None)
+
+    def _dynamic_edges(self, frame: str, target: Optional[str]) -> list:
+        """
+        Return the child frames of the dynamic edges from ``frame`` up to ``target``, lowest first.
+
+        ``target`` None or not on the chain: up to its root; [] when the chain is not known.
+        """
         try:
             chain = self._chain(frame)
         except TransformLookupError:
-            return None
+            return []
         top = chain.index(target) if target in chain else len(chain) - 1
-        return next((child for child in chain[:top] if child not in self._static), None)
+        return [child for child in chain[:top] if child not in self._static]
 
     def newest(self, scan: Scan) -> float:
         """

@@ -94,6 +94,24 @@ def test_lasers_clocks_and_mounts_that_only_look_like_slow_odometry(records):
     assert _warned(mount, 'tf', False, tolerance=1.0) == []
 
 
+def test_slow_odometry_above_a_mount_sent_on_tf_is_warned_about(records):
+    # The mount on /tf (still) is passed over and the odometry edge above it is judged: with
+    # the odometry at 1 Hz as well the warning was missing (noted 2026-12-01).
+    both = []
+    for r in thin_odometry(records, 10):
+        if isinstance(r, Transform) and r.static:
+            continue
+        both.append(r)
+        if isinstance(r, Transform):
+            both.append(Transform(r.stamp, 'base_link', 'laser', np.zeros(3),
+                                  np.array([0.0, 0.0, 0.0, 1.0]), False))
+    assert {(r.parent, r.child) for r in both if isinstance(r, Transform)} == {
+        ('odom', 'base_link'), ('base_link', 'laser')}
+    said = _warned(both, 'tf', False, tolerance=1.0)
+    assert len(said) == 1 and said[0].startswith('the transform odom -> base_link'), said
+    assert 'every 1000 ms (1.0 Hz)' in said[0]
+
+
 def test_the_warning_comes_after_the_clock_jumps_back(records):
     # 10 s at 10 Hz odometry, then the clock 100 s back (a bag played again, a restarted
     # driver) and 1 Hz odometry: warned (the first version kept the old stamps and waited
