@@ -1,9 +1,11 @@
 """
 Shared fixtures: seeded simulated data and the location of the shared real datasets.
 
-Also the rules that let the suite run on several pytest-xdist workers (``tools/dev.sh test``
-uses two): each worker talks in its own ROS domain, and a test marked ``dds`` (a node, player
-or recorder talking over DDS, timing-sensitive) runs alone, the others side by side.
+Also the rules that let the suite run on several pytest-xdist workers: each worker talks in
+its own ROS domain, and a test marked ``dds`` (a node, player or recorder talking over DDS,
+timing-sensitive) runs alone, the others side by side. ``tools/dev.sh test`` without arguments
+runs the ``dds`` tests in a pytest run of their own, one after another, beside the others' run
+on two workers at nice 19; the rules here order and lock a run that holds both kinds.
 ``rosnode`` refuses to start a node or a peer in a test that is not marked ``dds``.
 """
 

@@ -151,11 +151,16 @@ case "$cmd" in
     # The whole suite as two runs at once: the dds tests one after another at normal priority,
     # in a ROS domain of their own, and the others on the workers at nice 19, where they take
     # only the CPU the dds tests leave (a dds test alone left a core idle: 6 of 21 minutes).
+    # (Started with job control on: a process group of its own, and SIGINT not ignored as it
+    # is for a background command, so the nodes it starts stop on SIGINT as anywhere else;
+    # Ctrl-C reaches this script and the other run, and the trap passes it on to the group.)
     dds_log="$(mktemp "${TMPDIR:-/tmp}/polyline_mapper-dds.XXXXXX")"
+    set -m
     ROS_DOMAIN_ID=$(( (ROS_DOMAIN_ID + 51) % 102 )) \
       "$venv/bin/python" -m pytest -q -p no:cacheprovider -m dds test > "$dds_log" 2>&1 &
     dds_pid=$!
-    trap 'kill "$dds_pid" 2>/dev/null || true' INT TERM
+    set +m
+    trap 'kill -INT -- "-$dds_pid" 2>/dev/null || true' INT TERM
     log "the dds tests run beside the others (their output: $dds_log, shown when they end)"
     rc_rest=0
     nice -n 19 "$venv/bin/python" -m pytest -q -p no:cacheprovider -n "$workers" -m 'not dds' \
