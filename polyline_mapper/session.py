@@ -1138,7 +1138,8 @@ class PoseSource:
         (``_odometry_edge``), read every ``ODOM_SLOW[2]`` scans, at least 4 of them (the
         buffer keeps ``cache_seconds``), and only while it moves (a mount sent on /tf instead
         of /tf_static is the lowest dynamic edge, but interpolating it is exact: the next
-        dynamic edge up the chain is judged then).
+        dynamic edge up to the odometry frame is judged then; with the pose looked up in a
+        fixed frame above the odometry's, only the lowest).
         """
         scans = self._scan_stamps
         if self._rate_frame is None:
@@ -1153,7 +1154,12 @@ class PoseSource:
         self._rate_scans += 1
         if len(scans) < scans.maxlen or self._rate_scans % ODOM_SLOW[2]:
             return []
-        for child in self._dynamic_edges(*self._scan_edge):
+        edges = self._dynamic_edges(*self._scan_edge)
+        if self.options.pose_source == 'tf' and not self.localizer:
+            # Up to a fixed frame above the odometry (map): a localizer's map -> odom is on
+            # the way, and a still odometry edge below it is a parked robot, not a mount.
+            edges = edges[:1]
+        for child in edges:
             odom = self.buffer.stamps(child)[-scans.maxlen:]
             if len(odom) < 4:
                 return []

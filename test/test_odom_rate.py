@@ -95,8 +95,12 @@ def test_lasers_clocks_and_mounts_that_only_look_like_slow_odometry(records):
 
 
 def test_slow_odometry_above_a_mount_sent_on_tf_is_warned_about(records):
-    # The mount on /tf (still) is passed over and the odometry edge above it is judged: with
-    # the odometry at 1 Hz as well the warning was missing (noted 2026-12-01).
+    # Scan matching without a map frame looks the poses up in the odometry frame: the mount
+    # on /tf (still) is passed over and the odometry edge above it is judged; with the
+    # odometry at 1 Hz as well the warning was missing (noted 2026-12-01). (Without scan
+    # matching the poses are looked up in the fixed frame, where a still edge may be a
+    # parked robot's under a localizer's map -> odom: only the lowest edge is judged there,
+    # the test below.)
     both = []
     for r in thin_odometry(records, 10):
         if isinstance(r, Transform) and r.static:
@@ -107,9 +111,29 @@ def test_slow_odometry_above_a_mount_sent_on_tf_is_warned_about(records):
                                   np.array([0.0, 0.0, 0.0, 1.0]), False))
     assert {(r.parent, r.child) for r in both if isinstance(r, Transform)} == {
         ('odom', 'base_link'), ('base_link', 'laser')}
-    said = _warned(both, 'tf', False, tolerance=1.0)
+    said = _warned(both, 'tf', True, tolerance=1.0)
     assert len(said) == 1 and said[0].startswith('the transform odom -> base_link'), said
     assert 'every 1000 ms (1.0 Hz)' in said[0]
+
+
+def test_a_parked_robot_under_a_localizer_is_no_slow_odometry(records):
+    # Found by a helper audit of the test above's fix: odom -> base_link at 10 Hz, always the
+    # same pose (the robot parked), under a localizer's map -> odom at 1 Hz, the poses looked
+    # up in map. The still odometry edge was passed over like a mount and map -> odom judged:
+    # "the transform map -> odom comes every 1000 ms".
+    first = next(r for r in records if isinstance(r, Transform) and not r.static)
+    parked, k = [], 0
+    for r in records:
+        if not isinstance(r, Transform) or r.static:
+            parked.append(r)
+            continue
+        parked.append(dataclasses.replace(r, translation=first.translation,
+                                          rotation=first.rotation))
+        if round((r.stamp - SIM_START) * 10) % 10 == 0:
+            k += 1
+            parked.append(Transform(r.stamp, 'map', first.parent, np.array([0.001 * k, 0, 0]),
+                                    np.array([0.0, 0.0, 0.0, 1.0]), False))
+    assert _warned(parked, 'tf', False, tolerance=1.0) == []
 
 
 def test_the_warning_comes_after_the_clock_jumps_back(records):
