@@ -36,10 +36,10 @@ NODE = '/polyline_mapper_node'
 
 
 def _check_alone(what: str) -> None:
-    """Refuse DDS in a test that may run beside others (see conftest: mark it dds)."""
+    """Refuse DDS in a test not marked dds (see conftest: those run one at a time)."""
     if os.environ.get(ALONE) != '1':
         raise RuntimeError(f'{what} talks over DDS: mark the test @pytest.mark.dds so that it '
-                           'runs alone')
+                           'runs apart from the other dds tests, at normal priority')
 
 
 def ros_arg(value) -> str:
@@ -60,8 +60,8 @@ class NodeProcess:
         Start the node; its stderr goes to ``folder / f'{name}.stderr'``.
 
         ``ros_name``: the node's name in the ROS graph (``__node:=``), for a test whose node
-        runs beside another polyline_mapper_node (``Peer.wait_for_node`` then waits for this
-        one's readers by name); None keeps the default name.
+        runs beside another polyline_mapper_node (``Peer.wait_for_node`` of a peer with
+        ``reliable_scans`` then waits for this one's readers by name); None keeps the default.
         """
         _check_alone('NodeProcess')
         self.err_path = folder / f'{name}.stderr'

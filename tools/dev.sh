@@ -151,28 +151,58 @@ case "$cmd" in
     # The whole suite as two runs at once: the dds tests one after another at normal priority,
     # in a ROS domain of their own, and the others on the workers at nice 19, where they take
     # only the CPU the dds tests leave (a dds test alone left a core idle: 6 of 21 minutes).
-    # (Started with job control on: a process group of its own, and SIGINT not ignored as it
-    # is for a background command, so the nodes it starts stop on SIGINT as anywhere else;
-    # Ctrl-C reaches this script and the other run, and the trap passes it on to the group.)
+    # Both run in the background of this script's process group (a terminal's Ctrl-C, a
+    # hang-up or a kill of the group reaches them and the nodes they start); a background
+    # command ignores SIGINT, so each pytest takes it back first (KeyboardInterrupt: the
+    # fixtures stop their nodes). SIGTERM or SIGHUP sent to this script alone is passed on to
+    # both as SIGINT (a SIGINT is taken to be a Ctrl-C, which reached them already), and the
+    # script waits for them before it exits.
+    case "$ROS_DOMAIN_ID" in
+      ''|*[!0-9]*) die "ROS_DOMAIN_ID must be a number, not '$ROS_DOMAIN_ID'" ;;
+    esac
+    dds_domain=$(( (10#$ROS_DOMAIN_ID + 51) % 101 + 1 ))       # 1..101, never the default 0
     dds_log="$(mktemp "${TMPDIR:-/tmp}/polyline_mapper-dds.XXXXXX")"
-    set -m
-    ROS_DOMAIN_ID=$(( (ROS_DOMAIN_ID + 51) % 102 )) \
-      "$venv/bin/python" -m pytest -q -p no:cacheprovider -m dds test > "$dds_log" 2>&1 &
+    trap 'rm -f "$dds_log"' EXIT
+    pytest_run=("$venv/bin/python" -c 'import signal, sys, pytest
+signal.signal(signal.SIGINT, signal.default_int_handler)
+sys.exit(pytest.main())' -q -p no:cacheprovider)
+    interrupted=0
+    dds_pid='' rest_pid=''
+    pass_on() {
+      interrupted=$1
+      kill -INT ${dds_pid:+"$dds_pid"} ${rest_pid:+"$rest_pid"} 2>/dev/null || true
+    }
+    trap 'interrupted=130' INT
+    trap 'pass_on 143' TERM
+    trap 'pass_on 129' HUP
+    ROS_DOMAIN_ID=$dds_domain "${pytest_run[@]}" -m dds test > "$dds_log" 2>&1 &
     dds_pid=$!
-    set +m
-    trap 'kill -INT -- "-$dds_pid" 2>/dev/null || true' INT TERM
-    log "the dds tests run beside the others (their output: $dds_log, shown when they end)"
+    log "the dds tests run beside the others (their output: $dds_log, shown when both end)"
+    nice -n 19 "${pytest_run[@]}" -n "$workers" -m 'not dds' test &
+    rest_pid=$!
+    # (wait returns early when a trapped signal comes: wait again until the run has ended)
+    finished() {
+      local rc=0
+      while :; do
+        rc=0
+        wait "$1" || rc=$?
+        kill -0 "$1" 2>/dev/null || return "$rc"
+      done
+    }
     rc_rest=0
-    nice -n 19 "$venv/bin/python" -m pytest -q -p no:cacheprovider -n "$workers" -m 'not dds' \
-      test || rc_rest=$?
+    finished "$rest_pid" || rc_rest=$?
     rc_dds=0
-    wait "$dds_pid" || rc_dds=$?
-    trap - INT TERM
+    finished "$dds_pid" || rc_dds=$?
+    trap - INT TERM HUP
     log "the dds tests (exit code $rc_dds):"
     cat "$dds_log"
-    rm -f "$dds_log"
-    [ "$rc_rest" -eq 0 ] || die "tests not marked dds failed (exit code $rc_rest)"
-    [ "$rc_dds" -eq 0 ] || die "tests marked dds failed (exit code $rc_dds)"
+    if [ "$interrupted" -ne 0 ]; then
+      log "error: interrupted (tests not marked dds: exit code $rc_rest; dds: $rc_dds)"
+      exit "$interrupted"
+    fi
+    if [ "$rc_rest" -ne 0 ] || [ "$rc_dds" -ne 0 ]; then
+      die "tests failed: not marked dds exit code $rc_rest, marked dds exit code $rc_dds"
+    fi
     ;;
   *)
     die "unknown command '$cmd' (expected: demo, test, setup)"
