@@ -259,3 +259,31 @@ def test_the_diagnostics_warn_when_the_scans_stop(office_drive, tmp_path):
     finally:
         peer.close()
         node.stop()
+
+
+def test_the_summary_counts_the_scans_still_queued_at_shutdown(office_drive, tmp_path):
+    # Twelve scans with update_every_n_scans 8: one group mapped, four queued. Stopped without
+    # save_map_on_shutdown, the four were received and neither used nor dropped, and the
+    # summary did not say where they went (noted with the no-transform test above).
+    node = NodeProcess(tmp_path, {
+        'update_every_n_scans': 8, 'map_publish_period': 0.1, 'max_scan_latency': 0.0,
+        'qos_overrides./scan.subscription.reliability': 'reliable',
+        'qos_overrides./scan.subscription.depth': RELIABLE_DEPTH})
+    peer = Peer('test_peer_queued', reliable_scans=True)
+    try:
+        assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
+        msgs = list(drive_messages(office_drive))
+        twelfth = [k for k, m in enumerate(msgs) if m[1] == '/scan'][11]
+        t0 = peer.play(msgs[:twelfth + 1], RATE) - 11 / RATE
+        # the map of the first group (its newest scan the eighth)
+        assert peer.spin_until(lambda: peer.maps and stamp_of(peer.maps[-1]) == pytest.approx(
+            t0 + 7 / RATE, abs=1e-6), TIMEOUT), node.stderr()[-3000:]
+        peer.spin_for(0.5)
+    finally:
+        peer.close()
+        assert node.stop() == 0
+    summary = node.lines('summary: ')
+    # (in 0 updates: the first groups estimate the noise scale before the map starts)
+    assert summary and re.search(r'12 scans received, 8 used in \d+ updates, 0 dropped, 4 not '
+                                 r'mapped at shutdown \(queued\); warnings: none',
+                                 summary[-1]), node.stderr()[-3000:]

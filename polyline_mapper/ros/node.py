@@ -594,8 +594,14 @@ class PolylineMapperNode(Node):
             self._save_map()
         st = self.session.stats()
         warned = ', '.join(f'{k} {v}' for k, v in sorted(self.warnings.counts.items())) or 'none'
+        # Scans still waiting for a pose or for their update group are neither used nor
+        # dropped: said, so that the counts add up (without save_map_on_shutdown, or waiting
+        # for a transform when the node stopped).
+        left = self.session.queued_scans()
         line = (f"summary: {st['scans']} scans received, {st['scans_used']} used in "
-                f"{st['updates']} updates, {st['dropped']} dropped; warnings: {warned}")
+                f"{st['updates']} updates, {st['dropped']} dropped"
+                + (f', {left} not mapped at shutdown (queued)' if left else '')
+                + f'; warnings: {warned}')
         if self.settings.pose_source == 'odom':
             line += f'; {self.odometry_received} odometry messages received'
         for key in ('update_ms', 'latency_ms'):
