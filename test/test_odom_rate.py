@@ -24,6 +24,12 @@ def records():
     return out
 
 
+def _mount_on_tf(stamp: float) -> Transform:
+    """Return the laser's mount (base_link -> laser, identity) sent on /tf at ``stamp``."""
+    return Transform(stamp, 'base_link', 'laser', np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]),
+                     False)
+
+
 def _warned(records: list, pose_source: str, scan_matching: bool, **options) -> list:
     warned = []
     session = replay_records(records, options=SessionOptions(
@@ -87,8 +93,7 @@ def test_lasers_clocks_and_mounts_that_only_look_like_slow_odometry(records):
                 two.append(dataclasses.replace(r, child='laser2'))
     assert _warned(two, 'tf', False) == []
     mount = [r for r in records if not (isinstance(r, Transform) and r.static)]
-    mount = [m for r in mount for m in ([r, Transform(r.stamp, 'base_link', 'laser', np.zeros(3),
-                                                      np.array([0.0, 0.0, 0.0, 1.0]), False)]
+    mount = [m for r in mount for m in ([r, _mount_on_tf(r.stamp)]
                                         if isinstance(r, Transform) and round(
                                             (r.stamp - SIM_START) * 10) % 10 == 0 else [r])]
     assert _warned(mount, 'tf', False, tolerance=1.0) == []
@@ -107,8 +112,7 @@ def test_slow_odometry_above_a_mount_sent_on_tf_is_warned_about(records):
             continue
         both.append(r)
         if isinstance(r, Transform):
-            both.append(Transform(r.stamp, 'base_link', 'laser', np.zeros(3),
-                                  np.array([0.0, 0.0, 0.0, 1.0]), False))
+            both.append(_mount_on_tf(r.stamp))
     assert {(r.parent, r.child) for r in both if isinstance(r, Transform)} == {
         ('odom', 'base_link'), ('base_link', 'laser')}
     said = _warned(both, 'tf', True, tolerance=1.0)
