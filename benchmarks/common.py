@@ -215,6 +215,8 @@ def drifting_drive(drives: dict, spec: str) -> tuple:
 
     ``odometry``: the drive's poses with ``recordings.OdometryDrift`` seed 1 (at its stamps).
     """
-    drive = drives.setdefault(spec, make_drive(spec, 1))
+    if spec not in drives:              # (setdefault would simulate the drive every case)
+        drives[spec] = make_drive(spec, 1)
+    drive = drives[spec]
     return drive, OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
                                         stamps=drive.stamps)
