@@ -36,6 +36,9 @@ CASES = [
     (['-p', 'map_publish_period:=0'],
      ["'map_publish_period'", "expecting type 'DOUBLE'", 'write 0.0, not 0']),
     (['-p', 'initial_pose:=[1, 2, 0]'], ["expecting type 'DOUBLE_ARRAY'", 'write 0.0, not 0']),
+    # Declared by rclpy itself, before the node's own parameters: a traceback (node audit).
+    (['-p', 'use_sim_time:=maybe'], ["'use_sim_time'", "expecting type 'BOOL'"]),
+    (['-p', 'use_sim_time:=1'], ["'use_sim_time'", "expecting type 'BOOL'"]),
     (['-p'], ['trailing -p flag']),
     (['--bogus'], ['unknown ROS argument(s): --bogus']),
     (['--log-level', 'nonsense'], ['log level']),

@@ -143,7 +143,12 @@ class PolylineMapperNode(Node):
     """Map laser scans into polylines online; publish the map, save it on request."""
 
     def __init__(self, **kwargs):
-        super().__init__(NODE_NAME, **kwargs)
+        try:
+            # rclpy declares use_sim_time itself: a value of the wrong type (use_sim_time:=1,
+            # :=maybe) raised from here, with a traceback.
+            super().__init__(NODE_NAME, **kwargs)
+        except ParameterException as exc:
+            raise ConfigError(' '.join(str(exc).split())) from None
         self._specs = all_params()
         try:
             for spec in self._specs:
