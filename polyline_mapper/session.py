@@ -2079,7 +2079,8 @@ class MappingSession:
         done = 0
         while True:
             notes = self._pose_waiting(final=final)
-            ran = self._run(None if max_updates is None else max_updates - done, partial)
+            ran = self._run(None if max_updates is None else max_updates - done, partial,
+                            shed=not final)
             self._emit(notes)
             done += ran
             if not ran or (max_updates is not None and done >= max_updates):
@@ -2105,7 +2106,9 @@ class MappingSession:
         opts = self.options
         with self._lock:
             now = self._now()
-            if opts.scan_matching:
+            # At the end of input (the node's shutdown save maps the queued scans) nothing is
+            # shed: those scans are mapped, however late.
+            if opts.scan_matching and not final:
                 notes.extend(self._shed_waiting(now))
             while self._waiting:
                 if opts.scan_matching and len(self._ready) >= opts.update_every_n_scans:
@@ -2139,7 +2142,7 @@ class MappingSession:
                 notes.extend(self.poses.held_notes())
                 notes.extend(self.poses.rate_notes(scan.stamp, scan.frame_id))
                 notes.extend(self._convert(scan, pose, arrived))
-            if opts.max_queue is not None:
+            if opts.max_queue is not None and not final:
                 while len(self._ready) > opts.max_queue:
                     self._ready.popleft()
                     notes.append(self._dropped('queue_full'))
@@ -2976,13 +2979,14 @@ class MappingSession:
         self._lag_new = 0
         self._lag_since = -math.inf
 
-    def _run(self, max_updates: Optional[int], partial: bool) -> int:
+    def _run(self, max_updates: Optional[int], partial: bool, shed: bool = True) -> int:
         n = self.options.update_every_n_scans
         done = 0
         notes = []
         while max_updates is None or done < max_updates:
             with self._lock:
-                notes.extend(self._shed_late(n))
+                if shed:
+                    notes.extend(self._shed_late(n))
                 if len(self._ready) < n and not (partial and self._ready):
                     break
                 group = [self._ready.popleft() for _ in range(min(n, len(self._ready)))]

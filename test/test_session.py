@@ -367,6 +367,25 @@ def test_slow_updates_shed_scans_older_than_the_latency_bound_and_keep_the_newes
     assert session.used == 2 and session.stamp == 11.0
 
 
+@pytest.mark.parametrize('matching', [False, True])
+def test_the_final_flush_maps_every_queued_scan_however_late(office_drive, matching):
+    # At shutdown the node says 'mapping the N queued scan(s) before saving the map' and
+    # flushes: that flush shed 33 of 47 queued scans as too_late (node audit: 10 000-beam
+    # scans at 200 Hz, then SIGTERM), and with scan matching the queue bound dropped more.
+    clock = FakeClock()
+    session, warned = live(clock, max_queue=4, max_latency=1.0, scan_matching=matching)
+    for i in range(12):
+        session.add(tf(float(i), 'map', 'laser', office_drive.poses[i]))
+        clock.t = 0.1 * i
+        session.add(scan_of(office_drive, i, float(i)))
+    clock.t = 5.0                            # every scan waited longer than max_latency
+    assert session.queued_scans() == 12
+    session.flush(final=True)
+    assert session.used == 12 and session.queued_scans() == 0, session.stats()
+    assert session.stats()['dropped'] == 0 and not warned
+    assert session.stamp == 11.0
+
+
 def test_a_live_flush_maps_the_partial_group_but_lets_waiting_scans_wait(office_drive):
     clock = FakeClock()
     session, warned = live(clock, IncrementalConfig(noise_updates=1), update_every_n_scans=3,
