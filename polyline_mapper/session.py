@@ -1501,6 +1501,14 @@ def require_noise_scale(value: MapValue, sigma_given: bool, advice: str) -> tupl
 
 
 MAX_SCAN_FRAMES = 64
+STAMP_LEAP = 1.0
+"""Seconds a scan's stamp may lie before its laser's newest scan, or beyond it by more than the
+laser's last step, before it is held until the laser's next scan (``MappingSession._add``): on
+the held scan's time line (a clock that jumped, scans after a gap) the next one takes it, on the
+old one (closer to the newest than to the held scan) the held scan was misstamped and is skipped
+(``stamp_order``). One scan stamped 100 s ahead had ended scan mode's mapping for good (a gap
+too long to search, then every later scan a jump back), and copies stamped 5 s back were mapped
+in tf mode at the robot's pose of 5 s before (node audit: 117 segments against 24)."""
 """Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
 cannot grow it)."""
 JUMP_WINDOW = 50
@@ -1661,6 +1669,10 @@ class MappingSession:
         """Stamp (s) of the newest scan in the map."""
         self._scan_stamps = {}
         """Frame id -> stamp (s) of its newest scan taken (at most MAX_SCAN_FRAMES frames)."""
+        self._scan_steps = {}
+        """Frame id -> the last step (s) forward between two of its scans taken."""
+        self._leaps = {}
+        """Frame id -> its scan held for a leap in its stamps (``STAMP_LEAP``), until the next."""
         self.update_seconds = deque(maxlen=100000)
         """Per update: the map update plus its scans' conversion (and matching), seconds."""
         self.convert_seconds = deque(maxlen=100000)
@@ -1929,71 +1941,117 @@ class MappingSession:
         notes = []
         with self._cv:
             for record in records:
-                note = self._add(record)
-                if note is not None:
-                    notes.append(note)
+                notes.extend(self._add(record))
             self._news = True
             self._cv.notify()
         for cause, text in notes:
             if self._warn is not None:
                 self._warn(cause, text)
 
-    def _add(self, record) -> Optional[tuple]:
+    def _add(self, record) -> list:
+        """Take one record (the lock held); return the warnings it gives."""
         if isinstance(record, Scan):
             if self.options.scan_time_offset:
                 record = replace(record, stamp=record.stamp + self.options.scan_time_offset)
             self.received += 1
             if (self.received - 1) % self.options.every:
-                return None
+                return []
             try:
                 with np.errstate(invalid='ignore', over='ignore'):
                     check_scan(record.ranges, record.angle_min, record.angle_increment,
                                record.range_min, record.range_max, record.intensities,
                                angle_max=record.angle_max)
             except ScanError as exc:
-                return self._skip('bad scan', exc.cause, str(exc))
-            last = self._scan_stamps.get(record.frame_id)
-            jump = None
-            if (self.options.pose_source == 'scan' and last is not None
-                    and record.stamp < last - TIME_JUMP_BACK):
-                jump = self._scan_time_jump(record, last)
-                last = None
-            if last is not None and record.stamp == last:
-                # Another scan of this laser at its newest stamp (a stuck clock, a duplicated
-                # message): its pose would be the other scan's. Skipped, as pose data of that
-                # kind; a scan stamped earlier still comes in its turn (late, out of order).
-                return self._skip('bad scan', 'stamp_order', (
-                    f'scan of frame {record.frame_id!r} stamped {record.stamp:.3f}, the same '
-                    'stamp as its newest scan (a stuck clock?)'))
-            if record.frame_id not in self._scan_stamps \
-                    and len(self._scan_stamps) >= MAX_SCAN_FRAMES:
-                self._scan_stamps.pop(next(iter(self._scan_stamps)))
-            self._scan_stamps[record.frame_id] = (record.stamp if last is None
-                                                  else max(record.stamp, last))
-            now = self._now()
-            self._last_add = now
-            self._waiting.append((record, record.stamp if self.clock is None else now))
-            return jump
+                return [self._skip('bad scan', exc.cause, str(exc))]
+            return self._add_scan(record)
         if isinstance(record, Skipped):
-            return self._skip(f'undecodable message on {record.topic}', None, record.reason,
-                              'undecodable')
+            return [self._skip(f'undecodable message on {record.topic}', None, record.reason,
+                               'undecodable')]
         if isinstance(record, PoseEstimate):
             if self.options.scan_matching:      # in its turn among the scans; else ignored
                 self._waiting.append((record, None))
-            return None
+            return []
         try:
             with np.errstate(over='ignore', invalid='ignore'):
                 note = self.poses.add(record)
         except RecordSkipped as exc:
-            return self._skip('pose data', exc.cause, str(exc))
-        if note is not None and note[0] == 'time_jump':
+            return [self._skip('pose data', exc.cause, str(exc))]
+        if note is None:
+            return []
+        notes = [note]
+        if note[0] == 'time_jump':
             self._scan_stamps.clear()       # the new time line's scans are not duplicates
+            self._scan_steps.clear()
+            for held in self._release_leaps():     # judged against nothing now: taken
+                notes.extend(self._take_scan(held))
             if self.options.scan_matching and self._first_base is not None:
                 # The odometry restarted with the clock (a bag played again, a simulation
                 # reset): the correction map -> odom of the old time line would place the new
                 # one's scans as far off as the old odometry had drifted.
-                note = (note[0], f'{note[1]}; {self._search_from_start(record.stamp)}')
-        return note
+                notes[0] = (note[0], f'{note[1]}; {self._search_from_start(record.stamp)}')
+        return notes
+
+    def _add_scan(self, record: Scan) -> list:
+        """
+        Take a checked scan, or hold it for a leap in its laser's stamps (``STAMP_LEAP``).
+
+        A scan held before decides by this one: taken first when this one lies on its time
+        line, else skipped (``stamp_order``).
+        """
+        frame, notes = record.frame_id, []
+        held = self._leaps.pop(frame, None)
+        last = self._scan_stamps.get(frame)
+        if held is not None:
+            if last is None or abs(record.stamp - held.stamp) < abs(record.stamp - last):
+                notes.extend(self._take_scan(held))
+                last = self._scan_stamps.get(frame)
+            else:
+                notes.append(self._skip('bad scan', 'stamp_order', (
+                    f'scan of frame {frame!r} stamped {held.stamp:.3f}, '
+                    f'{held.stamp - last:+.1f} s from its newest scan, and the next came '
+                    f'stamped {record.stamp:.3f}, on the old time line: a misstamped scan')))
+        if last is not None and not (
+                last - STAMP_LEAP <= record.stamp
+                <= last + STAMP_LEAP + self._scan_steps.get(frame, 0.0)):
+            if frame not in self._leaps and len(self._leaps) >= MAX_SCAN_FRAMES:
+                notes.extend(self._take_scan(self._leaps.pop(next(iter(self._leaps)))))
+            self._leaps[frame] = record
+            return notes
+        return notes + self._take_scan(record)
+
+    def _release_leaps(self) -> list:
+        """Return the scans held for a leap (``_add_scan``), oldest first; none is held then."""
+        held, self._leaps = list(self._leaps.values()), {}
+        return held
+
+    def _take_scan(self, record: Scan) -> list:
+        """Queue a checked scan for its pose (a duplicate stamp skipped); return the warnings."""
+        last = self._scan_stamps.get(record.frame_id)
+        jump = None
+        if (self.options.pose_source == 'scan' and last is not None
+                and record.stamp < last - TIME_JUMP_BACK):
+            jump = self._scan_time_jump(record, last)
+            last = None
+        if last is not None and record.stamp == last:
+            # Another scan of this laser at its newest stamp (a stuck clock, a duplicated
+            # message): its pose would be the other scan's. Skipped, as pose data of that
+            # kind; a scan stamped earlier still comes in its turn (late, out of order).
+            return [self._skip('bad scan', 'stamp_order', (
+                f'scan of frame {record.frame_id!r} stamped {record.stamp:.3f}, the same '
+                'stamp as its newest scan (a stuck clock?)'))]
+        if record.frame_id not in self._scan_stamps \
+                and len(self._scan_stamps) >= MAX_SCAN_FRAMES:
+            gone = next(iter(self._scan_stamps))
+            self._scan_stamps.pop(gone)
+            self._scan_steps.pop(gone, None)
+        if last is not None and record.stamp > last:
+            self._scan_steps[record.frame_id] = record.stamp - last
+        self._scan_stamps[record.frame_id] = (record.stamp if last is None
+                                              else max(record.stamp, last))
+        now = self._now()
+        self._last_add = now
+        self._waiting.append((record, record.stamp if self.clock is None else now))
+        return [] if jump is None else [jump]
 
     def _search_from_start(self, stamp: float) -> str:
         """
@@ -2020,6 +2078,7 @@ class MappingSession:
         (``_search_from_start``). Returns the warning.
         """
         self._scan_stamps.clear()
+        self._scan_steps.clear()
         where = self._search_from_start(scan.stamp)
         return ('time_jump', f'scan of frame {scan.frame_id!r} stamped {scan.stamp:.3f}, '
                 f'{newest - scan.stamp:.1f} s before its newest: the clock jumped back; {where}')
@@ -2057,7 +2116,8 @@ class MappingSession:
     def queued_scans(self) -> int:
         """Return how many scans wait for their pose or their update (not mapped yet)."""
         with self._lock:
-            return (sum(isinstance(s, Scan) for s, _ in self._waiting) + len(self._ready))
+            return (sum(isinstance(s, Scan) for s, _ in self._waiting) + len(self._ready)
+                    + len(self._leaps))
 
     def flush(self, final: bool = True) -> int:
         """
@@ -2105,6 +2165,9 @@ class MappingSession:
         notes = []
         opts = self.options
         with self._lock:
+            if final:       # the scans held for a leap in their stamps: nothing more decides
+                for held in self._release_leaps():
+                    notes.extend(self._take_scan(held))
             now = self._now()
             # At the end of input (the node's shutdown save maps the queued scans) nothing is
             # shed: those scans are mapped, however late.
@@ -3194,6 +3257,8 @@ class MappingSession:
             self._forget_lag()
             self._waiting.clear()
             self._scan_stamps.clear()
+            self._scan_steps.clear()
+            self._leaps.clear()
             self._ready.clear()
             self._points.clear()
             self._trajectory.clear()
