@@ -1501,6 +1501,9 @@ def require_noise_scale(value: MapValue, sigma_given: bool, advice: str) -> tupl
 
 
 MAX_SCAN_FRAMES = 64
+SCAN_SKIPS = ('bad scan', 'no pose', 'not mapped')
+"""The categories of ``MappingSession.skipped`` that count scans (the others: pose data,
+undecodable messages; ``dropped`` is load shedding, counted apart)."""
 STAMP_LEAP = 1.0
 """Seconds a scan's stamp may lie before its laser's newest scan, or beyond it by more than the
 laser's last step, before it is held until the laser's next scan (``MappingSession._add``): on
@@ -1664,6 +1667,10 @@ class MappingSession:
         self.used = 0
         self.updates = 0
         self.skipped = Counter()
+        self.left_out = 0
+        """Scans received and left out by ``every`` (not checked, not counted elsewhere)."""
+        self.cleared = 0
+        """Scans received and still queued when ``reset`` cleared the map."""
         self.examples = {}
         self.stamp = None
         """Stamp (s) of the newest scan in the map."""
@@ -1955,6 +1962,7 @@ class MappingSession:
                 record = replace(record, stamp=record.stamp + self.options.scan_time_offset)
             self.received += 1
             if (self.received - 1) % self.options.every:
+                self.left_out += 1
                 return []
             try:
                 with np.errstate(invalid='ignore', over='ignore'):
@@ -2091,9 +2099,9 @@ class MappingSession:
             self._warn(*note)
 
     def _skip(self, category: str, cause: Optional[str], text: str,
-              warn_cause: str = None) -> tuple:
+              warn_cause: str = None, count: int = 1) -> tuple:
         key = category if cause is None else f'{category}: {cause}'
-        self.skipped[key] += 1
+        self.skipped[key] += count
         self.examples.setdefault(key, text)
         return warn_cause or cause, f'skipped {category}: {text}'
 
@@ -3082,8 +3090,10 @@ class MappingSession:
     def _update(self, group: list, gen: int) -> bool:
         points = np.concatenate([g[1] for g in group])
         with self._map_lock:
-            if gen != self._generation:
-                return False                # a reset came in between: these scans are gone
+            if gen != self._generation:     # a reset came in between: these scans are gone
+                with self._lock:
+                    self.cleared += len(group)
+                return False
             ran = False
             t0 = time.perf_counter()
             if self.options.mapping:
@@ -3095,7 +3105,8 @@ class MappingSession:
                 except ValueError as exc:           # e.g. a pose far beyond any real map
                     with self._lock:
                         note = self._skip('bad scan', 'bad_points', f'scans up to '
-                                          f'{group[-1][0].stamp:.3f} s not mapped: {exc}')
+                                          f'{group[-1][0].stamp:.3f} s not mapped: {exc}',
+                                          count=len(group))
                     if self._warn is not None:
                         self._warn(*note)
                     return False
@@ -3225,7 +3236,13 @@ class MappingSession:
             out = {'scans': self.received, 'scans_used': self.used, 'updates': self.updates,
                    'skipped': dict(sorted(self.skipped.items())),
                    'dropped': sum(v for k, v in self.skipped.items()
-                                  if k.startswith('dropped:'))}
+                                  if k.startswith('dropped:')),
+                   # scans received = used + dropped + skipped + left out + cleared + queued
+                   'scans_skipped': sum(v for k, v in self.skipped.items()
+                                        if k.split(':')[0] in SCAN_SKIPS),
+                   'scans_left_out': self.left_out, 'scans_cleared': self.cleared,
+                   'scans_queued': (sum(isinstance(s, Scan) for s, _ in self._waiting)
+                                    + len(self._ready) + len(self._leaps))}
             if self.options.scan_matching:
                 out['scan_matching'] = dict(sorted(self.matches.items()))
                 out['match_jumps'] = dict(sorted(self.jumps.items()))
@@ -3252,6 +3269,8 @@ class MappingSession:
         dropped = len(self.map_value(trajectory=False).segments)
         with self._cv:
             self._generation += 1
+            self.cleared += (sum(isinstance(s, Scan) for s, _ in self._waiting)
+                             + len(self._ready) + len(self._leaps))
             self.localization = None
             self._residuals.clear()
             self._forget_lag()

@@ -284,6 +284,6 @@ def test_the_summary_counts_the_scans_still_queued_at_shutdown(office_drive, tmp
         assert node.stop() == 0
     summary = node.lines('summary: ')
     # (in 0 updates: the first groups estimate the noise scale before the map starts)
-    assert summary and re.search(r'12 scans received, 8 used in \d+ updates, 0 dropped, 4 not '
-                                 r'mapped at shutdown \(queued\); warnings: none',
+    assert summary and re.search(r'12 scans received, 8 used in \d+ updates, 0 dropped, 0 '
+                                 r'skipped, 4 not mapped at shutdown \(queued\); warnings: none',
                                  summary[-1]), node.stderr()[-3000:]

@@ -599,13 +599,16 @@ class PolylineMapperNode(Node):
             self._save_map()
         st = self.session.stats()
         warned = ', '.join(f'{k} {v}' for k, v in sorted(self.warnings.counts.items())) or 'none'
-        # Scans still waiting for a pose or for their update group are neither used nor
-        # dropped: said, so that the counts add up (without save_map_on_shutdown, or waiting
-        # for a transform when the node stopped).
-        left = self.session.queued_scans()
+        # Every scan received is counted once: used, dropped (load), skipped (bad, no pose,
+        # not found by scan matching: the warnings say which), cleared by ~/reset, or still
+        # waiting for a pose or its update group (without save_map_on_shutdown, or waiting for
+        # a transform when the node stopped).
         line = (f"summary: {st['scans']} scans received, {st['scans_used']} used in "
-                f"{st['updates']} updates, {st['dropped']} dropped"
-                + (f', {left} not mapped at shutdown (queued)' if left else '')
+                f"{st['updates']} updates, {st['dropped']} dropped, {st['scans_skipped']} "
+                'skipped'
+                + (f", {st['scans_cleared']} cleared by ~/reset" if st['scans_cleared'] else '')
+                + (f", {st['scans_queued']} not mapped at shutdown (queued)"
+                   if st['scans_queued'] else '')
                 + f'; warnings: {warned}')
         if self.settings.pose_source == 'odom':
             line += f'; {self.odometry_received} odometry messages received'
