@@ -186,6 +186,31 @@ def test_a_grid_too_large_for_the_file_is_left_out(replayed, monkeypatch, tmp_pa
         assert needle in capsys.readouterr().err
 
 
+def test_segments_too_long_to_rasterise_are_refused_and_long_ones_marked_in_blocks(
+        tmp_path, capsys, monkeypatch):
+    # A hand-made map of twenty 1000 km segments a millimetre apart passed every check (its
+    # grid, 2e7 x 3 cells, is under the cap) and its export took 6.4 GB before it failed with
+    # a traceback (new-user audit): the cells the segments cross are bounded too now.
+    from polyline_mapper.core import grid as grid_module
+    segs = [[0.0, 0.001 * i, 1e6, 0.001 * i] for i in range(20)]
+    many = tmp_path / 'many.json'
+    many.write_text(json.dumps({'schema_version': 1, 'frame_id': 'map', 'segments': segs,
+                                'polylines': [[s[:2], s[2:]] for s in segs],
+                                'closed': [False] * 20}))
+    assert main(['export', str(many), '-o', str(tmp_path / 'many.yaml')]) == 2
+    err = capsys.readouterr().err
+    assert 'the segments cross about 4e+08 cells at 0.05 m' in err and 'Traceback' not in err
+    assert not (tmp_path / 'many.yaml').exists() and not (tmp_path / 'many.pgm').exists()
+    # marked in blocks (a segment longer than a block in pieces): the same cells as at once
+    rng = np.random.default_rng(0)
+    walls = rng.uniform(0.0, 30.0, (300, 2, 2))
+    walls[:5, 1] = walls[:5, 0] + [25.0, 0.3]
+    whole = grid_module.rasterise(walls, 0.05).data
+    monkeypatch.setattr(grid_module, 'MARK_BLOCK', 37)
+    blocks = grid_module.rasterise(walls, 0.05).data
+    assert (whole == OCCUPIED).sum() > 90000 and np.array_equal(whole, blocks)
+
+
 def test_a_file_name_beyond_the_basic_plane_loads_in_map_server(replayed, tmp_path, capsys):
     # json.dumps escaped an emoji as a surrogate pair ("\ud83d\ude00"), which yaml-cpp (nav2's
     # YAML reader) refuses as invalid Unicode: the name is now written as it is, in UTF-8.

@@ -35,6 +35,8 @@ OCCUPIED = 100
 CHUNK = 64
 """The free-space grid grows by whole chunks of this many cells along each axis."""
 DEFAULT_MAX_CELLS = 2 ** 26
+MARK_BLOCK = 1 << 21
+"""Cells crossed that ``mark_segments`` works on at once (about 100 MB of work arrays)."""
 STEP = 0.5
 """Beams are sampled every STEP cells."""
 BATCH = 2 ** 16
@@ -373,11 +375,35 @@ def mark_segments(grid: GridMap, segments) -> None:
     t0, t1 = np.maximum(lo.max(axis=1), 0.0), np.minimum(hi.min(axis=1), 1.0)
     keep = t0 <= t1
     a, d, t0, t1 = a[keep], d[keep], t0[keep], t1[keep]
-    cells = crossed_cells(a + t0[:, None] * d, a + t1[:, None] * d)
-    inside = ((cells[:, 0] >= 0) & (cells[:, 0] < grid.width) & (cells[:, 1] >= 0)
-              & (cells[:, 1] < grid.height))
-    cells = cells[inside]
-    grid.data[cells[:, 1], cells[:, 0]] = OCCUPIED
+    start, end = a + t0[:, None] * d, a + t1[:, None] * d
+    # In blocks of about MARK_BLOCK cells crossed (a segment longer than that in pieces), so
+    # the work arrays stay bounded whatever the segments' length (a map of twenty 1000 km
+    # segments took 6.4 GB before its export failed).
+    work = np.abs(end - start).sum(axis=1) + 1.0
+    pieces = np.ceil(work / MARK_BLOCK).astype(np.int64)
+    if (pieces > 1).any():
+        seg = np.repeat(np.arange(len(start)), pieces)
+        k = np.arange(len(seg)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+        span = end - start
+        t0, t1 = (k / pieces[seg])[:, None], ((k + 1) / pieces[seg])[:, None]
+        start, end = start[seg] + t0 * span[seg], start[seg] + t1 * span[seg]
+        work = np.abs(end - start).sum(axis=1) + 1.0
+    bounds = np.searchsorted(np.cumsum(work), np.arange(1, int(work.sum() // MARK_BLOCK) + 1)
+                             * MARK_BLOCK)
+    for i, j in zip(np.r_[0, bounds], np.r_[bounds, len(start)]):
+        if i >= j:
+            continue
+        cells = crossed_cells(start[i:j], end[i:j])
+        inside = ((cells[:, 0] >= 0) & (cells[:, 0] < grid.width) & (cells[:, 1] >= 0)
+                  & (cells[:, 1] < grid.height))
+        cells = cells[inside]
+        grid.data[cells[:, 1], cells[:, 0]] = OCCUPIED
+
+
+def crossing_work(segments, resolution: float) -> float:
+    """Return about how many cells of ``resolution`` the segments ((K, 2, 2) m) cross in all."""
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    return float((np.abs(segs[:, 1] - segs[:, 0]).sum(axis=1) / resolution + 1.0).sum())
 
 
 def rasterise(segments, resolution: float, max_cells: int = DEFAULT_MAX_CELLS) -> GridMap:
@@ -399,6 +425,10 @@ def rasterise(segments, resolution: float, max_cells: int = DEFAULT_MAX_CELLS) -
     if int(size[0]) * int(size[1]) > max_cells:
         raise ValueError(f'a grid of {int(size[0])} x {int(size[1])} cells at {res:g} m is '
                          f'larger than {max_cells} cells: use a coarser resolution')
+    work = crossing_work(segs, res)
+    if work > max_cells:
+        raise ValueError(f'the segments cross about {work:.3g} cells at {res:g} m, more than '
+                         f'{max_cells}: use a coarser resolution')
     grid = GridMap(np.full((int(size[1]), int(size[0])), UNKNOWN, dtype=np.int8), res,
                    tuple(float(v) for v in lo * res))
     mark_segments(grid, segs)
