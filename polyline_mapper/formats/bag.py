@@ -326,15 +326,31 @@ class BagReader:
                           _quat(t.transform.rotation), static) for t in msg.transforms]
 
 
+MCAP_MAGIC = b'\x89MCAP0\r\n'
+"""The bytes every MCAP file starts (and, when complete, ends) with."""
+
+
 def _mcap_hint(p: pathlib.Path, exc: BaseException) -> str:
-    """Return advice for an .mcap file that ends early (a recorder stopped mid-write), or ''."""
+    """
+    Return advice for an .mcap file that ends early (a recorder stopped mid-write), or ''.
+
+    A file that does not even start with the MCAP magic is said to be no MCAP file instead.
+    """
     text = str(exc).lower()
-    mcap = p.suffix.lower() == '.mcap' or (p.is_dir() and any(p.glob('*.mcap')))
-    if mcap and ('magic' in text or 'end of file' in text or 'unexpected end' in text):
-        return ('; the .mcap file ends early, as one does when the recorder was killed: '
-                "'mcap recover FILE -o FIXED.mcap' (the mcap command-line tool) keeps what it "
-                'holds')
-    return ''
+    files = [p] if p.suffix.lower() == '.mcap' else sorted(p.glob('*.mcap')) if p.is_dir() else []
+    if not files or not ('magic' in text or 'end of file' in text or 'unexpected end' in text):
+        return ''
+    for f in files:
+        try:
+            with open(f, 'rb') as fh:
+                head = fh.read(len(MCAP_MAGIC))
+        except OSError:
+            continue
+        if head != MCAP_MAGIC:
+            return f'; {f.name} is not an MCAP file (it does not start with the MCAP magic bytes)'
+    return ('; the .mcap file ends early, as one does when the recorder was killed: '
+            "'mcap recover FILE -o FIXED.mcap' (the mcap command-line tool) keeps what it "
+            'holds')
 
 
 def _why(exc: BaseException) -> str:
