@@ -718,6 +718,23 @@ def test_points_without_a_segment_give_a_valid_empty_map(ws, capsys, points, rea
     assert os.path.getsize(ws['png']) > 1000
 
 
+def test_dense_noise_gives_segments_and_a_warning_that_most_points_are_off_them(ws, capsys):
+    # 3000 uniform random points in a 10 m square: 14 segments covering 18 % of the points,
+    # written without a word, though the README promised a warning for random noise (new-user
+    # audit). A wall's points (2 cm noise) beside them do not warn.
+    rng = np.random.default_rng(0)
+    src = os.path.join(ws['dir'], 'noise.npy')
+    np.save(src, rng.uniform(0.0, 10.0, (3000, 2)))
+    code, err, out = run(['fit', src, '-o', ws['out']], capsys)
+    assert code == 0 and 'segments in' in out, (err, out)
+    assert len(err) == 1 and 'warning: ' in err[0] and 'of the points more than 0.10 m off' \
+        in err[0] and 'do not lie along lines' in err[0], err
+    t = rng.uniform(0.0, 8.0, 600)
+    np.save(src, np.c_[t, 0.5 * t + rng.normal(0.0, 0.02, 600)])
+    code, err, out = run(['fit', src, '-o', ws['out']], capsys)
+    assert code == 0 and err == [] and ', coverage 100.0%' in out, (err, out)
+
+
 # -- 7. a gzip bomb as CARMEN log: streamed, bounded memory ----------------------------------
 def gzip_bomb(path: str, gib: float = 1.0) -> int:
     """
