@@ -1501,19 +1501,19 @@ def require_noise_scale(value: MapValue, sigma_given: bool, advice: str) -> tupl
 
 
 MAX_SCAN_FRAMES = 64
+"""Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
+cannot grow it)."""
 SCAN_SKIPS = ('bad scan', 'no pose', 'not mapped')
 """The categories of ``MappingSession.skipped`` that count scans (the others: pose data,
 undecodable messages; ``dropped`` is load shedding, counted apart)."""
 STAMP_LEAP = 1.0
 """Seconds a scan's stamp may lie before its laser's newest scan, or beyond it by more than the
-laser's last step, before it is held until the laser's next scan (``MappingSession._add``): on
+laser's last step, before it is held until the laser's next scan (``MappingSession._add_scan``): on
 the held scan's time line (a clock that jumped, scans after a gap) the next one takes it, on the
 old one (closer to the newest than to the held scan) the held scan was misstamped and is skipped
 (``stamp_order``). One scan stamped 100 s ahead had ended scan mode's mapping for good (a gap
 too long to search, then every later scan a jump back), and copies stamped 5 s back were mapped
 in tf mode at the robot's pose of 5 s before (node audit: 117 segments against 24)."""
-"""Laser frames whose newest scan stamp is kept for the stamp order check (junk frame names
-cannot grow it)."""
 JUMP_WINDOW = 50
 """Matched scans whose residuals make the running median of the jump warning."""
 JUMP_RESIDUAL = 2.5
