@@ -147,6 +147,10 @@ def test_damaged_and_empty_bags_end_with_one_line(tmp_path, drive, capsys):
         fh.write(data[:len(data) // 2])
     rc, err = run_cli(capsys, ['replay', str(tmp_path / 'short.mcap'), '-o', str(out), '-q'])
     assert_one_line_error(rc, err, 'short.mcap', 'ends early', "'mcap recover FILE -o")
+    with open(tmp_path / 'five.mcap', 'wb') as fh:     # cut inside its magic: cut, not alien
+        fh.write(data[:5])
+    rc, err = run_cli(capsys, ['replay', str(tmp_path / 'five.mcap'), '-o', str(out), '-q'])
+    assert_one_line_error(rc, err, 'five.mcap', 'ends early', "'mcap recover FILE -o")
     # a ROS 1 bag with nothing readable after its header (one cut short is read without its
     # index up to the cut: test_hostile_bag_index.py)
     r1 = write_ros1_bag(tmp_path / 'r1.bag', drive_messages(drive))

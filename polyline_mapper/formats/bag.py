@@ -346,7 +346,7 @@ def _mcap_hint(p: pathlib.Path, exc: BaseException) -> str:
                 head = fh.read(len(MCAP_MAGIC))
         except OSError:
             continue
-        if head != MCAP_MAGIC:
+        if not MCAP_MAGIC.startswith(head):    # (a file cut inside the magic is a cut one)
             return f'; {f.name} is not an MCAP file (it does not start with the MCAP magic bytes)'
     return ('; the .mcap file ends early, as one does when the recorder was killed: '
             "'mcap recover FILE -o FIXED.mcap' (the mcap command-line tool) keeps what it "
