@@ -1514,6 +1514,12 @@ old one (closer to the newest than to the held scan) the held scan was misstampe
 (``stamp_order``). One scan stamped 100 s ahead had ended scan mode's mapping for good (a gap
 too long to search, then every later scan a jump back), and copies stamped 5 s back were mapped
 in tf mode at the robot's pose of 5 s before (node audit: 117 segments against 24)."""
+LEAP_CONFIRM = 3
+"""Scans on a new time line (the held one and the next) that make it the laser's: two copies
+stamped 5 s early in a row passed as a clock jump with 2 (helper audit). A burst of this many
+misstamped scans still passes; a real jump costs the first scans of the new line this many
+scans of delay (live, held no longer than ``STAMP_LEAP`` and this many + 1 of the laser's
+steps)."""
 JUMP_WINDOW = 50
 """Matched scans whose residuals make the running median of the jump warning."""
 JUMP_RESIDUAL = 2.5
@@ -1679,7 +1685,8 @@ class MappingSession:
         self._scan_steps = {}
         """Frame id -> the last step (s) forward between two of its scans taken."""
         self._leaps = {}
-        """Frame id -> its scan held for a leap in its stamps (``STAMP_LEAP``), until the next."""
+        """Frame id -> its scans held for a leap in their stamps (``STAMP_LEAP``): (scan,
+        arrival on ``_now``), until the next scans decide."""
         self.update_seconds = deque(maxlen=100000)
         """Per update: the map update plus its scans' conversion (and matching), seconds."""
         self.convert_seconds = deque(maxlen=100000)
@@ -1990,8 +1997,7 @@ class MappingSession:
         if note[0] == 'time_jump':
             self._scan_stamps.clear()       # the new time line's scans are not duplicates
             self._scan_steps.clear()
-            for held in self._release_leaps():     # judged against nothing now: taken
-                notes.extend(self._take_scan(held))
+            notes.extend(self._release_leaps(True))     # judged against nothing now: taken
             if self.options.scan_matching and self._first_base is not None:
                 # The odometry restarted with the clock (a bag played again, a simulation
                 # reset): the correction map -> odom of the old time line would place the new
@@ -2003,34 +2009,61 @@ class MappingSession:
         """
         Take a checked scan, or hold it for a leap in its laser's stamps (``STAMP_LEAP``).
 
-        A scan held before decides by this one: taken first when this one lies on its time
-        line, else skipped (``stamp_order``).
+        Scans held before decide by this one: with it ``LEAP_CONFIRM`` scans on their time
+        line are taken, in order; this one back on the old time line (nearer the newest stamp
+        than the last held one) makes them misstamped scans, skipped (``stamp_order``).
         """
         frame, notes = record.frame_id, []
-        held = self._leaps.pop(frame, None)
+        if not math.isfinite(record.stamp):
+            return [self._skip('bad scan', 'stamp_order', f'scan of frame {frame!r} stamped '
+                               f'{record.stamp}: not a time')]
+        held = self._leaps.get(frame)
         last = self._scan_stamps.get(frame)
-        if held is not None:
-            if last is None or abs(record.stamp - held.stamp) < abs(record.stamp - last):
-                notes.extend(self._take_scan(held))
-                last = self._scan_stamps.get(frame)
-            else:
+        if held:
+            if last is None or abs(record.stamp - held[-1][0].stamp) <= abs(record.stamp - last):
+                held.append((record, self._now()))
+                if len(held) >= LEAP_CONFIRM:
+                    notes.extend(self._take_held(frame))
+                return notes
+            del self._leaps[frame]
+            for scan, _ in held:
                 notes.append(self._skip('bad scan', 'stamp_order', (
-                    f'scan of frame {frame!r} stamped {held.stamp:.3f}, '
-                    f'{held.stamp - last:+.1f} s from its newest scan, and the next came '
+                    f'scan of frame {frame!r} stamped {scan.stamp:.3f}, '
+                    f'{scan.stamp - last:+.1f} s from its newest scan, and the next came '
                     f'stamped {record.stamp:.3f}, on the old time line: a misstamped scan')))
         if last is not None and not (
                 last - STAMP_LEAP <= record.stamp
                 <= last + STAMP_LEAP + self._scan_steps.get(frame, 0.0)):
-            if frame not in self._leaps and len(self._leaps) >= MAX_SCAN_FRAMES:
-                notes.extend(self._take_scan(self._leaps.pop(next(iter(self._leaps)))))
-            self._leaps[frame] = record
+            if len(self._leaps) >= MAX_SCAN_FRAMES:
+                notes.extend(self._take_held(next(iter(self._leaps))))
+            self._leaps[frame] = [(record, self._now())]
             return notes
         return notes + self._take_scan(record)
 
-    def _release_leaps(self) -> list:
-        """Return the scans held for a leap (``_add_scan``), oldest first; none is held then."""
-        held, self._leaps = list(self._leaps.values()), {}
-        return held
+    def _take_held(self, frame: str) -> list:
+        """Take the scans of ``frame`` held for a leap (``_add_scan``), in order."""
+        notes = []
+        for scan, _ in self._leaps.pop(frame, ()):
+            notes.extend(self._take_scan(scan))
+        return notes
+
+    def _release_leaps(self, final: bool) -> list:
+        """
+        Take the scans held for a leap that nothing more decides; return the warnings.
+
+        At the end of input (``final``) all; live, those held longer than ``STAMP_LEAP`` and
+        ``LEAP_CONFIRM`` + 1 of their laser's steps (the laser paused or stopped after them).
+        """
+        notes = []
+        for frame in list(self._leaps):
+            if not final:
+                if self.clock is None:
+                    break
+                wait = max(STAMP_LEAP, (LEAP_CONFIRM + 1) * self._scan_steps.get(frame, 0.0))
+                if self.clock() - self._leaps[frame][0][1] < wait:
+                    continue
+            notes.extend(self._take_held(frame))
+        return notes
 
     def _take_scan(self, record: Scan) -> list:
         """Queue a checked scan for its pose (a duplicate stamp skipped); return the warnings."""
@@ -2125,7 +2158,7 @@ class MappingSession:
         """Return how many scans wait for their pose or their update (not mapped yet)."""
         with self._lock:
             return (sum(isinstance(s, Scan) for s, _ in self._waiting) + len(self._ready)
-                    + len(self._leaps))
+                    + sum(map(len, self._leaps.values())))
 
     def flush(self, final: bool = True) -> int:
         """
@@ -2173,9 +2206,7 @@ class MappingSession:
         notes = []
         opts = self.options
         with self._lock:
-            if final:       # the scans held for a leap in their stamps: nothing more decides
-                for held in self._release_leaps():
-                    notes.extend(self._take_scan(held))
+            notes.extend(self._release_leaps(final))    # held for a leap in their stamps
             now = self._now()
             # At the end of input (the node's shutdown save maps the queued scans) nothing is
             # shed: those scans are mapped, however late.
@@ -3242,7 +3273,8 @@ class MappingSession:
                                         if k.split(':')[0] in SCAN_SKIPS),
                    'scans_left_out': self.left_out, 'scans_cleared': self.cleared,
                    'scans_queued': (sum(isinstance(s, Scan) for s, _ in self._waiting)
-                                    + len(self._ready) + len(self._leaps))}
+                                    + len(self._ready)
+                                    + sum(map(len, self._leaps.values())))}
             if self.options.scan_matching:
                 out['scan_matching'] = dict(sorted(self.matches.items()))
                 out['match_jumps'] = dict(sorted(self.jumps.items()))
@@ -3270,7 +3302,7 @@ class MappingSession:
         with self._cv:
             self._generation += 1
             self.cleared += (sum(isinstance(s, Scan) for s, _ in self._waiting)
-                             + len(self._ready) + len(self._leaps))
+                             + len(self._ready) + sum(map(len, self._leaps.values())))
             self.localization = None
             self._residuals.clear()
             self._forget_lag()
