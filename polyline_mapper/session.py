@@ -1508,12 +1508,13 @@ SCAN_SKIPS = ('bad scan', 'no pose', 'not mapped')
 undecodable messages; ``dropped`` is load shedding, counted apart)."""
 STAMP_LEAP = 1.0
 """Seconds a scan's stamp may lie before its laser's newest scan, or beyond it by more than the
-laser's last step, before it is held until the laser's next scan (``MappingSession._add_scan``): on
-the held scan's time line (a clock that jumped, scans after a gap) the next one takes it, on the
-old one (closer to the newest than to the held scan) the held scan was misstamped and is skipped
-(``stamp_order``). One scan stamped 100 s ahead had ended scan mode's mapping for good (a gap
-too long to search, then every later scan a jump back), and copies stamped 5 s back were mapped
-in tf mode at the robot's pose of 5 s before (node audit: 117 segments against 24)."""
+laser's last step, before it is held with the laser's next scans (``MappingSession._add_scan``):
+``LEAP_CONFIRM`` scans on the held scan's time line (a clock that jumped, scans after a gap) take
+it; one back on the old line (closer to the newest than to the last held scan) makes the held
+scans misstamped, skipped (``stamp_order``). One scan stamped 100 s ahead had ended scan
+mode's mapping for good (a gap too long to search, then every later scan a jump back), and
+copies stamped 5 s back were mapped in tf mode at the robot's pose of 5 s before (node audit:
+117 segments against 24)."""
 LEAP_CONFIRM = 3
 """Scans on a new time line (the held one and the next) that make it the laser's: two copies
 stamped 5 s early in a row passed as a clock jump with 2 (helper audit). A burst of this many
@@ -2157,8 +2158,12 @@ class MappingSession:
     def queued_scans(self) -> int:
         """Return how many scans wait for their pose or their update (not mapped yet)."""
         with self._lock:
-            return (sum(isinstance(s, Scan) for s, _ in self._waiting) + len(self._ready)
-                    + sum(map(len, self._leaps.values())))
+            return self._queued()
+
+    def _queued(self) -> int:
+        """``queued_scans`` with the lock held: waiting, ready, and held for a leap."""
+        return (sum(isinstance(s, Scan) for s, _ in self._waiting) + len(self._ready)
+                + sum(map(len, self._leaps.values())))
 
     def flush(self, final: bool = True) -> int:
         """
@@ -3272,9 +3277,7 @@ class MappingSession:
                    'scans_skipped': sum(v for k, v in self.skipped.items()
                                         if k.split(':')[0] in SCAN_SKIPS),
                    'scans_left_out': self.left_out, 'scans_cleared': self.cleared,
-                   'scans_queued': (sum(isinstance(s, Scan) for s, _ in self._waiting)
-                                    + len(self._ready)
-                                    + sum(map(len, self._leaps.values())))}
+                   'scans_queued': self._queued()}
             if self.options.scan_matching:
                 out['scan_matching'] = dict(sorted(self.matches.items()))
                 out['match_jumps'] = dict(sorted(self.jumps.items()))
@@ -3301,8 +3304,7 @@ class MappingSession:
         dropped = len(self.map_value(trajectory=False).segments)
         with self._cv:
             self._generation += 1
-            self.cleared += (sum(isinstance(s, Scan) for s, _ in self._waiting)
-                             + len(self._ready) + sum(map(len, self._leaps.values())))
+            self.cleared += self._queued()
             self.localization = None
             self._residuals.clear()
             self._forget_lag()
