@@ -379,7 +379,7 @@ def mark_segments(grid: GridMap, segments) -> None:
     # In blocks of about MARK_BLOCK cells crossed (a segment longer than that in pieces), so
     # the work arrays stay bounded whatever the segments' length (a map of twenty 1000 km
     # segments took 6.4 GB before its export failed).
-    work = np.abs(end - start).sum(axis=1) + 1.0
+    work = _crossings(start, end)
     pieces = np.ceil(work / MARK_BLOCK).astype(np.int64)
     if (pieces > 1).any():
         seg = np.repeat(np.arange(len(start)), pieces)
@@ -387,7 +387,7 @@ def mark_segments(grid: GridMap, segments) -> None:
         span = end - start
         t0, t1 = (k / pieces[seg])[:, None], ((k + 1) / pieces[seg])[:, None]
         start, end = start[seg] + t0 * span[seg], start[seg] + t1 * span[seg]
-        work = np.abs(end - start).sum(axis=1) + 1.0
+        work = _crossings(start, end)
     bounds = np.searchsorted(np.cumsum(work), np.arange(1, int(work.sum() // MARK_BLOCK) + 1)
                              * MARK_BLOCK)
     for i, j in zip(np.r_[0, bounds], np.r_[bounds, len(start)]):
@@ -400,10 +400,9 @@ def mark_segments(grid: GridMap, segments) -> None:
         grid.data[cells[:, 1], cells[:, 0]] = OCCUPIED
 
 
-def crossing_work(segments, resolution: float) -> float:
-    """Return about how many cells of ``resolution`` the segments ((K, 2, 2) m) cross in all."""
-    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
-    return float((np.abs(segs[:, 1] - segs[:, 0]).sum(axis=1) / resolution + 1.0).sum())
+def _crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return about how many cells each segment a[i] -> b[i] (cell units) crosses."""
+    return np.abs(b - a).sum(axis=1) + 1.0
 
 
 def rasterise(segments, resolution: float, max_cells: int = DEFAULT_MAX_CELLS) -> GridMap:
@@ -425,7 +424,7 @@ def rasterise(segments, resolution: float, max_cells: int = DEFAULT_MAX_CELLS) -
     if int(size[0]) * int(size[1]) > max_cells:
         raise ValueError(f'a grid of {int(size[0])} x {int(size[1])} cells at {res:g} m is '
                          f'larger than {max_cells} cells: use a coarser resolution')
-    work = crossing_work(segs, res)
+    work = float(_crossings(segs[:, 0] / res, segs[:, 1] / res).sum())
     if work > max_cells:
         raise ValueError(f'the segments cross about {work:.3g} cells at {res:g} m, more than '
                          f'{max_cells}: use a coarser resolution')
