@@ -46,13 +46,12 @@ import sys
 from baselines.walls import wall_scores
 from common import (aligned_segments, drive_truth, stamp, table_header, write_readme,
                     write_results)
-from matching import flat
 import numpy as np
 from polyline_mapper.core import map_metrics
 from polyline_mapper.core.incremental import IncrementalConfig
 from polyline_mapper.core.metrics import trajectory_error
 from polyline_mapper.core.register import match_scan, scan_chords, spread
-from polyline_mapper.recordings import drive_messages
+from polyline_mapper.recordings import drive_messages, flat_records
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 from polyline_mapper.sim import LaserSpec
@@ -96,7 +95,7 @@ def one(drive, drift, matching: bool, knots: str = 'arc', sigma: float = None) -
 
     ``sigma`` (m): the mapper's noise scale fixed (``smemsf.sigma``); None: estimated.
     """
-    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
+    records = flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
     config = IncrementalConfig()
     if sigma is not None:
         config = dataclasses.replace(config, smemsf=dataclasses.replace(config.smemsf,

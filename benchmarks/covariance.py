@@ -34,11 +34,10 @@ import sys
 
 from common import datasets_argument, radish_logs, stamp, table_header, write_readme, \
     write_results
-from matching import flat
 import numpy as np
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.poses import se2_compose, se2_inverse
-from polyline_mapper.recordings import (carmen_messages, drive_messages, make_drive,
+from polyline_mapper.recordings import (carmen_messages, drive_messages, flat_records, make_drive,
                                         OdometryDrift, SIM_MOUNT)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
@@ -84,9 +83,9 @@ def scores(poses, covs, matched, truth) -> dict:
 def office(seed: int) -> dict:
     """Localize the office drive (noise and drift seed ``seed``) on a map of another pass."""
     mapped = make_drive('sim:office', seed=100 + seed)
-    saved = replay_records(flat(drive_messages(mapped))).map_value()
+    saved = replay_records(flat_records(drive_messages(mapped))).map_value()
     drive = make_drive('sim:office', seed=seed)
-    records = flat(drive_messages(drive, odom_drift=seed))
+    records = flat_records(drive_messages(drive, odom_drift=seed))
     stamps, poses, covs, matched = localize(records, saved)
     base = se2_compose(np.asarray(drive.poses), se2_inverse(np.asarray(SIM_MOUNT)))
     return scores(poses, covs, matched, base[:len(poses)])
@@ -96,7 +95,7 @@ def real_log(path, seed: int, saved) -> dict:
     """Localize a CARMEN log with drifting odometry (``seed``) on its corrected map ``saved``."""
     log = read_carmen(str(path))
     stamps, _ = log.stamps()
-    records = flat(carmen_messages(log, stamps, (OdometryDrift(), seed)))
+    records = flat_records(carmen_messages(log, stamps, (OdometryDrift(), seed)))
     got, poses, covs, matched = localize(records, saved)
     laser = np.array([r.pose for r in log.records])
     base = se2_compose(laser, se2_inverse(np.asarray(log.laser_offset, dtype=np.float64)))
@@ -119,7 +118,7 @@ def main() -> int:
     for name, path in logs:
         log = read_carmen(str(path))
         stamps, _ = log.stamps()
-        saved = replay_records(flat(carmen_messages(log, stamps))).map_value()
+        saved = replay_records(flat_records(carmen_messages(log, stamps))).map_value()
         for seed in args.seeds:
             rows.append({'case': name, 'seed': seed, **real_log(path, seed, saved)})
             print(rows[-1], flush=True)

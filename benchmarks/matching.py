@@ -27,8 +27,8 @@ import sys
 from common import datasets_argument, stamp, table_header, write_readme, write_results
 import numpy as np
 from polyline_mapper.formats.carmen import read_carmen
-from polyline_mapper.recordings import (carmen_messages, drive_messages, make_drive,
-                                        OdometryDrift)
+from polyline_mapper.recordings import (carmen_messages, drive_messages, flat_records,
+                                        make_drive, OdometryDrift)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -42,16 +42,8 @@ def records_of(name: str, datasets: str, quick: bool) -> list:
         if quick:
             log.records = log.records[:1000]
             stamps = stamps[:1000]
-        return flat(carmen_messages(log, stamps, (OdometryDrift(), 0)))
-    return flat(drive_messages(make_drive('office', seed=1, noise=0.01, beams=720)))
-
-
-def flat(messages) -> list:
-    """Return the records of (time, topic, record) messages, a TFMessage's one by one."""
-    out = []
-    for _, _, record in messages:
-        out.extend(record if isinstance(record, list) else [record])
-    return out
+        return flat_records(carmen_messages(log, stamps, (OdometryDrift(), 0)))
+    return flat_records(drive_messages(make_drive('office', seed=1, noise=0.01, beams=720)))
 
 
 def one(records: list, matching: bool) -> dict:

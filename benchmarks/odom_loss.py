@@ -41,11 +41,10 @@ import sys
 from baselines.walls import wall_scores
 from common import (contradicted, drive_truth, stamp, table_header, write_readme,
                     write_results)
-from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import sample_segments, wrap_angle
 from polyline_mapper.formats.records import Odometry, Transform
-from polyline_mapper.recordings import drive_messages, make_drive
+from polyline_mapper.recordings import drive_messages, flat_records, make_drive
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -67,7 +66,8 @@ def odometry_of(record, source: str) -> bool:
 def drive_records(label: str) -> tuple:
     """Return (drive, records) of the ``DRIVES`` entry ``label``, as every row maps it."""
     drive = make_drive(DRIVES[label], 7)
-    return drive, flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), map_to_odom=(0.0, 0.0, 0.0)))
+    return drive, flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0),
+                                              map_to_odom=(0.0, 0.0, 0.0)))
 
 
 def mapped(records: list, loss: float, seed: int, matching: bool = False,

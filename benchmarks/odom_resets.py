@@ -29,11 +29,10 @@ import sys
 
 from baselines.walls import wall_scores
 from common import case_run, drifting_drive, publish
-from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
 from polyline_mapper.formats.records import Odometry
-from polyline_mapper.recordings import drive_messages, SIM_START
+from polyline_mapper.recordings import drive_messages, flat_records, SIM_START
 from polyline_mapper.replay import replay_records
 import polyline_mapper.session as session_module
 from polyline_mapper.session import SessionOptions
@@ -48,7 +47,8 @@ def records(drive, odometry: np.ndarray, k: int, silence: int) -> list:
     """Return the drive's records with ``odometry``, none for the ``silence`` scans before k."""
     stamps = SIM_START + np.asarray(drive.stamps, dtype=np.float64)
     quiet = (stamps[k - silence] - 1e-6, stamps[k] - 1e-6)
-    return [r for r in flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry))
+    return [r for r in flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0),
+                                                   odometry=odometry))
             if not (isinstance(r, Odometry) and quiet[0] <= r.stamp < quiet[1])]
 
 

@@ -33,10 +33,9 @@ import sys
 from baselines.walls import wall_scores
 from common import (aligned_segments, drive_truth, stamp, table_header, write_readme,
                     write_results)
-from matching import flat
 import numpy as np
 from polyline_mapper.core.metrics import trajectory_error
-from polyline_mapper.recordings import drive_messages, make_drive
+from polyline_mapper.recordings import drive_messages, flat_records, make_drive
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -46,7 +45,7 @@ DRIVE = 'sim:office,moving_sensor=1,turn=0.2'
 
 def one(drive, drift) -> dict:
     """Map the drive with drift seed ``drift`` (None: true odometry); return its scores."""
-    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
+    records = flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
     session = replay_records(records, options=SessionOptions(scan_matching=True,
                                                              keep_points=True))
     value = session.map_value()

@@ -31,12 +31,11 @@ import json
 import sys
 
 from common import datasets_argument, radish_logs, stamp, write_readme, write_results
-from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
 from polyline_mapper.formats.carmen import read_carmen
 from polyline_mapper.formats.records import PoseEstimate, Scan
-from polyline_mapper.recordings import carmen_messages, OdometryDrift, robot_messages
+from polyline_mapper.recordings import carmen_messages, flat_records, OdometryDrift, robot_messages
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import MappingSession, SessionOptions
 
@@ -92,13 +91,13 @@ def one_log(name: str, path: str, at: int) -> list:
     """Rows of one log: no start, each estimate offset, true start."""
     log = read_carmen(path)
     stamps, _ = log.stamps(1.0)
-    saved = replay_records(flat(carmen_messages(log, stamps))).map_value()
+    saved = replay_records(flat_records(carmen_messages(log, stamps))).map_value()
     mount = np.asarray(log.laser_offset, dtype=np.float64)
     laser = np.array([r.pose for r in log.records])
     base = se2_compose(laser, se2_inverse(mount))
     odom = se2_compose(se2_inverse(np.asarray(ODOM_ORIGIN)), OdometryDrift().apply(base, 0))
     scans = log.scans(stamps, frame_id='laser', with_pose=False)
-    records = flat(robot_messages(stamps, se2_compose(odom, mount), scans, mount=mount))
+    records = flat_records(robot_messages(stamps, se2_compose(odom, mount), scans, mount=mount))
     stamps = np.asarray(stamps, dtype=np.float64)
     rows = []
 

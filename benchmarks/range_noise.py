@@ -37,11 +37,10 @@ import sys
 from baselines.walls import wall_scores
 from cheap_lidar import world
 from common import contradicted, drive_truth, stamp, table_header, write_readme, write_results
-from matching import flat
 import numpy as np
 from polyline_mapper.core import map_metrics
 from polyline_mapper.core.incremental import IncrementalConfig
-from polyline_mapper.recordings import drive_messages
+from polyline_mapper.recordings import drive_messages, flat_records
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 from polyline_mapper.sim import LaserSpec
@@ -76,7 +75,7 @@ def one(drive, sigma, range_noise: float, drift=None, knots: str = 'arc') -> dic
     config = dataclasses.replace(config, smemsf=dataclasses.replace(
         config.smemsf, sigma=sigma, range_noise=range_noise))
     matching = drift is not None
-    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
+    records = flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift))
     session = replay_records(records, config, options=SessionOptions(
         pose_source='tf', scan_matching=matching, keep_points=True, chord_knots=knots))
     value = session.map_value()

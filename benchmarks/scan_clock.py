@@ -29,10 +29,9 @@ import sys
 
 from baselines.walls import wall_scores
 from common import case_run, drifting_drive, publish
-from matching import flat
 import numpy as np
 from polyline_mapper.formats.records import Scan
-from polyline_mapper.recordings import drive_messages, SIM_START
+from polyline_mapper.recordings import drive_messages, flat_records, SIM_START
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -45,7 +44,7 @@ CASES = ([(OFFICE, lag) for lag in (0.0, 0.05, 0.1, 0.3, -0.05, -0.1, -0.3)]
 
 def records(drive, odometry: np.ndarray, lag: float) -> list:
     """Return the drive's records with ``odometry``, the scans stamped ``lag`` s late."""
-    out = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry))
+    out = flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry))
     return [replace(r, stamp=r.stamp + lag) if isinstance(r, Scan) else r for r in out]
 
 

@@ -28,10 +28,10 @@ import sys
 
 from baselines.walls import wall_scores
 from common import contradicted, CONTRADICTED_NOTE, HERE, notable_lines, stamp, write_readme
-from matching import flat
 import numpy as np
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
-from polyline_mapper.recordings import drive_messages, make_drive, SIM_MOUNT, SIM_START
+from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, SIM_MOUNT,
+                                        SIM_START)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -53,7 +53,7 @@ def one(drive, at: int, slip) -> dict:
     mount = np.asarray(SIM_MOUNT, dtype=np.float64)
     base = se2_compose(drive.poses, se2_inverse(mount))
     stamps = SIM_START + np.asarray(drive.stamps, dtype=np.float64)
-    records = flat(drive_messages(drive, odometry=slipped(base, at, slip)))
+    records = flat_records(drive_messages(drive, odometry=slipped(base, at, slip)))
     session = replay_records(records, options=SessionOptions(
         pose_source='odom', scan_matching=True, keep_points=True))
     rows = np.asarray(session.map_value().trajectory)           # one per scan used

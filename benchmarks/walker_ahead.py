@@ -34,10 +34,9 @@ import sys
 from baselines.walls import wall_scores
 from common import (contradicted, drive_truth, stamp, table_header, write_readme,
                     write_results)
-from matching import flat
 import numpy as np
 from polyline_mapper.core.incremental import IncrementalConfig
-from polyline_mapper.recordings import drive_messages, make_drive
+from polyline_mapper.recordings import drive_messages, flat_records, make_drive
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 
@@ -58,7 +57,7 @@ SETTINGS = {
 
 def one(drive, fields: dict, knots: str = SessionOptions.chord_knots) -> dict:
     """Map the drive with scan matching and the mapper ``fields``; return its scores."""
-    records = flat(drive_messages(drive, mount=(0.0, 0.0, 0.0)))
+    records = flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0)))
     session = replay_records(records, IncrementalConfig(**fields),
                              SessionOptions(scan_matching=True, keep_points=True,
                                             chord_knots=knots))

@@ -18,9 +18,9 @@ Every input the tools read, opened in one place: point files, CARMEN logs, bags,
 pose). ``open_recording`` opens a log, a bag or a drive as a ``Recording``: timed messages
 ``(log_time, topic, record)``, ``record`` being a ``Scan``, an ``Odometry``, a list of
 ``Transform`` (one TFMessage) or, for a bag message that does not decode, a ``Skipped``
-(``formats.records``). Only what the mapper uses is kept: other topics of a bag, and the
-LaserScan fields the records do not hold (intensities) and Odometry's twist and covariances,
-are not.
+(``formats.records``); ``flat_records`` lists the records alone, a TFMessage's one by one.
+Only what the mapper uses is kept: other topics of a bag, and the LaserScan fields the
+records do not hold (intensities) and Odometry's twist and covariances, are not.
 
 One message order for every kind, the one a robot records and ``polyline-mapper convert``
 writes: /tf_static with the laser mount first, then per scan /tf (map -> odom, odom ->
@@ -368,6 +368,14 @@ def make_drive(name: str, seed: int = 1, noise: float = 0.01, beams: int = 541):
     return simulate_drive(worlds[world](), LaserSpec(beams=opts.get('beams', beams), noise=noise),
                           rng=seed, rate=rate,
                           scan_time=1.0 / rate if opts.get('moving_sensor') else 0.0, **kw)
+
+
+def flat_records(messages) -> list:
+    """Return the records of ``(log_time, topic, record)`` messages, a TFMessage's one by one."""
+    out = []
+    for _, _, record in messages:
+        out.extend(record if isinstance(record, list) else [record])
+    return out
 
 
 def drive_messages(drive, start: float = SIM_START, mount=SIM_MOUNT, upside_down: bool = False,

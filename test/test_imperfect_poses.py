@@ -21,8 +21,8 @@ from polyline_mapper.core.incremental import IncrementalConfig
 from polyline_mapper.core.metrics import scan_consistency, trajectory_error
 from polyline_mapper.core.register import transform
 from polyline_mapper.formats.records import Odometry, Scan, Transform
-from polyline_mapper.recordings import (drive_messages, make_drive, OdometryDrift, open_recording,
-                                        SIM_MOUNT, sim_options)
+from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, OdometryDrift,
+                                        open_recording, SIM_MOUNT, sim_options)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.scan import scan_to_points
 from polyline_mapper.session import MappingSession, ODOM_JUMP, SessionOptions
@@ -36,12 +36,11 @@ B = importlib.import_module('baselines')
 def records(drive, drift=None, compensate=True, scans_only=False):
     """Return a drive's records, the laser on base_link (so rows compare with its poses)."""
     out = []
-    for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift):
-        for r in (rec if isinstance(rec, list) else [rec]):
-            if isinstance(r, Scan) and not compensate:
-                r = dataclasses.replace(r, time_increment=0.0)
-            if not scans_only or isinstance(r, Scan):
-                out.append(r)
+    for r in flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=drift)):
+        if isinstance(r, Scan) and not compensate:
+            r = dataclasses.replace(r, time_increment=0.0)
+        if not scans_only or isinstance(r, Scan):
+            out.append(r)
     return out
 
 
@@ -268,8 +267,7 @@ def test_a_localizer_trajectory_has_the_base_poses(pose_source):
     truth = se2_compose(drive.poses, se2_inverse(mount))
     odom = OdometryDrift().apply(truth, 0)
     moved = dataclasses.replace(drive, poses=se2_compose(odom, mount))
-    recs = [r for _, _, rec in drive_messages(moved, map_to_odom=None)
-            for r in (rec if isinstance(rec, list) else [rec])]
+    recs = flat_records(drive_messages(moved, map_to_odom=None))
     session = replay_records(recs, options=SessionOptions(
         pose_source=pose_source, scan_matching=True, fixed_frame='map', keep_points=True))
     traj = session.map_value().trajectory
@@ -804,9 +802,7 @@ def test_chord_knots_reach_the_session_from_the_node_and_the_command_line(capsys
 
 def _odometry_run(drive, odometry, pose_source='odom', again=None) -> dict:
     """Map ``drive`` with ``odometry`` (mount 0), played ``again`` after ``again`` s; score."""
-    recs = []
-    for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry):
-        recs.extend(rec if isinstance(rec, list) else [rec])
+    recs = flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry))
     if again is not None:
         recs += [dataclasses.replace(r, stamp=r.stamp + again) for r in recs]
     warned = []
@@ -917,10 +913,8 @@ def test_odometry_at_half_the_scan_rate_is_no_heading_jump_away_from_its_origin(
     odometry = OdometryDrift().apply(np.asarray(drive.poses, dtype=np.float64), 1,
                                      stamps=drive.stamps)
     index = {round(1000.0 + t, 6): i for i, t in enumerate(drive.stamps)}
-    recs = []
-    for _, topic, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry):
-        if topic != '/odom' or index[round(rec.stamp, 6)] % 2 == 0:
-            recs.extend(rec if isinstance(rec, list) else [rec])
+    recs = flat_records(m for m in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry)
+                        if m[1] != '/odom' or index[round(m[2].stamp, 6)] % 2 == 0)
     assert 0 < sum(isinstance(r, Odometry) for r in recs) < len(drive.stamps) / 2 + 1
     rows, warned = _odom_run(recs)
     assert 'odom_jump' not in warned, warned
@@ -949,11 +943,11 @@ def test_an_odometry_driver_restart_after_a_silence_is_searched_for_on_the_map(s
     reset[k:] = se2_compose(se2_inverse(odometry[k]), odometry[k:])
 
     def run(odometry):
-        recs, warned = [], []
-        for _, topic, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry):
-            if topic != '/odom' or not 1000.0 + drive.stamps[k - silent] - 1e-6 <= rec.stamp \
-                    < 1000.0 + drive.stamps[k] - 1e-6:
-                recs.extend(rec if isinstance(rec, list) else [rec])
+        quiet = (1000.0 + drive.stamps[k - silent] - 1e-6, 1000.0 + drive.stamps[k] - 1e-6)
+        recs = flat_records(m for m in drive_messages(drive, mount=(0.0, 0.0, 0.0),
+                                                      odometry=odometry)
+                            if m[1] != '/odom' or not quiet[0] <= m[2].stamp < quiet[1])
+        warned = []
         session = replay_records(recs, options=SessionOptions(
             pose_source='odom', scan_matching=True, keep_points=True),
             warn=lambda cause, text: warned.append((cause, text)))
@@ -990,8 +984,8 @@ def test_a_silence_across_a_turn_near_the_odometry_origin_is_no_reset(monkeypatc
     base = drive.poses
     assert abs(np.angle(np.exp(1j * (base[j, 2] - base[j - silent, 2])))) > 1.5
     quiet = (1000.0 + drive.stamps[j - silent] - 1e-6, 1000.0 + drive.stamps[j] - 1e-6)
-    recs = [r for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry)
-            for r in (rec if isinstance(rec, list) else [rec])
+    recs = [r for r in flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0),
+                                                   odometry=odometry))
             if not (isinstance(r, Odometry) and quiet[0] <= r.stamp < quiet[1])]
     rows, warned = _odom_run(recs)
     assert not {'odom_jump', 'odom_reset_given_up'} & set(warned), warned
@@ -1010,8 +1004,8 @@ def test_half_rate_odometry_near_its_origin_is_no_heading_reset(monkeypatch):
     import polyline_mapper.session as session_module
     drive, odometry = _booted_behind(321, 201)
     index = {round(1000.0 + t, 6): i for i, t in enumerate(drive.stamps)}
-    recs = [r for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odometry=odometry)
-            for r in (rec if isinstance(rec, list) else [rec])
+    recs = [r for r in flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0),
+                                                   odometry=odometry))
             if not isinstance(r, Odometry) or index[round(r.stamp, 6)] % 2 == 0]
     rows, warned = _odom_run(recs)
     assert 'odom_jump' not in warned, warned

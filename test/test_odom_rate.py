@@ -4,7 +4,8 @@ import dataclasses
 
 import numpy as np
 from polyline_mapper.formats.records import Scan, Transform
-from polyline_mapper.recordings import drive_messages, make_drive, SIM_START, thin_odometry
+from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, SIM_START,
+                                        thin_odometry)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import SessionOptions
 import pytest
@@ -18,10 +19,8 @@ def records():
     """Return the drive's first 200 scans with drifting odometry (seed 1), one message a scan."""
     drive = make_drive(DRIVE, 1)
     end = SIM_START + drive.stamps[200]
-    out = []
-    for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=1):
-        out.extend(r for r in (rec if isinstance(rec, list) else [rec]) if r.stamp < end)
-    return out
+    return [r for r in flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=1))
+            if r.stamp < end]
 
 
 def _mount_on_tf(stamp: float) -> Transform:

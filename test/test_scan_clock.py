@@ -7,7 +7,8 @@ import re
 import numpy as np
 from polyline_mapper.formats.records import Scan
 from polyline_mapper.poses import estimate_lag, lag_costs, LAG_GRID, stamp_lag
-from polyline_mapper.recordings import (drive_messages, make_drive, OdometryDrift, SIM_START)
+from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, OdometryDrift,
+                                        SIM_START)
 from polyline_mapper.replay import replay_records
 from polyline_mapper.session import LAG_EVERY, LAG_ROWS, SessionOptions
 import pytest
@@ -26,13 +27,9 @@ def drive():
 def _records(drive, lag: float, scans: int = SCANS) -> list:
     """Return the first ``scans`` scans with drifting odometry, stamped ``lag`` s late."""
     end = SIM_START + drive.stamps[scans]
-    out = []
-    for _, _, rec in drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=1):
-        for r in (rec if isinstance(rec, list) else [rec]):
-            if r.stamp < end:
-                out.append(dataclasses.replace(r, stamp=r.stamp + lag)
-                           if isinstance(r, Scan) else r)
-    return out
+    return [dataclasses.replace(r, stamp=r.stamp + lag) if isinstance(r, Scan) else r
+            for r in flat_records(drive_messages(drive, mount=(0.0, 0.0, 0.0), odom_drift=1))
+            if r.stamp < end]
 
 
 def _run(drive, lag: float, pose_source: str = 'odom', offset: float = 0.0,

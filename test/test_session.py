@@ -516,9 +516,8 @@ def _with_copies(records, every, shift, count=None, duplicate=False):
 @pytest.fixture(scope='module')
 def hall_scans_alone():
     """Map a physical 20 Hz drive through the hall (257 scans) from its scans alone."""
-    from polyline_mapper.recordings import drive_messages, make_drive
-    records = [r for _, _, rec in drive_messages(make_drive('hall,step=0.1,turn=0.1'))
-               for r in (rec if isinstance(rec, list) else [rec])]
+    from polyline_mapper.recordings import drive_messages, flat_records, make_drive
+    records = flat_records(drive_messages(make_drive('hall,step=0.1,turn=0.1')))
     options = SessionOptions(pose_source='scan', fixed_frame='map')
     return records, options, replay_records(records, options=options)
 
