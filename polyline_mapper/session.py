@@ -1672,6 +1672,7 @@ class MappingSession:
         self._origins = []                      # (scans' laser positions (S, 2), counts (S,))
         self.received = 0
         self.used = 0
+        self._used_at_reset = 0                 # ``used`` when ``reset`` last cleared the map
         self.updates = 0
         self.skipped = Counter()
         self.left_out = 0
@@ -3293,6 +3294,11 @@ class MappingSession:
         """Return the saved map the session started from (``load_map``), or None."""
         return None if self._loaded is None else self._loaded[0]
 
+    @property
+    def used_since_reset(self) -> int:
+        """Return the scans mapped since the session started or ``reset`` last cleared it."""
+        return self.used - self._used_at_reset
+
     def reset(self) -> int:
         """
         Forget the map and every queued scan; return the number of segments dropped.
@@ -3304,6 +3310,7 @@ class MappingSession:
         dropped = len(self.map_value(trajectory=False).segments)
         with self._cv:
             self._generation += 1
+            self._used_at_reset = self.used
             self.cleared += self._queued()
             self.localization = None
             self._residuals.clear()

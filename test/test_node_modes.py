@@ -1,5 +1,6 @@
 """The real node over DDS in odom mode, and with no transforms at all (after test_node.py)."""
 
+import json
 import math
 import re
 import signal
@@ -234,6 +235,36 @@ def test_a_node_that_mapped_nothing_keeps_the_map_file_there(tmp_path):
         node.stop()
     assert out.read_text() == '{"the last run": "kept"}'
     assert node.lines('not writing') and 'Traceback' not in node.stderr()
+
+
+def test_a_node_reset_after_saving_keeps_the_saved_map_at_shutdown(office_drive, tmp_path):
+    # An integration audit: ~/save_map wrote the map, ~/reset cleared it, and the shutdown
+    # save then replaced the file with "0 segments in 0 polylines": the guard counted the
+    # scans mapped since the start, not since the reset.
+    out = tmp_path / 'keep.json'
+    node = NodeProcess(tmp_path, {'map_output_path': str(out), 'save_map_on_shutdown': True})
+    peer = Peer('test_peer_reset_keep')
+    try:
+        assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
+        msgs = list(drive_messages(office_drive))
+        peer.play(msgs[:[k for k, m in enumerate(msgs) if m[1] == '/scan'][80]], RATE)
+        assert peer.spin_until(lambda: peer.maps and len(peer.maps[-1].segments) >= 3,
+                               TIMEOUT), node.stderr()[-3000:]
+        resp = peer.call('/polyline_mapper_node/save_map', Trigger)
+        assert resp is not None and resp.success, node.stderr()[-3000:]
+        saved = out.read_text()
+        assert json.loads(saved)['segments']
+        assert peer.call('/polyline_mapper_node/reset', Trigger).success
+        resp = peer.call('/polyline_mapper_node/save_map', Trigger)
+        assert resp is not None and not resp.success
+        assert 'no scan has been mapped since ~/reset' in resp.message
+        node.proc.send_signal(signal.SIGTERM)
+        assert node.proc.wait(TIMEOUT) == 0, node.stderr()[-3000:]
+    finally:
+        peer.close()
+        node.stop()
+    assert out.read_text() == saved
+    assert len(node.lines('not writing')) == 2 and 'Traceback' not in node.stderr()
 
 
 def test_the_diagnostics_warn_when_the_scans_stop(office_drive, tmp_path):

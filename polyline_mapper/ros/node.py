@@ -381,14 +381,15 @@ class PolylineMapperNode(Node):
         """
         Write the map JSON to ``map_output_path``; log and return (success, message).
 
-        Before any scan was mapped (and without a loaded map) nothing is written: a node
-        restarted while the laser is down, or stopped before its first scan, would otherwise
-        replace the last run's map there (the default path is shared) with an empty one.
+        Before any scan was mapped since the start or the last ``~/reset`` (and without a
+        loaded map) nothing is written: a node restarted while the laser is down, stopped
+        before its first scan, or reset and then stopped, would otherwise replace the last
+        run's map there (the default path is shared) with an empty one.
         """
         path = self.settings.output_path
-        if self.session.used == 0 and self.session.loaded is None:
-            message = (f'not writing {path}: no scan has been mapped yet (a file there is '
-                       'kept)')
+        if self.session.used_since_reset == 0 and self.session.loaded is None:
+            since = 'since ~/reset' if self.session.used else 'yet'
+            message = f'not writing {path}: no scan has been mapped {since} (a file there is kept)'
             self.get_logger().warning(message)
             return False, message
         value = self.session.map_value(trajectory=True)
