@@ -2995,6 +2995,31 @@ class MappingSession:
         self._proposals.clear()
         return again._replace(relocalized=True)
 
+    def _unmatched_spread(self, m: Optional[ScanMatch], base: Optional[np.ndarray]) -> np.ndarray:
+        """
+        Return what a scan not matched adds to its pose's covariance (m^2, rad^2; laser frame).
+
+        The prediction's own prior (``_PRIOR``, 0.1 m and 0.05 rad) claimed a pose good to 10 cm
+        while the session was lost and the error grew to metres (an audit). Added: the
+        odometry's error over the motion since the last matched scan (``odometry_covariance``),
+        a refused match's distance from the prediction (the scans may be either place), while
+        searched for (after a gap or near a pose estimate) the search window's spread
+        (``POSE_ESTIMATE_SIGMAS`` standard deviations), and once that search gave up
+        ``GAP_REACH`` metres and half a turn as standard deviations: not localized.
+        """
+        add = np.zeros((3, 3))
+        if base is not None and self._anchor is not None:
+            add += odometry_covariance(_compose(_inverse(self._anchor), base))
+        if m is not None and m.proposal is not None:
+            dx, dy = np.asarray(m.proposal[:2], dtype=np.float64) - m.pose[:2]
+            turn = wrap_angle(float(m.proposal[2]) - float(m.pose[2]))
+            add += np.diag([dx * dx + dy * dy, dx * dx + dy * dy, turn * turn])
+        if self._gap is not None:
+            sd = (np.array([GAP_REACH, math.pi]) if self._gap.final else
+                  np.asarray(self._gap.window, dtype=np.float64) / POSE_ESTIMATE_SIGMAS)
+            add += np.diag([sd[0] ** 2, sd[0] ** 2, sd[1] ** 2])
+        return add
+
     def _localize(self, stamp: float, given: np.ndarray, laser: np.ndarray,
                   before: np.ndarray, scan_frame: str = None) -> list:
         """
@@ -3009,6 +3034,8 @@ class MappingSession:
         cov = np.array(m.covariance if m is not None else _PRIOR, dtype=np.float64)
         pose = np.asarray(laser, dtype=np.float64)
         base = self.poses.base_pose(stamp)
+        if not matched:
+            cov = cov + self._unmatched_spread(m, base)
         if base is not None:
             dx, dy, dyaw = _compose(_inverse(given), base)     # the base, laser frame
             c, s = math.cos(pose[2]), math.sin(pose[2])

@@ -145,6 +145,11 @@ def test_a_wrong_estimate_maps_nothing_and_says_so(saved, office):
     assert session.used == AT and session.matches['found near the estimate'] == 0
     assert session.lost                         # /diagnostics says so (mapping_status WARN)
     assert session.skipped['not mapped: lost'] == len(office.poses) - AT
+    # The pose published meanwhile (the prediction) said 0.1 m and 0.05 rad while it was 2.5 to
+    # 8 m off (a localization audit); given up, it says the robot is not localized.
+    loc = session.localization
+    assert not loc.matched and np.hypot(*(loc.pose[:2] - true_base(office)[-1, :2])) > 2.0
+    assert np.sqrt(np.diag(loc.covariance)) == pytest.approx([3.0, 3.0, np.pi], rel=0.05)
     before, _ = localize(saved, office, mapping=True)
     assert len(session.map_value().segments) <= len(before.map_value().segments) + 5
 
