@@ -1610,15 +1610,23 @@ class WarningThrottle:
         self.period = float(period)
         self.clock = clock
         self.counts = Counter()
+        self.seen = {}
+        """Cause -> the clock at its newest occurrence (logged or not)."""
         self._last = {}
         self._since = {}
         self._lock = threading.Lock()
+
+    def recent(self, cause: str, within: float) -> bool:
+        """Whether ``cause`` occurred within the last ``within`` seconds."""
+        seen = self.seen.get(cause)
+        return seen is not None and self.clock() - seen <= within
 
     def warn(self, cause: str, text: str) -> bool:
         """Count one occurrence of ``cause``; log ``text`` unless logged within the period."""
         now = self.clock()
         with self._lock:
             self.counts[cause] += 1
+            self.seen[cause] = now
             last = self._last.get(cause)
             if last is not None and now - last < self.period:
                 self._since[cause] = self._since.get(cause, 0) + 1

@@ -78,6 +78,15 @@ def test_a_late_subscriber_gets_the_grid_of_the_map(grid_run):
     assert set(np.unique(_cells(msg))) == {-1, 0, 100}
 
 
+def test_no_grid_without_a_wall_reaches_the_planners(grid_run):
+    # A planner-map audit: the grids of the first updates (while the noise scale was
+    # estimated) held the traced free space and no occupied cell, a map a planner allowing
+    # unknown cells drives through; late subscribers got it until the next grid.
+    _, _, _, _, live, _, _ = grid_run
+    assert live and all((_cells(g) == 100).any() for g in live), \
+        [int((_cells(g) == 100).sum()) for g in live]
+
+
 def test_occupied_cells_are_the_polylines_and_free_cells_the_traced_beams(grid_run,
                                                                           office_drive):
     _, peer, _, grids, _, _, _ = grid_run

@@ -198,22 +198,31 @@ def test_a_second_localizer_on_tf_is_warned_about(office_drive, tmp_path):
     # says so once (its own broadcasts, read back from /tf, are not the other's).
     from polyline_mapper.ros.messages import planar_transform_msg, time_msg
     msgs, _, _ = _drifted(office_drive)
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from test_node_modes import _last_status
     node = NodeProcess(tmp_path, {'map_output_path': str(tmp_path / 'map.json'),
                                   'pose_source': 'tf', 'scan_matching': True,
-                                  'transform_timeout': 0.3, 'warning_period': 300.0})
+                                  'transform_timeout': 0.3, 'warning_period': 300.0,
+                                  'diagnostics_period': 0.2})
     peer = Peer('test_peer_two_localizers')
     try:
         tfs, _ = _listen(peer)
+        last = _last_status(peer)
         assert peer.wait_for_node(TIMEOUT), node.stderr()
         peer.play(msgs[:len(msgs) // 3], RATE, mode='tf')     # the node alone: no warning
         assert peer.spin_until(lambda: len(tfs) > 20, TIMEOUT), node.stderr()[-3000:]
         assert not node.lines('another node broadcasts'), node.stderr()[-2000:]
+        assert last() is not None and 'two localizers' not in last().message
         for _ in range(20):                                     # now a second map -> odom
             peer.tf_pub.publish(peer.TFMessage(transforms=[planar_transform_msg(
                 'map', 'odom', time_msg(time.time()), (0.1, 0.0, 0.0))]))
             peer.spin_for(0.05)
         assert peer.spin_until(lambda: node.lines('another node broadcasts'), 10.0), \
             node.stderr()[-3000:]
+        # /diagnostics said OK 'mapping' through the fight (an integration audit)
+        assert peer.spin_until(lambda: 'two localizers' in last().message, 5.0)
+        assert last().level == DiagnosticStatus.WARN
+        assert any(v.key == 'warned_two_localizers' for v in last().values)
     finally:
         peer.close()
         node.stop()

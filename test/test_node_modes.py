@@ -267,6 +267,53 @@ def test_a_node_reset_after_saving_keeps_the_saved_map_at_shutdown(office_drive,
     assert len(node.lines('not writing')) == 2 and 'Traceback' not in node.stderr()
 
 
+def test_the_grid_yields_its_topic_to_another_map_publisher(office_drive, tmp_path):
+    # An integration audit: beside map_server (AMCL's map) the node's growing grid went out on
+    # the same topic every second, and AMCL and the costmaps swap maps at every message.
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from nav_msgs.msg import OccupancyGrid
+    from polyline_mapper.ros.qos import MAP_QOS
+    node = NodeProcess(tmp_path, {'map_publish_period': 0.1, 'grid_publish_period': 0.3,
+                                  'diagnostics_period': 0.2, 'warning_period': 300.0})
+    peer = Peer('test_peer_map_server')
+    try:
+        last = _last_status(peer)
+        other = peer.node.create_publisher(OccupancyGrid, 'map', MAP_QOS)
+        theirs = OccupancyGrid()
+        theirs.header.frame_id = 'map'
+        theirs.info.width, theirs.info.height, theirs.info.resolution = 7, 5, 0.5
+        theirs.data = [0] * 35
+        other.publish(theirs)
+        assert peer.wait_for_node(TIMEOUT, node=node), node.stderr()
+        msgs = list(drive_messages(office_drive))
+        peer.play(msgs[:len(msgs) // 2], RATE)
+        assert peer.spin_until(lambda: node.lines('[map_topic_shared]'), TIMEOUT), \
+            node.stderr()[-3000:]
+        assert 'test_peer_map_server also publish(es) on /map' in \
+            node.lines('[map_topic_shared]')[0]
+        assert peer.spin_until(lambda: last() is not None and last().level ==
+                               DiagnosticStatus.WARN and 'planner map topic' in last().message,
+                               10.0), last()
+        late = Peer('test_peer_map_late')      # gets map_server's map alone
+        try:
+            grids = []
+            late.node.create_subscription(OccupancyGrid, 'map', grids.append, MAP_QOS)
+            assert late.spin_until(lambda: grids, 10.0)
+            late.spin_for(1.0)
+            assert [(g.info.width, g.info.height) for g in grids] == [(7, 5)]
+        finally:
+            late.close()
+        peer.node.destroy_publisher(other)      # map_server gone: the node's grid again
+        got = []
+        peer.node.create_subscription(OccupancyGrid, 'map', got.append, MAP_QOS)
+        peer.play(msgs[len(msgs) // 2:], RATE)
+        assert peer.spin_until(lambda: any(g.info.width != 7 for g in got), TIMEOUT), \
+            node.stderr()[-3000:]
+    finally:
+        peer.close()
+        node.stop()
+
+
 def test_the_diagnostics_warn_when_the_scans_stop(office_drive, tmp_path):
     # A node audit: with the laser stopped (odometry still coming, the publisher still
     # matched) /diagnostics said OK 'mapping' for as long as it lasted, and nothing was

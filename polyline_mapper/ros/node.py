@@ -93,6 +93,14 @@ SCAN_ARRIVALS = 20
 """Scans whose arrival times give their usual interval (``_scans_silent``)."""
 SCAN_SILENCE, SCAN_SILENCE_MIN = 5.0, 1.0
 """The scans stopped: none for this many usual intervals, and at least this many seconds."""
+STANDING_WARNINGS = {
+    'two_localizers': 'another node broadcasts map -> odom as this one does (two localizers)',
+    'map_topic_shared': 'another node publishes on the planner map topic (its grid withdrawn)',
+}
+"""Conflicts with other nodes that keep /diagnostics at WARN while they last (an integration
+audit: two localizers fought over map -> odom while the status said OK 'mapping')."""
+STANDING_SECONDS = 5.0
+"""A standing conflict lasts this long after its last occurrence (and two grid periods)."""
 
 
 class ConfigError(Exception):
@@ -363,7 +371,7 @@ class PolylineMapperNode(Node):
         dropped = self.session.reset()     # as /polyline_map and ~/save_map count them
         self._publish()
         if self.settings.grid_publish_period > 0:
-            self._publish_grid()
+            self._publish_grid(cleared=True)
         response.success = True
         response.message = f'map cleared ({dropped} segments dropped)'
         if self.session.loaded is not None:     # reset goes back to the saved map
@@ -496,17 +504,59 @@ class PolylineMapperNode(Node):
         self.tf_pub.publish(self._tf_message(transforms=[planar_transform_msg(
             frame, loc.odom_frame, stamp, loc.correction)]))
 
-    def _publish_grid(self) -> None:
-        """Publish the planner map (nav_msgs/OccupancyGrid on 'map'), stamped as the map."""
+    def _publish_grid(self, cleared: bool = False) -> None:
+        """
+        Publish the planner map (nav_msgs/OccupancyGrid on 'map'), stamped as the map.
+
+        Not before the published polyline map has a segment (or a saved map was loaded): the
+        traced beams alone are free space with no wall, which a planner that allows unknown
+        cells crosses (an audit: the first four grids of the Intel log, 4269-9901 free cells
+        and none occupied). ``cleared``: after ``~/reset``, the empty grid all the same.
+        Not while another node publishes on the topic (``_grid_topic_free``).
+        """
         with self._publish_lock:
             self._grid_dirty = False
             used, gen, segments = self._published
+            if not cleared and self.session.loaded is None and (segments is None
+                                                                or not len(segments)):
+                return
+            if not self._grid_topic_free():
+                return
             current = used == self.session.used and gen == self.session.generation
             grid = self.session.occupancy(segments if current else None)  # no 2nd polylines()
             stamp = self.session.stamp
             stamp = (time_msg(stamp) if stamp is not None else self.get_clock().now().to_msg())
             self.grid_pub.publish(grid_to_msg(grid, self.session.map_frame, stamp))
             self._last_grid = time.monotonic()
+
+    def _grid_topic_free(self) -> bool:
+        """
+        Whether no other node publishes on the planner map's topic; else warn and withdraw.
+
+        On a robot whose map comes from map_server (AMCL) or slam_toolbox, two maps on one
+        topic make AMCL and the costmaps swap between them at every message (an integration
+        audit: map_server's 400 x 300 map, then the node's growing partial grid every second).
+        While another publisher is there the node's grid publisher is destroyed, so that its
+        last grid (transient local) does not reach late subscribers either, and made again
+        when the other has gone (the publish lock held).
+        """
+        topic = self.resolve_topic_name('map')
+        me = (self.get_name(), self.get_namespace())
+        others = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                         for i in self.get_publishers_info_by_topic(topic)
+                         if (i.node_name, i.node_namespace) != me})
+        if not others:
+            if self.grid_pub is None:
+                self.grid_pub = self.create_publisher(OccupancyGrid, 'map', MAP_QOS)
+            return True
+        self.warnings.warn('map_topic_shared', f'{", ".join(others)} also publish(es) on '
+                           f'{topic}: this node does not publish its planner map there while '
+                           'they do (AMCL and the costmaps would swap between two maps); remap '
+                           'it (-r map:=polyline_map/grid) or set grid_publish_period 0')
+        if self.grid_pub is not None:
+            self.destroy_publisher(self.grid_pub)
+            self.grid_pub = None
+        return False
 
     def _log_stats(self, now: float) -> None:
         p = self.session
@@ -538,6 +588,11 @@ class PolylineMapperNode(Node):
         if silent is not None and not self._silence_said:
             self.warnings.warn('scans_stopped', message)    # once a stop (counted once)
         self._silence_said = silent is not None
+        within = max(STANDING_SECONDS, 2.0 * self.settings.grid_publish_period)
+        standing = [text for cause, text in STANDING_WARNINGS.items()
+                    if self.warnings.recent(cause, within)]
+        if standing:
+            level, message = 1, '; '.join(standing + ([message] if level else []))
         sigma = p.mapper.sigma or 0.0
         r = (p.mapper.r or 0.0) if sigma else 0.0
         # the noise scale to 9 digits, not the 3 decimals of the other floats: record-map
@@ -553,7 +608,7 @@ class PolylineMapperNode(Node):
             for q, v in st.get(key, {}).items():
                 values[f'{key}_{q}'] = v
         for cause, n in sorted(self.warnings.counts.items()):
-            values[f'skipped_{cause}'] = n
+            values[f'warned_{cause}'] = n
         for key in ('scan_matching', 'match_jumps'):
             for what, n in st.get(key, {}).items():
                 values[f'{key}_{what.replace(" ", "_")}'] = n
