@@ -1841,8 +1841,10 @@ class MappingSession:
         (``options.scan_matching``): the given poses (odometry, TF) are in their own frame, and
         only matching registers the scans to the saved map; the mapper's ``free_space_window``
         left at -1 then resolves as with scan matching (0), as in a session started with it.
-        ``initial_pose`` (x, y, yaw; m, rad): where the robot (the frame the laser is mounted
-        on, see ``PoseSource.robot_pose``) is in the map at the first scan; None: where the
+        A map in another frame than a given ``options.fixed_frame`` is taken in that frame
+        (warning ``map_frame``). ``initial_pose`` (x, y, yaw; m, rad): where the robot (the
+        frame the laser is mounted on, see ``PoseSource.robot_pose``) is in the map at the
+        first scan; None: where the
         given poses say (the given frame is the map's). With ``options.mapping`` False the map
         is never changed: ``map_value`` returns the loaded segments, support, polylines and
         closed flags as they are, and ``occupancy`` the loaded planner map (``grid``) when
@@ -1865,6 +1867,16 @@ class MappingSession:
         sigma, r = require_noise_scale(value, self.mapper.config.smemsf.sigma is not None,
                                        'give one (the parameter smemsf.sigma; replay --set '
                                        'sigma=M)')
+        given = self.options.fixed_frame
+        if given and value.frame_id != given:
+            # One frame for the map, the poses, map -> odom and pose estimates (a localization
+            # audit: a map saved in 'odom' was published in 'odom' while the pose and /tf
+            # went out in 'map', 1.6 m apart in RViz, and initialpose was taken in 'odom').
+            if self._warn is not None:
+                self._warn('map_frame', f'the saved map is in frame {value.frame_id!r}; it is '
+                           f'taken as the fixed frame {given!r} (the map, the pose, '
+                           f'{given} -> odom and pose estimates are in {given!r})')
+            value = replace(value, frame_id=given)
         with self._map_lock:
             mapper = self.mapper
             config = self._config.resolved(True)

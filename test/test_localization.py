@@ -255,6 +255,33 @@ def test_the_mapper_starts_from_a_loaded_map_at_its_noise_scale(office):
     assert len(mapper.segments) > 0
 
 
+def test_a_saved_map_in_another_frame_is_taken_in_the_fixed_frame(saved, office):
+    # A localization audit: a map saved by a replay of a bag without a map frame (frame_id
+    # 'odom') was published in 'odom' while the pose and map -> odom went out in 'map' (1.6 m
+    # apart in RViz), with no warning, and pose estimates were taken in 'odom' only.
+    import dataclasses
+    from polyline_mapper.formats.records import PoseEstimate
+    _, path, _ = saved
+    value = dataclasses.replace(read_map(path).value, frame_id='odom')
+    warned = []
+    session = MappingSession(options=SessionOptions(fixed_frame='map', mapping=False,
+                                                    scan_matching=True),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    session.load_map(value)
+    assert [cause for cause, _ in warned] == ['map_frame']
+    assert "in frame 'odom'; it is taken as the fixed frame 'map'" in warned[0][1]
+    records = records_of(drifted_messages(office, 1), 40)
+    stamp = next(r.stamp for r in records if isinstance(r, Scan))
+    session.add(PoseEstimate(stamp, 'map', true_base(office)[0], np.diag([0.01, 0.01, 0.01])))
+    for record in records:
+        session.add(record)
+        session.step()
+    session.flush()
+    out = session.map_value()
+    assert out.frame_id == 'map' and np.array_equal(out.segments, value.segments)
+    assert session.localization.matched and [c for c, _ in warned] == ['map_frame']
+
+
 def test_reset_goes_back_to_the_loaded_map_and_a_bad_pose_is_refused(saved, office):
     _, path, _ = saved
     saved_map = read_map(path)
