@@ -3404,10 +3404,18 @@ class MappingSession:
 
         The segments are counted as the map is published (``map_value``: the mapper's own
         before ``polylines()`` joins them were 25 for 24 on the office drive). A session
-        started from a saved map (``load_map``) goes back to it and to its initial pose.
+        started from a saved map (``load_map``) goes back to it; the robot stays where the scans
+        were last matched when it was localized there (matched, not lost, no ``wrong_start``;
+        with odometry or TF), else it goes back to the initial pose. (Until 2026-12-01 always
+        the initial pose: a reset 14.5 m from the start put the robot there, and with mapping
+        on the next scans were mapped into the saved map at the wrong place, an audit.)
         """
         dropped = len(self.map_value(trajectory=False).segments)
         with self._cv:
+            m = self._last_match
+            keep = (self._correction.copy() if self._loaded is not None and m is not None
+                    and m.ok and not self.lost and not self.wrong_start
+                    and self.options.pose_source != 'scan' else None)
             self._generation += 1
             self._used_at_reset = self.used
             self.cleared += self._queued()
@@ -3422,7 +3430,10 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._first_base = None
-            self._restart(None if self._loaded is None else self._loaded[2])
+            self._restart(None if self._loaded is None or keep is not None
+                          else self._loaded[2])
+            if keep is not None:                # predicted where the last match put it
+                self._correction = keep
             self._origins.clear()
         with self._map_lock:
             self.mapper.reset()

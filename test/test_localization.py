@@ -305,6 +305,34 @@ def test_reset_goes_back_to_the_loaded_map_and_a_bad_pose_is_refused(saved, offi
     assert back.trajectory.shape == (0, 4)
 
 
+@pytest.mark.parametrize('mapping', [False, True])
+def test_a_reset_while_localized_keeps_the_robot_where_it_is(saved, office, mapping):
+    # A localization audit: ~/reset at scan 150, the robot 14.5 m from its start, put it back
+    # at the initial pose; map -> odom stayed 14.5 m off to the end, and with mapping on the
+    # scans went into the saved map there (24 -> 31 segments). It now stays where the scans
+    # were last matched.
+    _, path, _ = saved
+    saved_map = read_map(path)
+    session = MappingSession(options=SessionOptions(keep_points=True, mapping=mapping))
+    session.load_map(saved_map.value, true_base(office)[0])
+    n, truth = 0, true_base(office)
+    for record in records_of(drifted_messages(office, 0)):
+        if isinstance(record, Scan):
+            if n == 150:
+                session.flush()
+                assert np.hypot(*(truth[149, :2] - truth[0, :2])) > 10.0
+                session.reset()
+            n += 1
+        session.add(record)
+        session.step()
+    session.flush()
+    trajectory = session.map_value().trajectory     # the scans since the reset
+    assert len(trajectory) == len(office.poses) - 150
+    err = np.hypot(*(trajectory[:, 1:3] - truth[150:, :2]).T)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05 and err.max() < 0.1, err.max()
+    assert len(session.map_value().segments) <= len(saved_map.value.segments) + 2
+
+
 def test_load_map_maps_as_a_session_started_with_scan_matching(saved, office):
     # load_map turns scan matching on, and the evidence's default (free_space_window -1) with
     # it: off, as in the node and replay --map, which start the session with scan matching.
