@@ -66,6 +66,7 @@ from .core.polylines import MapGeometry
 from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, DEFAULT_CHORD_KNOTS, match_scan,
                             odometry_covariance, RELOCALIZE_SHARE, scan_chords, ScanMatch,
                             search_after_gap, spread, transform)
+from .formats.mapjson import stored_segments
 from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
 from .poses import (estimate_lag, lag_costs, LAG_GRID, mount_quaternion, planar_edge, PlanarPose,
@@ -3354,7 +3355,11 @@ class MappingSession:
         Return the planner map (``core.grid.GridMap``), or None when the session keeps no grid.
 
         Occupied cells from ``segments`` ((K, 2, 2); default: the current map's), free cells
-        from the traced beams, unknown elsewhere; at ``options.grid_resolution``.
+        from the traced beams, unknown elsewhere; at ``options.grid_resolution``. The cells
+        crossed by the segments as a map file stores them (``formats.mapjson.stored_segments``,
+        0.1 mm) are occupied too, so the grid agrees with the published polylines and with the
+        file's (a planner-map audit: 18 cells crossed by the office map's stored segments were
+        free or unknown in its stored grid, the wall one row over).
         """
         if self.grid is None:
             return None
@@ -3363,8 +3368,9 @@ class MappingSession:
         if segments is None:
             with self._map_lock:
                 segments = self.mapper.polylines().segments
+        segments = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
         with self._map_lock:
-            return self.grid.occupancy(segments)
+            return self.grid.occupancy(np.concatenate([segments, stored_segments(segments)]))
 
     def stats(self) -> dict:
         """Counters, skips by cause, update-time (and live latency) percentiles in ms."""

@@ -96,6 +96,19 @@ def test_replay_stores_the_grid_and_the_exported_pair_loads_back_unchanged(repla
     assert free.max(axis=0)[1] < segs[..., 1].max() + res
 
 
+def test_every_cell_the_files_segments_cross_is_occupied_in_its_grid(replayed):
+    # A planner-map audit: the grid was composed from the segments before the file rounded
+    # them to 0.1 mm, and 18 cells the office map's stored segments cross were free or
+    # unknown in the stored grid (the wall one row over).
+    from polyline_mapper.core.grid import GridMap, mark_segments
+    saved = read_map(replayed[1])
+    grid = saved.grid
+    marked = GridMap(grid.data.copy(), grid.resolution, grid.origin)
+    mark_segments(marked, saved.value.segments)
+    assert np.array_equal(marked.data, grid.data)
+    assert (grid.data == OCCUPIED).sum() > 1000
+
+
 def test_a_map_without_a_grid_exports_its_segments_occupied_and_the_rest_unknown(tmp_path):
     segs = [[0.01, 0.01, 4.01, 0.01], [4.01, 0.01, 4.01, 3.01]]   # off the cell lines
     src = tmp_path / 'old.json'

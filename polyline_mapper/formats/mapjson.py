@@ -35,6 +35,8 @@ from ..core.grid import check_resolution, decode_cells, DEFAULT_MAX_CELLS, encod
 from ..core.mapvalue import MapValue
 
 SCHEMA_VERSION = 1
+COORD_DECIMALS = 4
+"""Decimals of the coordinates a map file stores (metres: 0.1 mm)."""
 MAX_MAP_BYTES = 64 * 2 ** 20
 """Largest map file read (64 MiB: about 700k segments, far beyond any building or campus)."""
 MAX_GRID_RUNS = 3 * 2 ** 20
@@ -46,7 +48,8 @@ EDGE_TOLERANCE = 1e-3
 writer rounds both from the same numbers, so a map it wrote agrees exactly; 1 mm lets a file
 rounded by another tool pass, far below what a drawing or a planner grid could show."""
 
-__all__ = ['SCHEMA_VERSION', 'MapFile', 'map_value_to_dict', 'map_to_dict', 'dumps_map',
+__all__ = ['SCHEMA_VERSION', 'COORD_DECIMALS', 'MapFile', 'map_value_to_dict', 'map_to_dict',
+           'dumps_map', 'stored_segments',
            'write_map', 'write_json_atomic', 'write_text_atomic', 'read_map', 'OutputError',
            'OutputSet', 'json_safe', 'map_value_from_dict', 'grid_to_dict', 'grid_from_dict',
            'check_edges', 'EDGE_TOLERANCE']
@@ -156,14 +159,25 @@ def map_to_dict(segments, polylines, closed=None, support=None, stats=None, conf
     return _content(segments, polylines, closed, support, stats, config, frame_id)
 
 
+def stored_segments(segments) -> np.ndarray:
+    """
+    Return segments ((N, 2, 2), m) as a map file stores them: rounded to 0.1 mm.
+
+    The planner grid saved beside them marks these too (``MappingSession.occupancy``), so
+    that every cell the file's segments cross is occupied in the file's grid (a planner-map
+    audit: composed from the unrounded ones, 18 crossed cells of the office map were not).
+    """
+    return np.round(np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2), COORD_DECIMALS)
+
+
 def _content(segments, polylines, closed, support, stats, config, frame_id) -> dict:
     """Lay out the file: rounding (0.1 mm, support 0.01), key order, non-finite stats -> null."""
-    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     out = {
         'schema_version': SCHEMA_VERSION,
         'frame_id': str(frame_id),
-        'segments': np.round(segs, 4).tolist(),
-        'polylines': [np.round(np.asarray(p, dtype=np.float64), 4).tolist() for p in polylines],
+        'segments': stored_segments(segments).reshape(-1, 4).tolist(),
+        'polylines': [np.round(np.asarray(p, dtype=np.float64), COORD_DECIMALS).tolist()
+                      for p in polylines],
         'closed': [bool(c) for c in closed],
     }
     if support is not None:
