@@ -40,6 +40,7 @@ from .core import fit, map_metrics, SMEMSFConfig
 from .core.mapvalue import MapValue
 from .formats.mapjson import config_dict, dumps_map, map_value_to_dict
 from .formats.output import check_outputs, OutputSet
+from .formats.points import MAX_COORDINATE
 
 EXIT_USAGE = 2
 
@@ -472,13 +473,16 @@ def _frame(text: str) -> str:
 
 
 XY_YAW_BOUNDS = '|X|, |Y| <= 1e6, |YAW_DEG| <= 360'
-"""What --laser-mount and --initial-pose take: a yaw of 1e300 degrees ran to the end (its
-radians meaningless after the wrap) with only a warning that the scans disagree."""
+"""What --laser-mount takes: a yaw of 1e300 degrees ran to the end (its radians meaningless
+after the wrap) with only a warning that the scans disagree."""
+POSE_BOUNDS = f'|X|, |Y| <= {MAX_COORDINATE:g}, |YAW_DEG| <= 360'
+"""What --initial-pose takes: anywhere a map file's coordinates may lie (a map in UTM
+coordinates, northings about 5e6 m, could not be given a start before, an audit)."""
 
 
-def _check_xy_yaw(x: float, y: float, yaw_deg: float) -> None:
-    """Raise ValueError unless x, y (m) and yaw (deg) are finite and within XY_YAW_BOUNDS."""
-    if not (np.isfinite([x, y, yaw_deg]).all() and max(abs(x), abs(y)) <= 1e6
+def _check_xy_yaw(x: float, y: float, yaw_deg: float, limit: float = 1e6) -> None:
+    """Raise ValueError unless x, y (m) and yaw (deg) are finite and within the bounds."""
+    if not (np.isfinite([x, y, yaw_deg]).all() and max(abs(x), abs(y)) <= limit
             and abs(yaw_deg) <= 360.0):
         raise ValueError
 
@@ -538,10 +542,10 @@ def _initial_pose(text: str) -> tuple:
         if len(parts) != 3:
             raise ValueError
         x, y, yaw = (float(v) for v in parts)
-        _check_xy_yaw(x, y, yaw)
+        _check_xy_yaw(x, y, yaw, MAX_COORDINATE)
     except ValueError:
         raise CliError('--initial-pose expects X,Y,YAW_DEG (metres, metres, degrees: the '
-                       f'robot in the map at the first scan; {XY_YAW_BOUNDS}), got {text!r}'
+                       f'robot in the map at the first scan; {POSE_BOUNDS}), got {text!r}'
                        ) from None
     return x, y, float(np.deg2rad(yaw))
 

@@ -149,6 +149,29 @@ def test_initial_pose_places_a_robot_whose_odometry_starts_elsewhere(saved, offi
     assert rms_error(np.array(json.loads(lost.read_text())['trajectory']), office) > 0.5
 
 
+def test_an_initial_pose_in_utm_coordinates_is_taken(saved, office):
+    # A localization audit: --initial-pose refused |X|, |Y| above 1e6 m while map files hold
+    # coordinates up to 1e8 m, so a map in UTM coordinates (northing about 5e6 m) could not
+    # be given a start on the command line.
+    folder, path, bag = saved
+    shift = np.array([4.5e5, 5.3e6])
+    data = json.loads(path.read_text())
+    data['segments'] = (np.array(data['segments']) + np.tile(shift, 2)).tolist()
+    data['polylines'] = [(np.array(p) + shift).tolist() for p in data['polylines']]
+    data.pop('grid')
+    utm = folder / 'utm.json'
+    utm.write_text(json.dumps(data))
+    start = se2_compose(np.asarray(office.poses[0]), se2_inverse(np.asarray(SIM_MOUNT)))
+    pose = ','.join(repr(float(v)) for v in (start[0] + shift[0], start[1] + shift[1],
+                                             np.rad2deg(start[2])))
+    out = folder / 'utm_out.json'
+    assert main(['replay', bag, '--map', str(utm), '--no-mapping', '-o', str(out), '-q',
+                 f'--initial-pose={pose}']) == 0
+    trajectory = np.array(json.loads(out.read_text())['trajectory'])
+    trajectory[:, 1:3] -= shift
+    assert rms_error(trajectory, office) <= 0.05, rms_error(trajectory, office)
+
+
 @pytest.mark.parametrize('options', [
     {'pose_source': 'odom', 'mount': SIM_MOUNT},      # the mount given (the node's laser_*)
     {'pose_source': 'odom'},                          # the mount from /tf_static
@@ -404,6 +427,7 @@ def _garbage(tmp_path):
     (lambda t, m: ['--map', m, '--initial-pose', '1,2,x'], '--initial-pose expects'),
     # a yaw of 1e300 degrees ran to the end (a bad-input audit)
     (lambda t, m: ['--map', m, '--initial-pose', '0,0,1e300'], '|YAW_DEG| <= 360'),
+    (lambda t, m: ['--map', m, '--initial-pose', '0,2e8,0'], '|X|, |Y| <= 1e+08'),
     (lambda t, m: ['--no-mapping'], '--no-mapping applies to a saved map: give --map'),
     (lambda t, m: ['--initial-pose', '0,0,0'], '--initial-pose applies to a saved map'),
 ])
