@@ -28,9 +28,9 @@ def test_package_xml_format3_with_real_dependencies():
         for m in re.finditer(r'^\s*(?:from|import) (\w+)', path.read_text(), re.M):
             name = m.group(1)
             if name.endswith(('_msgs', '_srvs', '_interfaces')) or name in (
-                    'rclpy', 'tf2_ros', 'launch', 'launch_ros'):
+                    'rclpy', 'tf2_ros', 'launch', 'launch_ros', 'ament_index_python'):
                 imported.add('tf2_ros_py' if name == 'tf2_ros' else name)
-    assert {'rclpy', 'sensor_msgs', 'tf2_msgs', 'launch_ros'} <= imported
+    assert {'rclpy', 'sensor_msgs', 'tf2_msgs', 'launch_ros', 'ament_index_python'} <= imported
     assert imported <= deps, sorted(imported - deps)
     # ... and so is every Python library with a rosdep key; none is declared that is not used
     keys = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
