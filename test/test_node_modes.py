@@ -156,6 +156,10 @@ def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
     # matched: no scan arrives, and nothing but rclpy's one warning said why. The node now
     # counts the publishers matched on each input (the middleware's matched event), logs each
     # change and reports the count on /diagnostics, which also says what it is waiting for.
+    # (An integration audit: rclpy's warning named the topic 'scan' as given, not as
+    # remapped, and the status stayed OK; the node's own warning names the resolved topic,
+    # and the status is WARN while the incompatible publisher is all there is.)
+    from diagnostic_msgs.msg import DiagnosticStatus
     from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import LaserScan
     node = NodeProcess(tmp_path, {'diagnostics_period': 0.2,
@@ -170,15 +174,18 @@ def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
             status = last()
             return status and (status.message, {kv.key: kv.value for kv in status.values})
         best_effort = peer.node.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
-        assert peer.spin_until(lambda: node.lines('offering incompatible QoS'), TIMEOUT), \
+        assert peer.spin_until(lambda: node.lines('[incompatible_qos]'), TIMEOUT), \
             node.stderr()
+        assert ('a publisher on /scan offers a QoS this node cannot match (RELIABILITY)'
+                in node.lines('[incompatible_qos]')[0])
         assert best_effort.get_subscription_count() == 0    # (Fast DDS counts matched readers)
         del diags[:]
         assert peer.spin_until(lambda: len(diags) >= 3, TIMEOUT)
         message, values = report()
         assert values['publishers_scan'] == '0' and message == (
-            'waiting for scans on /scan: no publisher matched (none yet, or its QoS cannot '
-            'match)')
+            'no scans on /scan: a publisher there offers a QoS this node cannot match '
+            '(RELIABILITY); see the incompatible_qos warning')
+        assert last().level == DiagnosticStatus.WARN
         assert not node.lines('/scan: 1 publisher matched')
         reliable = peer.node.create_publisher(LaserScan, 'scan', QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE))
