@@ -203,7 +203,12 @@ def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
 
 
 def test_parameters_the_node_does_not_have_are_warned_of(tmp_path):
-    node = NodeProcess(tmp_path, {'sigma': 0.03, 'scan_matchng': True})
+    # (An integration audit: QoS overrides with a misspelt policy, or for a topic the node
+    # does not subscribe to, were taken without a word, and the scans stayed best effort.)
+    node = NodeProcess(tmp_path, {'sigma': 0.03, 'scan_matchng': True,
+                                  'qos_overrides./scan.subscription.reliabilty': 'reliable',
+                                  'qos_overrides./front/scan.subscription.depth': 5,
+                                  'qos_overrides./odom.subscription.depth': 5})
     try:
         assert node.wait_for_line('mapping scans on', TIMEOUT), node.stderr()
     finally:
@@ -211,7 +216,11 @@ def test_parameters_the_node_does_not_have_are_warned_of(tmp_path):
     warned = node.lines('parameters this node does not have')
     assert len(warned) == 1 and warned[0].endswith(
         'not used: scan_matchng (did you mean scan_matching?), sigma (did you mean '
-        'smemsf.sigma?)'), node.stderr()
+        'smemsf.sigma?), qos_overrides./front/scan.subscription.depth (this node takes QoS '
+        'overrides on: /scan), qos_overrides./odom.subscription.depth (this node takes QoS '
+        'overrides on: /scan), '
+        'qos_overrides./scan.subscription.reliabilty (did you mean '
+        'qos_overrides./scan.subscription.reliability?)'), node.stderr()
 
 
 def test_a_node_that_mapped_nothing_keeps_the_map_file_there(tmp_path):

@@ -254,7 +254,7 @@ class PolylineMapperNode(Node):
                                         daemon=True)
         self._worker.start()
         s = self.settings
-        unknown = unknown_params(self._parameter_overrides)
+        unknown = unknown_params(self._parameter_overrides) + self._unknown_qos_overrides()
         if unknown:
             log.warning(f'parameters this node does not have, not used: {", ".join(unknown)}')
         log.info(f'mapping scans on {self.resolve_topic_name("scan")} into {s.fixed_frame!r}, '
@@ -266,6 +266,29 @@ class PolylineMapperNode(Node):
                     if s.scan_matching else ''))
 
     # -- parameters ----------------------------------------------------------------------------
+    def _unknown_qos_overrides(self) -> list:
+        """
+        Return the ``qos_overrides.*`` values given that no input declared, each with a hint.
+
+        rclpy declares an input's overrides (``qos_overrides.<resolved topic>.subscription.
+        reliability``, ``depth``, ``history``) when it subscribes; any other such name was
+        taken without a word: a misspelt policy (``reliabilty``) or a topic the node does
+        not have (``/scan`` under ``__ns:=/robot1``, whose input is ``/robot1/scan``), and
+        the scans stayed best effort (an integration audit).
+        """
+        import difflib
+        have = sorted(n for n in self._parameters if n.startswith('qos_overrides.'))
+        topics = sorted({n.split('.')[1] for n in have})
+        out = []
+        for name in sorted(n for n in self._parameter_overrides
+                           if n.startswith('qos_overrides.') and not self.has_parameter(n)):
+            topic = name.split('.')[1] if name.count('.') >= 2 else ''
+            near = difflib.get_close_matches(
+                name, [n for n in have if n.split('.')[1] == topic], n=1)
+            out.append(f'{name} (did you mean {near[0]}?)' if near else
+                       f'{name} (this node takes QoS overrides on: {", ".join(topics)})')
+        return out
+
     def _values(self, changes=()) -> dict:
         values = {spec.name: self.get_parameter(spec.name).value for spec in self._specs}
         values.update({p.name: p.value for p in changes if p.name in values})   # ours only
