@@ -5,6 +5,7 @@ Launch polyline_mapper_node with the installed parameter file.
     ros2 launch polyline_mapper polyline_mapper.launch.py params_file:=/path/my.yaml \
         scan_topic:=/base_scan use_sim_time:=true
     ros2 launch polyline_mapper polyline_mapper.launch.py pose_source:=odom scan_matching:=true
+    ros2 launch polyline_mapper polyline_mapper.launch.py pose_source:=odom fixed_frame:=odom
     ros2 launch polyline_mapper polyline_mapper.launch.py namespace:=robot1 \
         params_file:=/path/robot1.yaml
 
@@ -13,7 +14,9 @@ The parameter file is keyed /** (it applies under any namespace); copy the insta
 ``use_sim_time`` is the launch argument's (default false), over any value in the file.
 ``pose_source`` and ``scan_matching`` left empty (the default) keep the parameter file's values;
 given, they override it: ``scan_matching:=true`` for a robot with only odometry (the node then
-broadcasts map -> odom), ``pose_source:=scan`` for scans alone.
+broadcasts map -> odom), ``pose_source:=scan`` for scans alone. ``fixed_frame`` likewise: the
+frame the map is built in; ``pose_source:=odom`` without scan matching maps in the odometry's
+frame, so it needs ``fixed_frame:=odom`` (the file's ``map`` skips every scan, warned).
 """
 
 import os
@@ -44,6 +47,9 @@ def _node(context, *args, **kwargs):
     scan_matching = _flag(context, 'scan_matching')
     if scan_matching is not None:
         overrides['scan_matching'] = scan_matching
+    fixed_frame = LaunchConfiguration('fixed_frame').perform(context).strip()
+    if fixed_frame:
+        overrides['fixed_frame'] = fixed_frame
     return [Node(
         package='polyline_mapper',
         executable='polyline_mapper_node',
@@ -79,5 +85,9 @@ def generate_launch_description():
         DeclareLaunchArgument('scan_matching', default_value='',
                               description='Match scans to the map and broadcast map -> odom; '
                                           "empty: the parameter file's"),
+        DeclareLaunchArgument('fixed_frame', default_value='',
+                              description='The frame the map is built in (odom for '
+                                          'pose_source odom without scan matching); empty: '
+                                          "the parameter file's"),
         OpaqueFunction(function=_node),
     ])

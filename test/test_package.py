@@ -216,6 +216,12 @@ def test_launch_arguments_override_the_parameter_file_only_when_given(monkeypatc
     settings_from(defaults() | {k: v for k, v in overrides.items() if k != 'use_sim_time'})
     _, node = launch_node(monkeypatch, scan_matching='false')
     assert node['parameters'][1] == {'use_sim_time': False, 'scan_matching': False}
+    # odometry without matching maps in the odometry's frame (an integration audit: the
+    # launch file offered pose_source odom but no way to set fixed_frame with it)
+    _, node = launch_node(monkeypatch, pose_source='odom', fixed_frame='odom')
+    assert node['parameters'][1] == {'use_sim_time': False, 'pose_source': 'odom',
+                                     'fixed_frame': 'odom'}
+    settings_from(defaults() | {'pose_source': 'odom', 'fixed_frame': 'odom'})
     assert declared['pose_source']['choices'] == ['', 'tf', 'odom', 'scan']
     with pytest.raises(ValueError, match="scan_matching must be true or false, got 'yes'"):
         launch_node(monkeypatch, scan_matching='yes')
