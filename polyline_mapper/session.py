@@ -370,7 +370,10 @@ def _nearest_estimate(alike: list, center: np.ndarray, window: tuple,
     deviations (m, rad). The match nearest ``center`` in those deviations is taken with no
     rivals left when every other lies ``ESTIMATE_PRIOR_MARGIN`` farther. Else, ``tracked``:
     where the scans matched before the estimate lead this scan (the session was localized),
-    the match within ``GAP_NEAR`` of it, if one is (the matches lie farther apart). Else the
+    when that nearest match lies within ``GAP_NEAR`` of it: the estimate and the tracking
+    agree. (A tracked pose that is not the estimate's nearest never wins: a session tracked
+    confidently 1.5 m off in the corridor, given a right estimate 0.6-0.9 m off the truth,
+    was locked at the wrong place by the first version of this rule, an audit.) Else the
     first match and the others, unchanged.
     """
     sd = np.maximum(np.asarray(window, dtype=np.float64) / POSE_ESTIMATE_SIGMAS, 1e-3)
@@ -379,11 +382,10 @@ def _nearest_estimate(alike: list, center: np.ndarray, window: tuple,
     k = int(np.argmin(d2))
     if (np.delete(d2, k) >= d2[k] + ESTIMATE_PRIOR_MARGIN).all():
         return alike[k], []
-    if tracked is not None:
-        near = [m for m in alike if math.hypot(*(m.pose[:2] - tracked[:2])) <= GAP_NEAR[0]
-                and abs(wrap_angle(m.pose[2] - tracked[2])) <= GAP_NEAR[1]]
-        if len(near) == 1:
-            return near[0], []
+    m = alike[k]
+    if tracked is not None and (math.hypot(*(m.pose[:2] - tracked[:2])) <= GAP_NEAR[0]
+                                and abs(wrap_angle(m.pose[2] - tracked[2])) <= GAP_NEAR[1]):
+        return m, []
     return alike[0], alike[1:]
 
 
@@ -1998,6 +2000,7 @@ class MappingSession:
         """
         self._place = place
         self._spread = None
+        self._last_match = None                 # (it made a restart look localized, an audit)
         self._tracked = None
         """The correction (map from odometry) of the scans matched before a pose estimate."""
         self._start_check = []
@@ -2907,7 +2910,8 @@ class MappingSession:
                 rivals = [m for m in found[1:] if m.share >= best.share - GAP_RIVAL and (
                     math.hypot(*(m.pose[:2] - best.pose[:2])) > 0.5
                     or abs(wrap_angle(m.pose[2] - best.pose[2])) > 0.3)]
-                if rivals and track.estimate is not None:
+                if rivals and track.estimate is not None and track.final:
+                    # the last search near an estimate, else given up: its prior decides
                     best, rivals = _nearest_estimate([best] + rivals, center, track.window,
                                                      track.tracked)
                 if best.share < need:
