@@ -305,6 +305,21 @@ def test_a_saved_map_in_another_frame_is_taken_in_the_fixed_frame(saved, office)
     assert session.localization.matched and [c for c, _ in warned] == ['map_frame']
 
 
+def test_replay_says_when_it_takes_a_saved_map_in_the_fixed_frame(saved, tmp_path, capsys):
+    # (An audit: replay relabelled it without a word; map_frame was not among its reports.)
+    _, path, _ = saved
+    data = json.loads(path.read_text())
+    data['frame_id'] = 'odom'
+    odom_map = tmp_path / 'odom_frame.json'
+    odom_map.write_text(json.dumps(data))
+    out = tmp_path / 'out.json'
+    assert main(['replay', 'sim:office', '--map', str(odom_map), '--no-mapping',
+                 '--pose-source', 'odom', '-o', str(out)]) == 0
+    assert "the saved map is in frame 'odom'; it is taken as the fixed frame 'map'" in \
+        capsys.readouterr().err
+    assert json.loads(out.read_text())['frame_id'] == 'map'
+
+
 def test_reset_goes_back_to_the_loaded_map_and_a_bad_pose_is_refused(saved, office):
     _, path, _ = saved
     saved_map = read_map(path)
