@@ -174,18 +174,26 @@ def test_the_diagnostics_count_the_scan_publishers_whose_qos_matches(tmp_path):
             status = last()
             return status and (status.message, {kv.key: kv.value for kv in status.values})
         best_effort = peer.node.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
-        assert peer.spin_until(lambda: node.lines('[incompatible_qos]'), TIMEOUT), \
+        assert peer.spin_until(lambda: node.lines('[incompatible_qos_scan]'), TIMEOUT), \
             node.stderr()
-        assert ('a publisher on /scan offers a QoS this node cannot match (RELIABILITY)'
-                in node.lines('[incompatible_qos]')[0])
+        assert ('a publisher on /scan offers a QoS this node cannot match (RELIABILITY): none '
+                'of its messages arrive; a best-effort publisher needs a best-effort '
+                'subscription, the default: remove qos_overrides./scan.subscription.reliability'
+                in node.lines('[incompatible_qos_scan]')[0])
         assert best_effort.get_subscription_count() == 0    # (Fast DDS counts matched readers)
         del diags[:]
         assert peer.spin_until(lambda: len(diags) >= 3, TIMEOUT)
         message, values = report()
         assert values['publishers_scan'] == '0' and message == (
             'no scans on /scan: a publisher there offers a QoS this node cannot match '
-            '(RELIABILITY); see the incompatible_qos warning')
+            '(RELIABILITY); see the incompatible_qos_scan warning')
         assert last().level == DiagnosticStatus.WARN
+        for gone in (best_effort, peer.scan_pub):    # (the peer's own is best effort too)
+            peer.node.destroy_publisher(gone)       # gone: back to waiting (it stayed WARN)
+        del diags[:]
+        assert peer.spin_until(lambda: len(diags) >= 3 and last().level == DiagnosticStatus.OK,
+                               TIMEOUT), report()
+        assert report()[0].startswith('waiting for scans on /scan: no publisher matched')
         assert not node.lines('/scan: 1 publisher matched')
         reliable = peer.node.create_publisher(LaserScan, 'scan', QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE))

@@ -352,10 +352,18 @@ class PolylineMapperNode(Node):
         policy = qos_policy_name_from_kind(info.last_policy_kind)
         self.incompatible[key] = policy
         name = self.resolve_topic_name(topic)
-        self.warnings.warn('incompatible_qos', (
-            f'a publisher on {name} offers a QoS this node cannot match ({policy}): none of its '
-            f'messages arrive. A best-effort publisher needs the default subscription (remove '
-            f'qos_overrides.{name}.subscription.reliability); a reliable one matches either'))
+        if key in ('scan', 'odom') and policy == 'RELIABILITY':
+            advice = ('a best-effort publisher needs a best-effort subscription, the default: '
+                      f'remove qos_overrides.{name}.subscription.reliability')
+        elif key in ('tf', 'tf_static'):
+            advice = ("a TF broadcaster must offer tf2's QoS (reliable; /tf_static also "
+                      'transient local)')
+        else:
+            advice = f'the publisher must offer a {policy} policy this subscription accepts'
+        # one cause per input, so one input's warning does not hide another's (an audit)
+        self.warnings.warn(f'incompatible_qos_{key}', (
+            f'a publisher on {name} offers a QoS this node cannot match ({policy}): none of '
+            f'its messages arrive; {advice}'))
 
     def _on_matched(self, key: str, topic: str, info) -> None:
         """Count (as ``key``) and log the publishers an input's subscription has matched."""
@@ -623,6 +631,9 @@ class PolylineMapperNode(Node):
         self._diag_mark = (st['scans'], st['scans_used'], st['dropped'])
         self._last_diag = now
         silent = self._scans_silent(now)
+        if 'scan' in self.incompatible and not self.count_publishers(
+                self.resolve_topic_name('scan')):
+            del self.incompatible['scan']       # that publisher has gone (an audit: WARN stayed)
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'), st['scans_used'],
                                         self.publishers_matched.get('scan'), silent,
@@ -765,7 +776,7 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     if not total:
         if incompatible is not None and not publishers:
             return 1, (f'no scans on {topic}: a publisher there offers a QoS this node cannot '
-                       f'match ({incompatible}); see the incompatible_qos warning')
+                       f'match ({incompatible}); see the incompatible_qos_scan warning')
         if publishers is None:
             return 0, f'waiting for scans on {topic}'
         return 0, (f'waiting for scans on {topic}: ' + (
