@@ -296,6 +296,7 @@ def test_the_grid_yields_its_topic_to_another_map_publisher(office_drive, tmp_pa
     # the same topic every second, and AMCL and the costmaps swap maps at every message.
     from diagnostic_msgs.msg import DiagnosticStatus
     from nav_msgs.msg import OccupancyGrid
+    from polyline_mapper.ros.node import STANDING_SECONDS as STANDING
     from polyline_mapper.ros.qos import MAP_QOS
     node = NodeProcess(tmp_path, {'map_publish_period': 0.1, 'grid_publish_period': 0.3,
                                   'diagnostics_period': 0.2, 'warning_period': 300.0})
@@ -327,12 +328,15 @@ def test_the_grid_yields_its_topic_to_another_map_publisher(office_drive, tmp_pa
             assert [(g.info.width, g.info.height) for g in grids] == [(7, 5)]
         finally:
             late.close()
-        peer.node.destroy_publisher(other)      # map_server gone: the node's grid again
-        got = []
+        # the scans stopped: the conflict stands (it faded once no new grid was made)
+        peer.spin_for(2.0 * STANDING)
+        assert last().level == DiagnosticStatus.WARN and 'planner map topic' in last().message
+        peer.node.destroy_publisher(other)      # map_server gone: the node's grid again,
+        got = []                                # without a new scan
         peer.node.create_subscription(OccupancyGrid, 'map', got.append, MAP_QOS)
-        peer.play(msgs[len(msgs) // 2:], RATE)
         assert peer.spin_until(lambda: any(g.info.width != 7 for g in got), TIMEOUT), \
             node.stderr()[-3000:]
+        assert peer.spin_until(lambda: 'planner map topic' not in last().message, 4 * STANDING)
     finally:
         peer.close()
         node.stop()

@@ -101,7 +101,8 @@ STANDING_WARNINGS = {
 """Conflicts with other nodes that keep /diagnostics at WARN while they last (an integration
 audit: two localizers fought over map -> odom while the status said OK 'mapping')."""
 STANDING_SECONDS = 5.0
-"""A standing conflict lasts this long after its last occurrence (and two grid periods)."""
+"""A standing conflict lasts this long after its last occurrence (map_topic_shared, checked
+once a grid period: two of them, if longer)."""
 
 
 class ConfigError(Exception):
@@ -488,8 +489,9 @@ class PolylineMapperNode(Node):
                 if self._dirty and now - self._last_publish >= self.settings.map_publish_period:
                     self._publish()
                 period = self.settings.grid_publish_period
-                if self._grid_dirty and period > 0 and now - self._last_grid >= period:
-                    self._publish_grid()
+                if (period > 0 and now - self._last_grid >= period
+                        and (self._grid_dirty or self.grid_pub is None)):
+                    self._publish_grid()        # (withdrawn: the topic checked each period)
                 period = self.settings.stats_period
                 if period > 0 and now - self._last_stats >= period:
                     self._log_stats(now)
@@ -571,6 +573,7 @@ class PolylineMapperNode(Node):
                                                                 or not len(segments)):
                 return
             if not self._grid_topic_free():
+                self._last_grid = time.monotonic()
                 return
             current = used == self.session.used and gen == self.session.generation
             grid = self.session.occupancy(segments if current else None)  # no 2nd polylines()
@@ -641,9 +644,9 @@ class PolylineMapperNode(Node):
         if silent is not None and not self._silence_said:
             self.warnings.warn('scans_stopped', message)    # once a stop (counted once)
         self._silence_said = silent is not None
-        within = max(STANDING_SECONDS, 2.0 * self.settings.grid_publish_period)
-        standing = [text for cause, text in STANDING_WARNINGS.items()
-                    if self.warnings.recent(cause, within)]
+        grid_check = max(STANDING_SECONDS, 2.0 * self.settings.grid_publish_period)
+        standing = [text for cause, text in STANDING_WARNINGS.items() if self.warnings.recent(
+            cause, grid_check if cause == 'map_topic_shared' else STANDING_SECONDS)]
         if standing:
             level, message = 1, '; '.join(standing + ([message] if level else []))
         sigma = p.mapper.sigma or 0.0
