@@ -446,7 +446,13 @@ def cmd_record_map(args) -> int:
         print(f'polyline-mapper: warning: {args.output} has no noise scale (stats.sigma: the '
               "publisher's /diagnostics did not report one): localizing on it needs one, "
               "replay --set sigma=M or the node's smemsf.sigma", file=sys.stderr)
-    if args.grid_topic and grid is None:
+    if args.grid_topic and grid is None and st.get('grid_shared_with'):
+        print(f"polyline-mapper: warning: {args.output} has no grid: {st['grid_topic']} is "
+              f"also published by {', '.join(st['grid_shared_with'])} (the node does not "
+              "publish its grid beside another map publisher): remap the node's grid (-r "
+              'map:=polyline_map/grid) and pass --grid-topic polyline_map/grid',
+              file=sys.stderr)
+    elif args.grid_topic and grid is None:
         print(f'polyline-mapper: warning: no planner map (nav_msgs/OccupancyGrid) of frame '
               f"{value.frame_id} on {st['grid_topic']}: {args.output} has no grid, so `export` "
               "marks the segments occupied and leaves the rest unknown (is the node's "

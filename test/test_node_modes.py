@@ -4,6 +4,8 @@ import json
 import math
 import re
 import signal
+import subprocess
+import sys
 
 from conftest import REPO
 from polyline_mapper.recordings import drive_messages
@@ -328,6 +330,17 @@ def test_the_grid_yields_its_topic_to_another_map_publisher(office_drive, tmp_pa
             assert [(g.info.width, g.info.height) for g in grids] == [(7, 5)]
         finally:
             late.close()
+        # record-map stored map_server's grid with the node's polylines (an audit): none now
+        out = tmp_path / 'recorded.json'
+        rec = subprocess.run([sys.executable, '-m', 'polyline_mapper.cli', 'record-map', '-o',
+                              str(out), '--once', '--timeout', '20'], capture_output=True,
+                             text=True, timeout=120)
+        assert rec.returncode == 0 and 'with its planner map' not in rec.stdout, rec.stderr
+        assert ('has no grid: /map is also published by /test_peer_map_server' in rec.stderr
+                and '--grid-topic polyline_map/grid' in rec.stderr), rec.stderr
+        saved = json.loads(out.read_text())
+        assert 'grid' not in saved and saved['segments']
+        assert saved['stats']['grid_shared_with'] == ['/test_peer_map_server']
         # the scans stopped: the conflict stands (it faded once no new grid was made)
         peer.spin_for(2.0 * STANDING)
         assert last().level == DiagnosticStatus.WARN and 'planner map topic' in last().message

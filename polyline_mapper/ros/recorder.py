@@ -77,6 +77,9 @@ class MapRecorder:
         self.latest_grid: Optional[OccupancyGrid] = None
         self.count = 0
         self.received_at = None
+        self.grid_shared_with = []
+        """Nodes besides the map's publisher that publish on ``grid_topic`` (``check_grid``):
+        its grid is then not taken."""
         self.noise = {}
         """Per diagnostics status name ('<node>: mapping'): the (sigma, r) it last reported."""
         node.create_subscription(PolylineMap, topic, self._on_map, MAP_QOS)
@@ -112,10 +115,27 @@ class MapRecorder:
         return (g is not None and m is not None and g.header.frame_id == m.header.frame_id
                 and stamp_seconds(g.header.stamp) >= stamp_seconds(m.header.stamp) - 1e-9)
 
+    def check_grid(self, node) -> None:
+        """
+        Note the nodes that publish on the grid topic but not on the map topic.
+
+        Beside map_server the node withdraws its grid from a shared topic, and the grid that
+        came was map_server's (an audit: record-map stored it, 400 x 300 cells, with the
+        node's polylines); the grid is then not taken.
+        """
+        if not self.grid_topic:
+            return
+
+        def names(topic):
+            return {f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                    for i in node.get_publishers_info_by_topic(topic)}
+        self.grid_shared_with = sorted(names(self.grid_topic) - names(self.topic))
+
     def grid(self) -> Optional[GridMap]:
         """Return the newest planner map of the map's frame as a GridMap, else None."""
         g = self.latest_grid
-        if g is None or self.latest is None or g.header.frame_id != self.latest.header.frame_id:
+        if (g is None or self.latest is None or self.grid_shared_with
+                or g.header.frame_id != self.latest.header.frame_id):
             return None
         if g.info.width * g.info.height != len(g.data) or not g.info.resolution > 0:
             return None                         # not a grid a map file can hold
@@ -145,6 +165,8 @@ class MapRecorder:
             stats['grid_topic'] = self.grid_topic
             stats['grid_stamp'] = (None if grid is None else
                                    round(stamp_seconds(self.latest_grid.header.stamp), 6))
+            if self.grid_shared_with:
+                stats['grid_shared_with'] = list(self.grid_shared_with)
         stats.update(extra_stats or {})
         return MapValue(m['segments'], m['support'], m['polylines'], m['closed'],
                         m['frame_id'], m['stamp'], stats)
@@ -207,6 +229,7 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
                 executor.spin_once(timeout_sec=0.05)
         except KeyboardInterrupt:
             pass
+        rec.check_grid(node)
         grid = rec.grid()
         config, why, publisher = publisher_config(node, executor, rec.topic, should_stop)
         noise = None if publisher is None else publisher_noise_scale(
