@@ -1723,6 +1723,8 @@ class MappingSession:
         self.received = 0
         self.used = 0
         self._used_at_reset = 0                 # ``used`` when ``reset`` last cleared the map
+        self.pose_kept = False
+        """Whether the last ``reset`` kept the robot where it was matched (a saved map)."""
         self.updates = 0
         self.skipped = Counter()
         self.left_out = 0
@@ -3440,6 +3442,7 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._first_base = None
+            self.pose_kept = keep is not None
             self._restart(None if self._loaded is None or keep is not None
                           else self._loaded[2])
             if keep is not None:                # predicted where the last match put it

@@ -66,6 +66,9 @@ def test_the_node_localizes_on_a_saved_map_and_publishes_it_unchanged(saved_map,
         assert response.message.startswith(
             f'map reset to the saved map {saved_map} ({len(loaded.segments)} segments; '), \
             response.message
+        # localized: the robot stays where it was matched, and the reply says so (an audit)
+        assert response.message.endswith('; the robot kept where it was matched)'), \
+            response.message
     finally:
         peer.close()
         assert node.stop() == 0

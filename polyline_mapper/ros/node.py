@@ -426,9 +426,11 @@ class PolylineMapperNode(Node):
         response.success = True
         response.message = f'map cleared ({dropped} segments dropped)'
         if self.session.loaded is not None:     # reset goes back to the saved map
+            where = ('the robot kept where it was matched' if self.session.pose_kept
+                     else 'the robot back at initial_pose')
             response.message = (f'map reset to the saved map {self.settings.input_path} '
                                 f'({len(self.session.loaded.segments)} segments; '
-                                f'{dropped} dropped)')
+                                f'{dropped} dropped; {where})')
         self.get_logger().info(response.message)
         return response
 
