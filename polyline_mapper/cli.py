@@ -37,6 +37,7 @@ import time
 import numpy as np
 
 from .core import fit, map_metrics, SMEMSFConfig
+from .core.incremental import COORD_LIMIT
 from .core.mapvalue import MapValue
 from .formats.mapjson import config_dict, dumps_map, map_value_to_dict
 from .formats.output import check_outputs, OutputSet
@@ -567,6 +568,12 @@ def _start_map(args) -> tuple:
     from .formats.mapjson import read_map
     pose = getattr(args, 'file_initial_pose', None) if args.initial_pose is None \
         else _initial_pose(args.initial_pose)
+    if args.initial_pose is not None and not args.no_mapping \
+            and max(abs(pose[0]), abs(pose[1])) > COORD_LIMIT:
+        # (an audit: taken, then every scan was refused as bad_points, exit 2)
+        raise CliError(f'--initial-pose {args.initial_pose}: mapping holds coordinates within '
+                       f'{COORD_LIMIT:g} m of the map origin; localize without mapping '
+                       '(--no-mapping) up to 1e8 m')
     try:
         saved = read_map(args.map)
     except ValueError as exc:

@@ -443,6 +443,8 @@ def _garbage(tmp_path):
     # a yaw of 1e300 degrees ran to the end (a bad-input audit)
     (lambda t, m: ['--map', m, '--initial-pose', '0,0,1e300'], '|YAW_DEG| <= 360'),
     (lambda t, m: ['--map', m, '--initial-pose', '0,2e8,0'], '|X|, |Y| <= 1e+08'),
+    (lambda t, m: ['--map', m, '--initial-pose', '0,2e7,0'], 'mapping holds coordinates within '
+     '1e+07 m of the map origin; localize without mapping (--no-mapping) up to 1e8 m'),
     (lambda t, m: ['--no-mapping'], '--no-mapping applies to a saved map: give --map'),
     (lambda t, m: ['--initial-pose', '0,0,0'], '--initial-pose applies to a saved map'),
 ])
