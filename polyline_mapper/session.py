@@ -3028,7 +3028,8 @@ class MappingSession:
 
         The prediction's own prior (``_PRIOR``, 0.1 m and 0.05 rad) claimed a pose good to 10 cm
         while the session was lost and the error grew to metres (an audit). Added: the
-        odometry's error over the motion since the last matched scan (``odometry_covariance``),
+        odometry's error over the motion since the last matched scan (``odometry_covariance``
+        of the straight step from there: a loop back near that scan adds little),
         a refused match's distance from the prediction (the scans may be either place), while
         searched for (after a gap or near a pose estimate) the search window's spread
         (``POSE_ESTIMATE_SIGMAS`` standard deviations), and once that search gave up
@@ -3063,6 +3064,9 @@ class MappingSession:
         base = self.poses.base_pose(stamp)
         if not matched:
             cov = cov + self._unmatched_spread(m, base)
+            if cov[2, 2] > math.pi ** 2:        # a heading beyond half a turn says no more
+                d = np.array([1.0, 1.0, math.pi / math.sqrt(cov[2, 2])])
+                cov = cov * np.outer(d, d)      # (D C D: still positive semi-definite)
         if base is not None:
             dx, dy, dyaw = _compose(_inverse(given), base)     # the base, laser frame
             c, s = math.cos(pose[2]), math.sin(pose[2])
