@@ -108,6 +108,28 @@ def test_an_estimate_moves_a_robot_matched_to_the_wrong_place(saved, office, off
     assert np.array_equal(value.segments, saved.value.segments)
 
 
+RVIZ_SPREAD = 3.0 * np.sqrt([0.25, 0.0685])
+"""The window of RViz's default estimate covariance (0.5 m, 0.26 rad; POSE_ESTIMATE_SIGMAS)."""
+
+
+def localized_with(saved, office, estimates: dict) -> tuple:
+    """Localize drift seed 0 on ``saved``, mapping off; ``estimates``: {scan: (pose, spread)}."""
+    warned = []
+    session = MappingSession(None, SessionOptions(keep_points=True, mapping=False),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    session.load_map(saved.value)
+    n = 0
+    for record in records_of(drifted_messages(office, 0)):
+        if isinstance(record, Scan):
+            if n in estimates:
+                session.set_pose(*estimates[n])
+            n += 1
+        session.add(record)
+        session.step()
+    session.flush()
+    return session, warned
+
+
 @pytest.mark.parametrize('at', [60, 65, 260])
 def test_a_right_estimate_given_while_localized_keeps_the_robot_localized(saved, office, at):
     # A localization audit: RViz's default estimate (0.5 m and 0.26 rad standard deviations)
@@ -116,19 +138,8 @@ def test_a_right_estimate_given_while_localized_keeps_the_robot_localized(saved,
     # up for good and no later scan was used. At that last search the estimate now prefers
     # the place nearest it, when the scans before it were matched there; the scans until
     # then are still searched for (11 at scans 60 and 65, 12 at 260, as before).
-    warned = []
-    session = MappingSession(None, SessionOptions(keep_points=True, mapping=False),
-                             warn=lambda cause, text: warned.append((cause, text)))
-    session.load_map(saved.value)
-    truth, n = true_base(office), 0
-    for record in records_of(drifted_messages(office, 0)):
-        if isinstance(record, Scan):
-            if n == at:
-                session.set_pose(truth[at], 3.0 * np.sqrt([0.25, 0.0685]))
-            n += 1
-        session.add(record)
-        session.step()
-    session.flush()
+    truth = true_base(office)
+    session, warned = localized_with(saved, office, {at: (truth[at], RVIZ_SPREAD)})
     trajectory = session.map_value().trajectory
     assert len(trajectory) >= len(office.poses) - 12
     index = np.searchsorted(1000.0 + np.asarray(office.stamps), trajectory[:, 0] - 1e-6)
@@ -146,21 +157,10 @@ def test_a_right_estimate_does_not_lock_a_robot_tracked_at_a_wrong_place(
     # RViz's default estimate 0.9 or 0.6 m off the truth at scan 60 locked the robot at the
     # wrong place, unwarned. As before, the later keyframes find the truth (0.9) or the
     # search gives up and says so (0.6): the tracked place never overrides the estimate.
-    warned = []
-    session = MappingSession(None, SessionOptions(keep_points=True, mapping=False),
-                             warn=lambda cause, text: warned.append((cause, text)))
-    session.load_map(saved.value)
-    truth, n = true_base(office), 0
-    for record in records_of(drifted_messages(office, 0)):
-        if isinstance(record, Scan):
-            if n == 55:
-                session.set_pose(truth[55] + [1.47, 0.0, 0.0], (0.05, 0.05))
-            if n == 60:
-                session.set_pose(truth[60] + [off, 0.0, 0.0], 3.0 * np.sqrt([0.25, 0.0685]))
-            n += 1
-        session.add(record)
-        session.step()
-    session.flush()
+    truth = true_base(office)
+    session, warned = localized_with(saved, office, {
+        55: (truth[55] + [1.47, 0.0, 0.0], (0.05, 0.05)),
+        60: (truth[60] + [off, 0.0, 0.0], RVIZ_SPREAD)})
     loc = session.localization
     if found:
         assert not session.lost and np.hypot(*(loc.pose[:2] - truth[-1, :2])) < 0.05
