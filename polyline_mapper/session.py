@@ -1849,12 +1849,11 @@ class MappingSession:
         A map in another frame than a given ``options.fixed_frame`` is taken in that frame
         (warning ``map_frame``). ``initial_pose`` (x, y, yaw; m, rad): where the robot (the
         frame the laser is mounted on, see ``PoseSource.robot_pose``) is in the map at the
-        first scan; None: where the
-        given poses say (the given frame is the map's). With ``options.mapping`` False the map
-        is never changed: ``map_value`` returns the loaded segments, support, polylines and
-        closed flags as they are, and ``occupancy`` the loaded planner map (``grid``) when
-        there is one. With mapping True the scans are mapped into it. ``reset`` goes back to
-        it.
+        first scan; None: where the given poses say (the given frame is the map's). With
+        ``options.mapping`` False the map is never changed: ``map_value`` returns the loaded
+        segments, support, polylines and closed flags as they are, and ``occupancy`` the
+        loaded planner map (``grid``) when there is one. With mapping True the scans are
+        mapped into it. ``reset`` goes back to it.
 
         Raises ValueError (one line) when the map or the pose cannot be used (a map without a
         segment with mapping False: there is nothing to localize on, and nothing would be
@@ -1952,10 +1951,7 @@ class MappingSession:
         pose = pose.copy()
         pose[2] = wrap_angle(pose[2])
         radius, turn = min(float(spread[0]), GAP_REACH), min(float(spread[1]), math.pi)
-        m = self._last_match
-        tracked = (self._correction.copy() if self.options.pose_source != 'scan'
-                   and m is not None and m.ok and not self.lost and not self.wrong_start
-                   else None)
+        tracked = self._localized_correction()
         self._restart(pose)
         self._tracked = tracked
         self._spread = (radius, turn) if (radius > MATCH_REACH[0]
@@ -1993,6 +1989,20 @@ class MappingSession:
             return []
         return [self._skip('pose estimate', None, f'at {record.stamp:.3f} s {why}',
                            'initial_pose')]
+
+    def _localized_correction(self) -> Optional[np.ndarray]:
+        """
+        Return a copy of the correction (map from odometry) while localized, else None.
+
+        Localized: the last scan matched, not lost, no ``wrong_start``, with odometry or TF
+        poses (scan mode has no correction). What a pose estimate's tie-break and ``reset``
+        on a saved map keep (the lock held).
+        """
+        m = self._last_match
+        if (self.options.pose_source == 'scan' or m is None or not m.ok or self.lost
+                or self.wrong_start):
+            return None
+        return self._correction.copy()
 
     def _restart(self, place: Optional[np.ndarray]) -> None:
         """
@@ -3428,10 +3438,7 @@ class MappingSession:
         """
         dropped = len(self.map_value(trajectory=False).segments)
         with self._cv:
-            m = self._last_match
-            keep = (self._correction.copy() if self._loaded is not None and m is not None
-                    and m.ok and not self.lost and not self.wrong_start
-                    and self.options.pose_source != 'scan' else None)
+            keep = None if self._loaded is None else self._localized_correction()
             self._generation += 1
             self._used_at_reset = self.used
             self.cleared += self._queued()

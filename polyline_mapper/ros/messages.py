@@ -36,6 +36,12 @@ def stamp_seconds(stamp) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
+def publisher_nodes(node, topic: str) -> set:
+    """Return the full names ('/ns/name') of the nodes publishing ``topic`` (rclpy ``node``)."""
+    return {f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+            for i in node.get_publishers_info_by_topic(topic)}
+
+
 def time_msg(seconds: float) -> Time:
     """Return float seconds (>= 0) as builtin_interfaces/Time, nanoseconds rounded."""
     ns = int(round(float(seconds) * 1e9))

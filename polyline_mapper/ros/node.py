@@ -81,7 +81,8 @@ from visualization_msgs.msg import MarkerArray
 from . import startup
 from .messages import (diagnostics_msg, grid_to_msg, map_to_markers, map_to_msg,
                        odometry_from_msg, planar_transform_msg, pose_estimate_from_msg,
-                       pose_msg, scan_from_msg, time_msg, transforms_from_msg)
+                       pose_msg, publisher_nodes, scan_from_msg, time_msg,
+                       transforms_from_msg)
 from .qos import check_input_qos, MAP_QOS, sensor_data, TF_QOS, TF_STATIC_QOS
 from ..core.mapvalue import MapValue
 from ..formats.mapjson import config_dict, write_map
@@ -596,10 +597,7 @@ class PolylineMapperNode(Node):
         when the other has gone (the publish lock held).
         """
         topic = self.resolve_topic_name('map')
-        me = (self.get_name(), self.get_namespace())
-        others = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                         for i in self.get_publishers_info_by_topic(topic)
-                         if (i.node_name, i.node_namespace) != me})
+        others = sorted(publisher_nodes(self, topic) - {self.get_fully_qualified_name()})
         if not others:
             if self.grid_pub is None:
                 self.grid_pub = self.create_publisher(OccupancyGrid, 'map', MAP_QOS)

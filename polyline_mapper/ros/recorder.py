@@ -28,7 +28,7 @@ from nav_msgs.msg import OccupancyGrid
 from polyline_mapper_msgs.msg import PolylineMap
 
 from . import startup
-from .messages import grid_from_msg, map_from_msg, stamp_seconds
+from .messages import grid_from_msg, map_from_msg, publisher_nodes, stamp_seconds
 from .qos import MAP_QOS
 from ..core.grid import GridMap
 from ..core.mapvalue import MapValue
@@ -123,13 +123,9 @@ class MapRecorder:
         came was map_server's (an audit: record-map stored it, 400 x 300 cells, with the
         node's polylines); the grid is then not taken.
         """
-        if not self.grid_topic:
-            return
-
-        def names(topic):
-            return {f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                    for i in node.get_publishers_info_by_topic(topic)}
-        self.grid_shared_with = sorted(names(self.grid_topic) - names(self.topic))
+        if self.grid_topic:
+            self.grid_shared_with = sorted(publisher_nodes(node, self.grid_topic)
+                                           - publisher_nodes(node, self.topic))
 
     def grid(self) -> Optional[GridMap]:
         """Return the newest planner map of the map's frame as a GridMap, else None."""
@@ -272,9 +268,8 @@ def publisher_config(node, executor, topic: str, should_stop=None) -> tuple:
     while True:
         # (the publisher's endpoint is discovered before its node's name: '_NODE_NAME_UNKNOWN_'
         # until the participant's data comes)
-        infos = node.get_publishers_info_by_topic(topic)
-        nodes = sorted({(i.node_namespace, i.node_name) for i in infos})
-        known = all('_UNKNOWN_' not in n for _, n in nodes)
+        nodes = sorted(publisher_nodes(node, topic))
+        known = all('_UNKNOWN_' not in n.rpartition('/')[2] for n in nodes)
         if should_stop is not None and should_stop():
             return None, f"stopped before the parameters of {topic}'s publisher were read", None
         if (nodes and known) or time.monotonic() >= end:
@@ -284,8 +279,7 @@ def publisher_config(node, executor, topic: str, should_stop=None) -> tuple:
         return None, (f'the node publishing {topic} did not make itself known' if nodes
                       and not known else f'{len(nodes)} nodes publish {topic}' if nodes
                       else f'the publisher of {topic} has left'), None
-    ns, name = nodes[0]
-    publisher = f"{ns.rstrip('/')}/{name}"
+    publisher = nodes[0]
     config, why = _mapper_parameters(node, executor, publisher, should_stop, end)
     return config, why, publisher
 
