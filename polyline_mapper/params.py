@@ -195,6 +195,7 @@ CORE_RANGES = {
     'incremental.free_space_ghosts': (0, 10 ** 7),
     'incremental.free_space_hit_margin': (0.0, 1.0),
     'incremental.free_space_memory': (0.0, 10.0),
+    'incremental.min_mapping_range': (0.0, _BIG),
     'incremental.max_mapping_range': (0.0, _BIG),
     'incremental.max_scan_points': (16, 10 ** 7),
     'smemsf.sigma': (0.0, 10.0),

@@ -71,7 +71,8 @@ from .formats.records import Odometry, PoseEstimate, Scan, Skipped, Transform
 from .params import CORE_RANGES
 from .poses import (estimate_lag, lag_costs, LAG_GRID, mount_quaternion, planar_edge, PlanarPose,
                     TransformBuffer2D, TransformLookupError)
-from .scan import (beams_to_points, check_scan, scan_to_points, ScanError, usable_beams,
+from .scan import (beams_to_points, check_scan, scan_to_points, ScanError, sectors,
+                   SELF_HIT_MOTION, SELF_HIT_TOLERANCE, SelfHits, usable_beams,
                    valid_ranges)
 
 POSE_SOURCES = ('tf', 'odom', 'scan')
@@ -429,25 +430,29 @@ def motion_velocity(motion, stamp: float) -> Optional[np.ndarray]:
     return step / (t1 - t0)
 
 
+SELF_HIT_FRAMES = 8
+"""Most lasers (frame ids) whose readings ``_check_self_hits`` follows at once."""
+
+
 class _Deskew:
     """
     A scan's beams placed from a constant motion over its sweep, and placed again from a match.
 
     ``last``: the last matched (stamp, laser pose); ``velocity``: the motion per second (body
     frame) the beams are first placed with; ``times``, ``span``: each beam's seconds after the
-    stamp and the sweep's (``beam_span``); ``angles``, ``limit``: the beams' angles (laser
-    frame) and the mapping range limit. ``propose(pose)`` returns the scan's points placed
-    with the motion from ``last`` to ``pose`` (a match of the scan at its stamp), or None when
-    that moves the sweep's end by less than ``DESKEW_TOLERANCE`` (or cannot be used:
-    ``motion_velocity``); ``accept()`` keeps the proposal; ``local`` gives the points of the
-    motion kept.
+    stamp and the sweep's (``beam_span``); ``angles``, ``limits``: the beams' angles (laser
+    frame) and the mapping range limits (lowest, highest). ``propose(pose)`` returns the
+    scan's points placed with the motion from ``last`` to ``pose`` (a match of the scan at its
+    stamp), or None when that moves the sweep's end by less than ``DESKEW_TOLERANCE`` (or
+    cannot be used: ``motion_velocity``); ``accept()`` keeps the proposal; ``local`` gives the
+    points of the motion kept.
     """
 
     def __init__(self, scan: Scan, last: tuple, velocity: np.ndarray, times: np.ndarray,
-                 span: float, angles: np.ndarray, limit: float):
+                 span: float, angles: np.ndarray, limits: tuple):
         self.stamp, self.last = float(scan.stamp), last
         self.times, self.span = times, span         # each beam's seconds, the sweep's
-        self.angles, self.limit = angles, limit     # the beams' angles, the range limit
+        self.angles, self.limits = angles, limits   # the beams' angles, the range limits
         self.velocity = np.asarray(velocity, dtype=np.float64)
         self.motion = self._motion(self.velocity)
         self._proposal = None
@@ -460,8 +465,7 @@ class _Deskew:
 
     def _points(self, motion: np.ndarray) -> np.ndarray:
         """Return the scan's points (laser frame at its stamp), cast as ``motion`` says."""
-        return beam_points(self._scan.ranges, self.angles, motion, self._scan.range_min,
-                           self.limit)
+        return beam_points(self._scan.ranges, self.angles, motion, *self.limits)
 
     def propose(self, pose) -> Optional[np.ndarray]:
         """Return the scan's points with the motion ``pose`` implies, or None."""
@@ -1793,6 +1797,8 @@ class MappingSession:
         self._deskew: Optional[_Deskew] = None   # this scan's beams from the matched motion
         self._intervals = deque(maxlen=10)
         """Scan mode: seconds between the last posed scans (``GAP_FACTOR``)."""
+        self._self_hits = {}
+        """Laser frame -> its ``SelfHits`` (at most ``SELF_HIT_FRAMES``, the newest kept)."""
         self._gap = None
         """Scan mode: the ``GapTrack`` of the scans after a gap until one is found on the map."""
         self._last_scan = None
@@ -2369,6 +2375,7 @@ class MappingSession:
 
     def _convert(self, scan: Scan, pose: PlanarPose, arrived: float) -> list:
         t0 = time.perf_counter()
+        low = max(float(scan.range_min), self.mapper.config.min_mapping_range)
         limit = min(float(scan.range_max), self.mapper.config.max_mapping_range)
         notes = []
         xyz, base, beams = pose.xyz, None, None
@@ -2398,12 +2405,12 @@ class MappingSession:
                     self._last_scan = scan.stamp
                 if window is None and self._gap is not None:
                     window = self._gap.window   # searched for still (after a gap, an estimate)
-                motion = self._beam_motion(scan, pose, notes, angles, limit)
+                motion = self._beam_motion(scan, pose, notes, angles, (low, limit))
                 if motion is not None:
-                    local = beam_points(scan.ranges, angles, motion, scan.range_min, limit)
+                    local = beam_points(scan.ranges, angles, motion, low, limit)
                 if self.options.scan_matching:
                     if motion is None:      # (the readings checked once for both poses)
-                        beams = usable_beams(scan.ranges, angles, scan.range_min, limit)
+                        beams = usable_beams(scan.ranges, angles, low, limit)
                         local = beams_to_points(*beams, np.zeros(3))
                     if len(local):
                         before, self._last_match = self._correction, None
@@ -2441,12 +2448,13 @@ class MappingSession:
                 elif beams is not None:
                     pts = beams_to_points(*beams, xyz)
                 else:
-                    pts = scan_to_points(scan.ranges, angles, xyz, scan.range_min, limit)
+                    pts = scan_to_points(scan.ranges, angles, xyz, low, limit)
         except ValueError as exc:
             return [self._skip('bad scan', 'bad_geometry', str(exc))]
         if len(pts) == 0:
             return [self._skip('bad scan', 'no_valid_points',
                                f'no reading within the mapping range at {scan.stamp:.3f} s')]
+        notes += self._check_self_hits(scan, xyz, low)
         if self._motion and scan.stamp <= self._motion[-1][0]:
             self._motion.clear()            # time went back: the old motion means nothing
             self._intervals.clear()
@@ -2466,6 +2474,34 @@ class MappingSession:
             notes += self._check_start(pts, xyz[:2])
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
+
+    def _check_self_hits(self, scan: Scan, pose: np.ndarray, low: float) -> list:
+        """
+        Follow the scan's short readings (``scan.SelfHits``); warn of any moving with the robot.
+
+        ``pose``: where the scan was placed; ``low``: the lowest range mapped. The warning names
+        the laser, its sectors (degrees, in the laser's own frame) and their ranges, and the
+        setting that leaves them out.
+        """
+        hits = self._self_hits.pop(scan.frame_id, None) or SelfHits()
+        self._self_hits[scan.frame_id] = hits      # (the newest last)
+        while len(self._self_hits) > SELF_HIT_FRAMES:
+            del self._self_hits[next(iter(self._self_hits))]
+        found = hits.add(scan.ranges, pose, low)
+        if not found.any():
+            return []
+        where = ', '.join(f'{np.degrees(a):.0f}' if a == b else
+                          f'{np.degrees(min(a, b)):.0f}..{np.degrees(max(a, b)):.0f}'
+                          for a, b in sectors(scan.angles(), found))
+        r = np.asarray(scan.ranges, dtype=np.float64)[found]
+        return [('self_hits', f'laser {scan.frame_id!r}: {int(found.sum())} reading(s) at '
+                 f'{where} deg kept their range ({r.min():.2f}-{r.max():.2f} m) while the laser '
+                 f'drove over {SELF_HIT_MOTION[0]:g} m and turned over '
+                 f'{np.degrees(SELF_HIT_MOTION[1]):.0f} deg: something that moves with the robot '
+                 f'(a part of it, or someone walking with it) is mapped as walls along its path; '
+                 f'set incremental.min_mapping_range to {r.max() + SELF_HIT_TOLERANCE:.2f} m '
+                 f'(their readings and {SELF_HIT_TOLERANCE:g} m of noise), or filter those '
+                 f'angles out of the scan')]
 
     def _check_start(self, pts: np.ndarray, origin: np.ndarray) -> list:
         """``START_CHECK``: one more scan placed on the loaded map; the warning, if it is due."""
@@ -2525,7 +2561,7 @@ class MappingSession:
                 min(math.pi, max(GAP_TURN_RATE, v[2]) * elapsed))
 
     def _beam_motion(self, scan: Scan, pose: PlanarPose, notes: list, angles: np.ndarray,
-                     limit: float) -> Optional[np.ndarray]:
+                     limits: tuple) -> Optional[np.ndarray]:
         """
         Return each beam's laser pose relative to the pose at the stamp, (B, 3), or None.
 
@@ -2533,7 +2569,8 @@ class MappingSession:
         known. From the pose source (first, middle and last beam, interpolated between them)
         unless in scan mode or when it has no pose at those times; else the matched motion
         (``_deskew`` then holds it, for ``_match`` to place the beams again from its result;
-        ``angles`` and ``limit``, the beams' angles and the mapping range limit, are for it).
+        ``angles`` and ``limits``, the beams' angles and the mapping range limits (lowest,
+        highest), are for it).
         """
         self._deskew = None
         span = beam_span(scan)
@@ -2561,7 +2598,7 @@ class MappingSession:
             if velocity is None:
                 return None
             self._deskew = _Deskew(scan, self._motion[-1], velocity, times, span, angles,
-                                   limit)
+                                   limits)
             return self._deskew.motion
         return sweep_motion(times, span, rel)
 

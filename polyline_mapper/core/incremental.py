@@ -210,6 +210,12 @@ class IncrementalConfig:
     a square), and a square the map gains with no evidence to carry over starts from its cell's
     counts instead of none: a segment drawn where the laser had seen through is cut by the next
     beams."""
+    min_mapping_range: float = 0.0
+    """Readings closer than this (m) to the laser are not mapped, whatever the scan's range_min
+    says (0: the scan's range_min alone): parts of the robot the laser sees (posts, a bumper, a
+    cable) read the same range wherever the robot goes, and each is mapped as a wall along its
+    whole path (sim:office with four posts of 6 deg at 0.25 m: 764 segments against 26). The
+    session warns of such readings (``scan.SelfHits``, cause ``self_hits``)."""
     max_mapping_range: float = 100.0
     """Readings at or beyond this range (m) from the laser are not mapped, whatever the scan's
     range_max says: far returns set neither r, sigma nor the work of an update. The shared logs
@@ -229,11 +235,15 @@ class IncrementalConfig:
             if int(v) != v or v < lo:
                 raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
         for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 0.01),
-                         ('clear_max_length', 0.0), ('max_mapping_range', 1e-9),
+                         ('clear_max_length', 0.0), ('min_mapping_range', 0.0),
+                         ('max_mapping_range', 1e-9),
                          ('free_space_hit_margin', 0.0), ('free_space_memory', 0.0)):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
+        if self.min_mapping_range >= self.max_mapping_range:
+            raise ValueError(f'min_mapping_range must be below max_mapping_range '
+                             f'({self.max_mapping_range:g} m), got {self.min_mapping_range!r}')
         if 0 < self.free_space_memory < MIN_MEMORY_CELL:
             raise ValueError(f'free_space_memory must be 0 (off) or a cell size >= '
                              f'{MIN_MEMORY_CELL:g} m, got {self.free_space_memory!r}')
@@ -279,7 +289,8 @@ class UpdateInfo:
     skipped: Optional[str] = None
     """Why the map did not change ('no valid points', 'estimating noise'), else None."""
     beyond_range: int = 0
-    """Points dropped as farther than ``max_mapping_range`` from their laser."""
+    """Points dropped as farther than ``max_mapping_range`` from their laser, or closer than
+    ``min_mapping_range``."""
     thinned: int = 0
     """Points dropped by thinning to ``max_scan_points``."""
 
@@ -446,12 +457,14 @@ class IncrementalMapper:
         """
         Add one laser scan: ranges (m) at angles (rad) from a laser at pose (x, y, yaw).
 
-        NaN, inf and out-of-range readings are dropped (REP 117), and so are readings at or
-        beyond ``max_mapping_range`` (the range limit is min(range_max, max_mapping_range)).
+        NaN, inf and out-of-range readings are dropped (REP 117), and so are readings closer
+        than ``min_mapping_range`` or at or beyond ``max_mapping_range`` (the range limits are
+        max(range_min, min_mapping_range) and min(range_max, max_mapping_range)).
         Raises ValueError on mismatched lengths or a bad pose, leaving the map unchanged.
         """
+        low = max(float(range_min), self.config.min_mapping_range)
         top = min(float(range_max), self.config.max_mapping_range)
-        return self.update(scan_to_points(ranges, angles, pose, range_min, top),
+        return self.update(scan_to_points(ranges, angles, pose, low, top),
                            ordered=True, origin=np.asarray(pose, dtype=np.float64)[:2])
 
     def update(self, points, ordered: bool = False, origin=None) -> UpdateInfo:
@@ -565,11 +578,16 @@ class IncrementalMapper:
 
     # -- internals -----------------------------------------------------------------------------
     def _in_range(self, pts: np.ndarray, origins) -> tuple:
-        """Drop points at or beyond ``max_mapping_range`` from their origin: (pts, origins, n)."""
+        """
+        Drop points outside [min_mapping_range, max_mapping_range) from their origin.
+
+        Returns (pts, origins, n dropped).
+        """
         if origins is None or len(pts) == 0:
             return pts, origins, 0
         rel = pts - origins
-        keep = np.hypot(rel[:, 0], rel[:, 1]) < self.config.max_mapping_range
+        d = np.hypot(rel[:, 0], rel[:, 1])
+        keep = (d < self.config.max_mapping_range) & (d >= self.config.min_mapping_range)
         if keep.all():
             return pts, origins, 0
         return pts[keep], origins[keep], int(keep.size - np.count_nonzero(keep))
