@@ -430,6 +430,13 @@ def motion_velocity(motion, stamp: float) -> Optional[np.ndarray]:
     return step / (t1 - t0)
 
 
+def _affine(x: float, y: float, yaw: float, flip: bool) -> np.ndarray:
+    """Return a planar pose as a 2D affine map (3, 3); an upside-down frame's mirrors its y."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    m = -1.0 if flip else 1.0
+    return np.array([[c, -s * m, x], [s, c * m, y], [0.0, 0.0, 1.0]])
+
+
 SELF_HIT_FRAMES = 8
 """Most lasers (frame ids) whose readings ``_check_self_hits`` follows at once."""
 
@@ -939,7 +946,14 @@ class PoseSource:
         self._rate_said = False
         self._tree = {}
         """Scan mode: child frame -> (parent, static, (x, y, yaw) of the edge or None when not
-        planar) from the transforms seen (``scan_root``)."""
+        planar, whether it turns the child upside down) from the transforms seen
+        (``scan_root``, ``upside_down``)."""
+        self._scan_laser = None
+        """Scan mode: the frame of the first scan, the one laser it follows."""
+        self._flips = {}
+        """Scan mode: laser frame -> whether its scans were placed upside down."""
+        self._flip_note = None
+        """Scan mode: the ``laser_flip`` warning, once: (cause, text), then ()."""
 
     def add(self, record) -> Optional[tuple]:
         """
@@ -1041,10 +1055,45 @@ class PoseSource:
             return
         try:
             flat = planar_edge(record.translation, record.rotation)
-            xyz = None if flat.flip else flat.xyz
+            xyz, flip = flat.xyz, flat.flip
         except (TransformLookupError, ValueError):
-            xyz = None
-        self._tree[record.child] = (record.parent, bool(record.static), xyz)
+            xyz, flip = None, False
+        self._tree[record.child] = (record.parent, bool(record.static), xyz, flip)
+
+    def _static_chain(self, frame: str) -> tuple:
+        """
+        Scan mode: the mounts from ``frame`` up its static transforms: (edges, root, why).
+
+        ``edges``: (x, y, yaw, flip) of each, child first; ``root``: the first frame without a
+        static parent; ``why``: '' or why the chain cannot be used (a transform on /tf gives
+        a frame a parent, a mount is tilted or invalid, a loop).
+        """
+        edges, seen = [], {frame}
+        while frame in self._tree:
+            parent, static, mount, flip = self._tree[frame]
+            if not static:
+                return edges, frame, (f'{frame} already has a parent on /tf ({parent} -> '
+                                      f'{frame}); with odometry use pose_source tf or odom and '
+                                      'scan_matching')
+            if mount is None:
+                return edges, frame, (f'the mount {parent} -> {frame} is not planar (tilted '
+                                      'or invalid)')
+            if parent in seen:
+                return edges, frame, f'the static transforms above {frame} form a loop'
+            edges.append((*mount, flip))
+            frame = parent
+            seen.add(frame)
+        return edges, frame, ''
+
+    def upside_down(self, frame: str) -> bool:
+        """
+        Scan mode: whether the laser ``frame`` hangs upside down under its robot.
+
+        By the mounts on /tf_static above it, up to the first transform that is not one (an
+        odometry's on /tf turns nothing over).
+        """
+        edges, _, _ = self._static_chain(frame)
+        return sum(e[3] for e in edges) % 2 == 1
 
     def scan_root(self, frame: str, laser_pose) -> tuple:
         """
@@ -1057,21 +1106,21 @@ class PoseSource:
         a parent (odometry: tf2 would then see two parents; use ``pose_source`` tf or odom with
         ``scan_matching`` there), or a mount is not planar.
         """
-        pose, seen = np.asarray(laser_pose, dtype=np.float64), {frame}
-        while frame in self._tree:
-            parent, static, mount = self._tree[frame]
-            if not static:
-                return None, None, (f'{frame} already has a parent on /tf ({parent} -> {frame}); '
-                                    'with odometry use pose_source tf or odom and scan_matching')
-            if mount is None:
-                return None, None, (f'the mount {parent} -> {frame} is not planar (tilted, '
-                                    'flipped or invalid)')
-            if parent in seen:
-                return None, None, f'the static transforms above {frame} form a loop'
-            pose = _compose(pose, _inverse(np.asarray(mount)))
-            frame = parent
-            seen.add(frame)
-        return frame, pose, ''
+        edges, root, why = self._static_chain(frame)
+        if why:
+            return None, None, why
+        if self._flips.get(frame, False) != (sum(e[3] for e in edges) % 2 == 1):
+            return None, None, (f'the mounts above {frame} turn it upside down and its scans '
+                                'were placed upright, or the other way round (a mount that '
+                                'came after the first scans)')
+        # Planar poses as 2D affine maps (``_affine``). The root's map is the laser's times the
+        # inverse of the chain's (root -> laser).
+        chain = np.eye(3)
+        for edge in edges:                      # child first: root -> laser = e_n ... e_1
+            chain = _affine(*edge) @ chain
+        laser = _affine(*np.asarray(laser_pose, dtype=np.float64), self._flips.get(frame, False))
+        at = laser @ np.linalg.inv(chain)
+        return root, np.array([at[0, 2], at[1, 2], math.atan2(at[1, 0], at[0, 0])]), ''
 
     def _set(self, parent, child, stamp, translation, rotation, static) -> None:
         self._last_lookup = None
@@ -1125,7 +1174,28 @@ class PoseSource:
         """
         if self.options.pose_source == 'scan':
             self.fixed_frame = self.fixed_frame or 'map'
-            return PlanarPose(0.0, 0.0, 0.0, False)
+            frame = scan.frame_id
+            if self._scan_laser is None:
+                self._scan_laser = frame
+            elif frame != self._scan_laser:
+                # Each scan is predicted from the last ones' motion: another laser's scans
+                # (another frame on the topic), mounted elsewhere, would be matched as a jump.
+                raise TransformLookupError(
+                    'laser_frame', f'scan in frame {frame!r}, but scan mode follows one laser, '
+                    f'{self._scan_laser!r} (the frame of the first scan): map several with '
+                    "pose_source 'tf' or 'odom' and their mounts on /tf_static")
+            flip = self.upside_down(frame) if scan.pose is None else False
+            first = self._flips.setdefault(frame, flip)
+            if flip != first and self._flip_note is None:
+                # The mount came after the first scans: they are placed as they were (a map
+                # half mirrored matches nothing); said once.
+                now, then = ('upside down', 'upright') if flip else ('upright', 'upside down')
+                self._flip_note = ('laser_flip', (
+                    f'the mounts above {frame!r} now say it is {now}, but its first scans were '
+                    f'placed {then} '
+                    '(no mount on /tf_static yet): its scans stay placed so, and the map is '
+                    'mirrored if the mount is right: call ~/reset (or replay again)'))
+            return PlanarPose(0.0, 0.0, 0.0, first)
         if scan.pose is not None:
             x, y, yaw = (float(v) for v in scan.pose)
             return PlanarPose(x, y, yaw, False)
@@ -1225,6 +1295,18 @@ class PoseSource:
                  'beams are posed by interpolating across it, which spreads every change of '
                  'the turn rate over it and smears the map in turns. Publish it at 5 Hz or '
                  'more (diff_drive_controller: publish_rate)')]
+
+    def forget_flips(self) -> None:
+        """Scan mode: decide each laser's flip again at its next scan (a new map)."""
+        self._flips.clear()
+        self._flip_note = None
+
+    def flip_notes(self) -> list:
+        """Scan mode: the ``laser_flip`` warning once, when a laser's mount turned it over."""
+        if not self._flip_note:
+            return []
+        note, self._flip_note = self._flip_note, ()
+        return [note]
 
     def held_notes(self) -> list:
         """
@@ -2337,6 +2419,7 @@ class MappingSession:
                 self._waiting.popleft()
                 notes.extend(self.poses.held_notes())
                 notes.extend(self.poses.rate_notes(scan.stamp, scan.frame_id))
+                notes.extend(self.poses.flip_notes())
                 notes.extend(self._convert(scan, pose, arrived))
             if opts.max_queue is not None and not final:
                 while len(self._ready) > opts.max_queue:
@@ -3490,6 +3573,8 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._first_base = None
+            if self._loaded is None:
+                self.poses.forget_flips()   # a new map: the mounts decide again
             self.pose_kept = keep is not None
             self._restart(None if self._loaded is None or keep is not None
                           else self._loaded[2])

@@ -552,6 +552,87 @@ def test_scans_alone_put_the_root_of_the_laser_tree_under_the_map():
     assert frame == 'laser' and np.array_equal(pose, session.localization.pose)
 
 
+def test_scans_alone_of_an_upside_down_laser_are_not_mirrored():
+    # Scan mode placed every scan upright, whatever the laser's mount on /tf_static said: an
+    # upside-down laser (roll pi; its beams listed the other way round) gave the mirror image
+    # of the room, 4 mm from the mirrored walls, 0 % contradicted, unwarned (an audit). Its
+    # mount now turns its beams over as in tf mode: the map and the poses are the upright
+    # laser's, and the robot's pose it broadcasts puts the laser where the scans were placed.
+    from polyline_mapper.poses import mount_quaternion
+    from test_session import tf
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    mount = np.array([0.2, -0.05, 0.3])
+    scans = records(drive, scans_only=True)[:120]
+    sessions = []
+    for flip in (False, True):
+        session = MappingSession(options=SessionOptions(pose_source='scan', keep_points=True))
+        session.add(tf(0.0, 'base_link', 'laser', mount, static=True,
+                       quat=mount_quaternion(mount[2], flip)))
+        session.add(tf(0.0, 'odom', 'base_link', (0.0, 0.0, 0.0)))     # odometry: no flip
+        for scan in scans:
+            if flip:
+                scan = dataclasses.replace(scan, ranges=scan.ranges[::-1].copy())
+            session.add(scan)
+            session.step()
+        sessions.append(session)
+    upright, flipped = (s.map_value() for s in sessions)
+    assert len(upright.trajectory) == len(flipped.trajectory) == len(scans)
+    # (the beams' other order changes which points the matcher samples: within 1.1 cm)
+    truth = se2_compose(se2_inverse(drive.poses[0]), drive.poses[:len(scans)])
+    for value in (upright, flipped):
+        assert np.hypot(*(value.trajectory[:, 1:3] - truth[:, :2]).T).max() < 0.05
+    walls = [B.wall_scores(transform(v.segments.reshape(-1, 2), drive.poses[0]).reshape(-1, 2, 2),
+                           drive.world.walls, drive.world.distance) for v in (upright, flipped)]
+    assert walls[1]['precision'] == 1.0 and walls[1]['found'] == walls[0]['found'], walls
+    # The broadcast: no odometry above the mount here; the laser is where its scans are.
+    session = MappingSession(options=SessionOptions(pose_source='scan'))
+    session.add(tf(0.0, 'base_link', 'laser', mount, static=True,
+                   quat=mount_quaternion(mount[2], True)))
+    for scan in scans[:30]:
+        session.add(dataclasses.replace(scan, ranges=scan.ranges[::-1].copy()))
+        session.step()
+    loc = session.localization
+    frame, pose, why = session.scan_root(loc)
+    assert (frame, why) == ('base_link', '')
+    assert np.allclose(se2_compose(pose, mount), loc.pose, atol=1e-12)
+    # A mount that comes after the first scans: they stay placed as they were (upright),
+    # said once; after ~/reset (a new map) the mount decides.
+    warned = []
+    session = MappingSession(options=SessionOptions(pose_source='scan'),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    for k, scan in enumerate(scans[:20]):
+        if k == 10:
+            session.add(tf(0.0, 'base_link', 'laser', mount, static=True,
+                           quat=mount_quaternion(mount[2], True)))
+        session.add(dataclasses.replace(scan, ranges=scan.ranges[::-1].copy()))
+        session.step()
+    assert [c for c, _ in warned if c == 'laser_flip'] == ['laser_flip'], warned
+    assert 'now say it is upside down' in dict(warned)['laser_flip']
+    assert not session.poses.upside_down('nothing') and session.poses._flips == {'laser': False}
+    session.reset()
+    session.add(scans[20])
+    session.step()
+    assert session.poses._flips == {'laser': True}
+
+
+def test_scans_alone_follow_one_laser_and_refuse_another_in_one_line():
+    # Two lasers on one topic (front, and rear turned half a turn): scan mode predicted each
+    # scan from the last ones, whichever laser took them, and drew 56 segments with 72 % of
+    # the map's length contradicted (an audit). The second laser's scans are now skipped with
+    # one line, as with pose_source odom.
+    drive = make_drive('sim:hall,step=0.1,turn=0.1', 3)
+    warned = []
+    session = MappingSession(options=SessionOptions(pose_source='scan'),
+                             warn=lambda cause, text: warned.append((cause, text)))
+    for k, scan in enumerate(records(drive, scans_only=True)[:40]):
+        session.add(scan if k % 2 == 0 else dataclasses.replace(scan, frame_id='laser_rear'))
+        session.step()
+    assert session.used == 20 and session.skipped['no pose: laser_frame'] == 20
+    text = dict(warned)['laser_frame']
+    assert "scan in frame 'laser_rear', but scan mode follows one laser, 'laser'" in text
+    assert '\n' not in text
+
+
 def test_replay_pose_source_scan_from_the_command_line(tmp_path):
     from polyline_mapper.cli import main
     from polyline_mapper.formats.mapjson import read_map
