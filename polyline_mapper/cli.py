@@ -391,7 +391,7 @@ def cmd_live_demo(args) -> int:
     title = (f"simulated office, live node: {st['segments']} segments, mean distance "
              f"{100 * st['mean_distance']:.2f} cm")
     save_map(res.value, res.points, args.output, args.plot, title=title, truth=res.walls,
-             inputs=[args.config])
+             inputs=[args.config], grid=res.grid, config=res.config)
     if not args.quiet:
         print(f"wrote {args.output}{' and ' + args.plot if args.plot else ''}: "
               f"{st['segments']} segments from {st['scans_used']} of {st['scans']} scans, "

@@ -293,6 +293,13 @@ def test_live_demo_maps_the_office_and_reports_node_update_times(tmp_path, capsy
     assert f"{st['segments']} segments from 355 of 355 scans" in line, line
     assert 'node update median' in line and png.stat().st_size > 10_000
     assert took < 60, took      # 355 scans at 2x: about 18 s of drive
+    # As record-map writes it (the demo's map lacked them, an audit: `export` then had no free
+    # space and `replay --map` refused it for want of a noise scale): the planner map, the
+    # node's settings and its noise scale.
+    assert 0.001 < st['sigma'] < 0.05 and st['r'] > st['sigma'], st
+    assert data['config']['kappa'] == 3.0 and data['config']['min_mapping_range'] == 0.0
+    grid = read_map(out).grid
+    assert grid is not None and (grid.data == 0).sum() > 10 * (grid.data == 100).sum() > 0
 
 
 class Node:

@@ -39,6 +39,10 @@ class DemoResult:
     points: np.ndarray
     walls: np.ndarray
     node_log: str
+    grid: object = None
+    """The node's planner map (``core.grid.GridMap``) as of the map, or None."""
+    config: Optional[dict] = None
+    """The node's mapper settings (``formats.mapjson.config_dict``), or None."""
 
 
 class DemoError(RuntimeError):
@@ -70,7 +74,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
     from rclpy.signals import SignalHandlerOptions
     from diagnostic_msgs.msg import DiagnosticArray
     from .player import first_scan_of, Player
-    from .recorder import MapRecorder
+    from .recorder import GRID_WAIT, MapRecorder, publisher_config, publisher_noise_scale
     from ..recordings import open_recording
 
     if domain_id is None:
@@ -135,7 +139,16 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
                 raise DemoError(f'the map did not reach the last scan within {timeout:g} s of '
                                 'the end of the drive' + _tail(node_err))
             info = dict(diag)
-            value = recorder.to_value()
+            # What record-map writes too: the planner map as new as the map, the node's
+            # settings and noise scale (a map to localize on, to export for Nav2).
+            _wait(recorder.grid_current, proc, GRID_WAIT)
+            recorder.check_grid(node)
+            grid = recorder.grid()
+            config, _, publisher = publisher_config(node, _Spun(), recorder.topic)
+            scale = None if publisher is None else publisher_noise_scale(
+                recorder, _Spun(), publisher)
+            value = recorder.to_value({} if scale is None else {'sigma': scale[0],
+                                                                'r': scale[1]})
         finally:
             executor.shutdown(timeout_sec=1.0)
             if spinner is not None:
@@ -156,7 +169,14 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
         update_ms_p99=_float(info.get('update_ms_p99')),
         latency_ms_median=_float(info.get('latency_ms_p50')),
         play_seconds=round(stats.wall_seconds, 2), play_max_delay_ms=round(stats.max_late_ms, 1))
-    return DemoResult(value, points, np.asarray(drive.world.walls), node_log)
+    return DemoResult(value, points, np.asarray(drive.world.walls), node_log, grid, config)
+
+
+class _Spun:
+    """An executor stand-in for the recorder's waits while the demo's spins in its thread."""
+
+    def spin_once(self, timeout_sec: float) -> None:
+        time.sleep(timeout_sec)
 
 
 def _float(text) -> Optional[float]:
