@@ -94,3 +94,23 @@ def test_d_result_does_not_depend_on_the_start(room, init):
     assert abs(m_other['mean_distance'] - m_ref['mean_distance']) <= 0.1 * m_ref['mean_distance']
     for a, b in walls:
         assert end_error(ref.segments, a, b) < 0.05
+
+
+@pytest.mark.parametrize('far', [1e3, 2.7e5, 1e6])
+def test_one_stray_point_far_away_does_not_set_the_start(room, far):
+    # sigma starts at 1/20 of the bounding box's diagonal and the paper's diagonals span it:
+    # one stray point 2.7e5 m off (a UTM file with a 0, 0 row) made the fit stop coarse after
+    # its 30 iterations, 7 segments covering 8 % of the points (an audit). The box now comes
+    # from the percentiles when a few points stretch it (``start_box``): the walls are found
+    # as without the stray point, and a point set without one keeps its box.
+    from polyline_mapper.core.smemsf import start_box
+    pts, walls = room
+    box = (pts.min(axis=0), pts.max(axis=0))
+    assert all(np.array_equal(a, b) for a, b in zip(start_box(pts), box))
+    ref = fit(pts)
+    stray = fit(np.r_[pts, [[far, -far]]])
+    assert stray.converged and stray.sigma == pytest.approx(ref.sigma, rel=0.1)
+    m = [map_metrics(pts, f.segments) for f in (ref, stray)]
+    assert m[1]['coverage_0_10m'] >= m[0]['coverage_0_10m'] - 0.005, m
+    for a, b in walls:
+        assert end_error(stray.segments, a, b) < 0.05
