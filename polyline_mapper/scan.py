@@ -2,8 +2,9 @@
 Laser scans to points: ranges + beam angles + sensor pose -> points in the fixed frame.
 
 Filtering follows REP 117: NaN (erroneous reading), +inf (no return, beyond range) and -inf (too
-close) are dropped, and so are finite readings outside [range_min, range_max) - a reading at the
-maximum range is a no-return on most lasers. Poses are (x, y, yaw) in metres and radians
+close) are dropped, and so are readings of 0 (no return at the laser itself) and finite readings
+outside [range_min, range_max) - a reading at the maximum range is a no-return on most lasers.
+Poses are (x, y, yaw) in metres and radians
 (REP 103), of the laser frame in the fixed frame.
 """
 
@@ -29,10 +30,15 @@ def beam_angles(angle_min: float, angle_increment: float, count: int) -> np.ndar
 
 
 def valid_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
-    """Mask of usable readings: finite and in [range_min, range_max)."""
+    """
+    Mask of usable readings: finite, above 0 and in [range_min, range_max).
+
+    A return at the laser itself is none: drivers that advertise range_min 0 send 0 for "no
+    echo" (mapped, each was a point at the laser, along the whole path: an audit).
+    """
     r = np.asarray(ranges, dtype=np.float64)
     with np.errstate(invalid='ignore'):
-        return np.isfinite(r) & (r >= range_min) & (r < range_max)
+        return np.isfinite(r) & (r > 0.0) & (r >= range_min) & (r < range_max)
 
 
 def scan_to_points(ranges, angles, pose, range_min: float = 0.0,
@@ -166,7 +172,7 @@ def check_scan(ranges, angle_min: float, angle_increment: float, range_min: floa
                         f'{range_max} (need 0 <= range_min < range_max)')
     if not valid_ranges(r, range_min, range_max).any():
         raise ScanError('no_valid_ranges', f'none of the {n} ranges is a valid reading (NaN, '
-                        f'inf or outside [{range_min:g}, {range_max:g}))')
+                        f'inf, 0 or outside [{range_min:g}, {range_max:g}))')
     angles = beam_angles(angle_min, angle_increment, n)
     return ScanArrays(r, angles, float(range_min), float(range_max), float(stamp),
                       str(frame_id), header)
