@@ -440,6 +440,12 @@ def cmd_record_map(args) -> int:
         st = value.stats
         save_map(value, None, args.output, args.plot, grid=grid, config=config,
                  title=f"{st['segments']} segments from {st['topic']}")
+    if st.get('scans_dropped'):
+        print(f"polyline-mapper: warning: the node dropped {st['scans_dropped']} of the "
+              f"{st['scans_received']} scans it received (it could not map them within its "
+              'max_scan_latency: a recording played much faster than it was recorded); '
+              f'{args.output} lacks them: play slower, or `replay` the recording, which maps '
+              'every scan', file=sys.stderr)
     if config is None:
         print(f'polyline-mapper: warning: {args.output} has no config block (the mapper '
               f'settings the map was made with): {no_config}', file=sys.stderr)

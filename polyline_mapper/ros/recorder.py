@@ -40,6 +40,9 @@ PARAMS_WAIT = 3.0
 NOISE_NODES = 64
 """Mapping nodes whose noise scale ``MapRecorder`` keeps from /diagnostics (a bound)."""
 
+SCAN_COUNTS = ('scans_received', 'scans_used', 'scans_dropped')
+"""The node's scan counts on /diagnostics that ``run_record_map`` writes into the map's stats."""
+
 GRID_WAIT = 3.0
 """Seconds ``run_record_map`` waits, once it stops, for a planner map as new as the map (the
 node publishes one at most every ``grid_publish_period``, 1 s by default)."""
@@ -82,6 +85,9 @@ class MapRecorder:
         its grid is then not taken."""
         self.noise = {}
         """Per diagnostics status name ('<node>: mapping'): the (sigma, r) it last reported."""
+        self.scans = {}
+        """Per diagnostics status name: the scans received, used and dropped it last reported
+        (``SCAN_COUNTS``)."""
         node.create_subscription(PolylineMap, topic, self._on_map, MAP_QOS)
         if grid_topic:
             node.create_subscription(OccupancyGrid, grid_topic, self._on_grid, MAP_QOS)
@@ -100,6 +106,13 @@ class MapRecorder:
             if not status.name.endswith(': mapping'):
                 continue
             values = {kv.key: kv.value for kv in status.values}
+            try:
+                counts = {key: int(values[key]) for key in SCAN_COUNTS}
+            except (KeyError, ValueError):
+                counts = None
+            if counts is not None and (status.name in self.scans
+                                       or len(self.scans) < NOISE_NODES):
+                self.scans[status.name] = counts
             try:
                 sigma, r = float(values['sigma_m']), float(values.get('r_m', 'nan'))
             except (KeyError, ValueError):
@@ -231,6 +244,8 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
         noise = None if publisher is None else publisher_noise_scale(
             rec, executor, publisher, should_stop)
         extra = {} if noise is None else {'sigma': noise[0], 'r': noise[1]}
+        if publisher is not None:       # (reported with the noise scale, or before it)
+            extra.update(rec.scans.get(f'{publisher}: mapping', {}))
         value = rec.to_value(extra)
         node.destroy_node()
     finally:
