@@ -193,8 +193,9 @@ def no_segment_reason(n_points: int, config: SMEMSFConfig, sigma: float) -> str:
             f'({config.min_density:g} per 2r) at sigma {sigma * 100:.2f} cm')
 
 
-def summary_line(path: str, stats: dict) -> str:
-    """One line a person reads after a run."""
+def summary_line(path: str, stats: dict, plot: str = None) -> str:
+    """One line a person reads after a run (``plot``: the PNG written beside ``path``)."""
+    path = f'{path} and {plot}' if plot else path
     if not stats['segments']:
         return (f"wrote {path}: an empty map (0 segments) from {stats['points']} points, "
                 f"{stats['iterations']} iterations, {stats['seconds']:.1f} s")
@@ -316,7 +317,7 @@ def cmd_fit(args) -> int:
               f'{off:.0f}% of the points more than 0.10 m off: '
               'most of them do not lie along lines (scattered points, noise)', file=sys.stderr)
     if not args.quiet:
-        print(summary_line(args.output, stats))
+        print(summary_line(args.output, stats, args.plot))
     return 0
 
 
@@ -345,7 +346,7 @@ def cmd_demo(args) -> int:
                           inputs=[args.config], origins=origins)
     _warn_if_empty('simulated office floor', stats, config)
     if not args.quiet:
-        print(summary_line(args.output, stats))
+        print(summary_line(args.output, stats, args.plot))
     return 0
 
 

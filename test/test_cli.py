@@ -22,7 +22,7 @@ def test_fit_writes_schema_and_png(tmp_path, capsys):
     out, png = tmp_path / 'm.json', tmp_path / 'm.png'
     assert main(['fit', str(src), '-o', str(out), '--plot', str(png)]) == 0
     line = capsys.readouterr().out.strip()
-    assert line.startswith(f'wrote {out}: 4 segments in 1 polylines')
+    assert line.startswith(f'wrote {out} and {png}: 4 segments in 1 polylines')
     data = read_map(str(out))
     assert data['frame_id'] == 'map'
     assert len(data['segments']) == 4 and all(len(s) == 4 for s in data['segments'])
@@ -97,7 +97,7 @@ def test_offline_demo_fits_the_office(tmp_path, capsys):
     out, png = tmp_path / 'd.json', tmp_path / 'd.png'
     assert main(['demo', '--offline', '-o', str(out), '--plot', str(png)]) == 0
     said = capsys.readouterr()
-    assert 'segments' in said.out and not said.err
+    assert said.out.startswith(f'wrote {out} and {png}: ') and not said.err
     data = json.loads(out.read_text())
     assert 15 <= data['stats']['segments'] <= 45 and data['stats']['coverage_0_10m'] > 0.99
     assert png.exists()

@@ -708,7 +708,8 @@ def test_points_without_a_segment_give_a_valid_empty_map(ws, capsys, points, rea
     assert code == 0, err
     assert len(err) == 1 and 'warning' in err[0] and 'no segment found' in err[0], err
     assert reason in err[0], err
-    assert f'wrote {ws["out"]}: an empty map (0 segments) from {len(points)} points' in out
+    assert (f'wrote {ws["out"]} and {ws["png"]}: an empty map (0 segments) from '
+            f'{len(points)} points') in out
     with open(ws['out']) as fh:
         text = fh.read()
     assert 'NaN' not in text and 'Infinity' not in text

@@ -430,8 +430,8 @@ class PolylineMapperNode(Node):
             where = ('the robot kept where it was matched' if self.session.pose_kept
                      else 'the robot back at initial_pose')
             response.message = (f'map reset to the saved map {self.settings.input_path} '
-                                f'({len(self.session.loaded.segments)} segments; '
-                                f'{dropped} dropped; {where})')
+                                f'({len(self.session.loaded.segments)} segments; the map '
+                                f'before the reset had {dropped}; {where})')
         self.get_logger().info(response.message)
         return response
 
