@@ -1636,13 +1636,14 @@ SCAN_SKIPS = ('bad scan', 'no pose', 'not mapped')
 undecodable messages; ``dropped`` is load shedding, counted apart)."""
 STAMP_LEAP = 1.0
 """Seconds a scan's stamp may lie before its laser's newest scan, or beyond it by more than the
-laser's last step (any after the laser's first scan: no step yet), before it is held with the
-laser's next scans (``MappingSession._add_scan``): ``LEAP_CONFIRM`` scans on the held scan's
-time line (a clock that jumped, scans after a gap) take it; one back on the old line (closer
-to the newest than to the last held scan) makes the held scans misstamped, skipped
-(``stamp_order``). One scan stamped 100 s ahead had ended scan mode's mapping for good (a gap
-too long to search, then every later scan a jump back), and copies stamped 5 s back were
-mapped in tf mode at the robot's pose of 5 s before (node audit: 117 segments against 24)."""
+laser's last step, before it is held with the laser's next scans
+(``MappingSession._add_scan``): ``LEAP_CONFIRM`` scans on the held scan's time line (a clock
+that jumped, scans after a gap; 2 after the laser's first scan, when no step is known yet) take
+it; one back on the old line (closer to the newest than to the last held scan) makes the held
+scans misstamped, skipped (``stamp_order``). One scan stamped 100 s ahead had ended scan mode's
+mapping for good (a gap too long to search, then every later scan a jump back), and copies
+stamped 5 s back were mapped in tf mode at the robot's pose of 5 s before (node audit: 117
+segments against 24)."""
 LEAP_CONFIRM = 3
 """Scans on a new time line (the held one and the next) that make it the laser's: two copies
 stamped 5 s early in a row passed as a clock jump with 2 (helper audit). A burst of this many
@@ -2191,10 +2192,15 @@ class MappingSession:
                                f'{record.stamp}: not a time')]
         held = self._leaps.get(frame)
         last = self._scan_stamps.get(frame)
+        step = self._scan_steps.get(frame)
         if held:
             if last is None or abs(record.stamp - held[-1][0].stamp) <= abs(record.stamp - last):
                 held.append((record, self._now()))
-                if len(held) >= LEAP_CONFIRM:
+                # After a laser's first scan no step says how far the next may come: one scan
+                # on from the held one confirms it. `replay --every 20` of a 1 Hz log kept
+                # scans 20 s apart, and with three the second was taken 60 s on, when the
+                # 30 s transform cache no longer had its pose (too_old; a docs audit).
+                if len(held) >= (LEAP_CONFIRM if step is not None else 2):
                     notes.extend(self._take_held(frame))
                 return notes
             del self._leaps[frame]
@@ -2203,13 +2209,9 @@ class MappingSession:
                     f'scan of frame {frame!r} stamped {scan.stamp:.3f}, '
                     f'{scan.stamp - last:+.1f} s from its newest scan, and the next came '
                     f'stamped {record.stamp:.3f}, on the old time line: a misstamped scan')))
-        step = self._scan_steps.get(frame)
-        # (after a laser's first scan no step says how far the next may come: `replay --every
-        # 20` of a 1 Hz log kept scans 20 s apart, and the second, held, was taken three scans
-        # later, after the 30 s transform cache had dropped its pose: too_old, a docs audit)
         if last is not None and not (
                 last - STAMP_LEAP <= record.stamp
-                <= last + STAMP_LEAP + (math.inf if step is None else step)):
+                <= last + STAMP_LEAP + (0.0 if step is None else step)):
             if len(self._leaps) >= MAX_SCAN_FRAMES:
                 notes.extend(self._take_held(next(iter(self._leaps))))
             self._leaps[frame] = [(record, self._now())]
