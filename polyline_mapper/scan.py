@@ -183,13 +183,19 @@ SELF_HIT_REACH = 1.5
 (posts, a bumper, a cable, a mast's brace) close by."""
 SELF_HIT_TOLERANCE = 0.1
 """A reading is "the same" while it lies within this (m) of the first of its run: twice the
-span of a 2-3 cm noise lidar's readings, less than a 45 deg turn changes any wall's range
-within ``SELF_HIT_REACH`` but a wall's the laser stands beside."""
+span of a 2-3 cm noise lidar's readings."""
 SELF_HIT_MOTION = (3.0, np.radians(90.0))
-"""Path (m) and heading span (rad) the laser must cover while a reading stays the same before
-it is taken for the robot itself: a wall or object keeps one beam's range while the laser
-drives along it, or turns in a round room's centre, not through both."""
-
+"""How far (m) the laser must drive, and how far its heading must turn in place, while a
+reading stays the same, before it is taken for the robot itself. A wall keeps one beam's range
+while the laser drives along it (a corridor's side, a round wall followed at a constant
+distance: an audit's ring corridor), or turns in a round room's centre; a turn in place
+changes every wall's range but that of a round room around the laser, where no driving keeps
+it. So the two are counted apart (``SELF_HIT_SPIN``): driving on steps that are mostly a
+translation, turning on steps that are mostly a turn, as the span of the heading those
+turned."""
+SELF_HIT_SPIN = 0.5
+"""A step whose translation (m) is at most this times its turn (rad) turns in place (a laser
+mounted up to 0.5 m off the axis the robot turns about); any other step drives."""
 SELF_HIT_STEP = (0.5, np.radians(20.0))
 """A step (m) or turn (rad) from one scan to the next beyond which every run starts over: the
 readings were not watched through it (an instant U-turn in a symmetric corridor reads the same
@@ -205,7 +211,7 @@ class SelfHits:
     A laser that sees a post of its own robot at 0.25 m reads 0.25 m in those beams wherever
     the robot goes, and the mapper draws a wall along the whole path (sim:office, four posts of
     6 deg: 26 -> 764 segments). Such a reading keeps its range (within ``SELF_HIT_TOLERANCE``)
-    while the laser drives ``SELF_HIT_MOTION[0]`` and its heading spans
+    while the laser drives ``SELF_HIT_MOTION[0]`` and turns in place through
     ``SELF_HIT_MOTION[1]``; nothing in the world does. ``add`` follows each beam's run of the
     same reading, vectorised over the beams; a change of the beam count starts over.
     """
@@ -213,8 +219,8 @@ class SelfHits:
     def __init__(self):
         self.count = -1
         self._pose = None
-        self._path = 0.0                # the laser's path so far (m)
-        self._heading = 0.0             # its heading, unwrapped (rad)
+        self._driven = 0.0              # the laser's path so far on driving steps (m)
+        self._spun = 0.0                # its heading turned so far on turning steps (rad)
 
     def add(self, ranges, pose, low: float) -> np.ndarray:
         """
@@ -228,32 +234,34 @@ class SelfHits:
         if len(r) != self.count:
             self.count = len(r)
             self.ref = np.full(len(r), np.nan)
-            self.path0 = np.zeros(len(r))
-            self.low_heading = np.zeros(len(r))
-            self.high_heading = np.zeros(len(r))
+            self.driven0 = np.zeros(len(r))
+            self.low_spun = np.zeros(len(r))
+            self.high_spun = np.zeros(len(r))
             self.scans = np.zeros(len(r), dtype=np.int64)
         elif self._pose is not None:
             step = float(np.hypot(*(pose[:2] - self._pose[:2])))
             turn = float(np.remainder(pose[2] - self._pose[2] + np.pi, 2 * np.pi) - np.pi)
             if step > SELF_HIT_STEP[0] or abs(turn) > SELF_HIT_STEP[1]:
                 self.ref[:] = np.nan            # not watched through that motion: start over
-            self._path += step
-            self._heading += turn
+            if turn != 0.0 and step <= SELF_HIT_SPIN * abs(turn):
+                self._spun += turn
+            else:
+                self._driven += step
         self._pose = pose
         with np.errstate(invalid='ignore'):
             watched = np.isfinite(r) & (r >= low) & (r <= SELF_HIT_REACH)
             same = watched & (np.abs(r - self.ref) <= SELF_HIT_TOLERANCE)
         new = ~same
         self.ref[new] = np.where(watched[new], r[new], np.nan)
-        self.path0[new] = self._path
-        self.low_heading[new] = self.high_heading[new] = self._heading
+        self.driven0[new] = self._driven
+        self.low_spun[new] = self.high_spun[new] = self._spun
         self.scans[new] = 0
         self.scans += 1
-        np.minimum(self.low_heading, self._heading, out=self.low_heading)
-        np.maximum(self.high_heading, self._heading, out=self.high_heading)
+        np.minimum(self.low_spun, self._spun, out=self.low_spun)
+        np.maximum(self.high_spun, self._spun, out=self.high_spun)
         return (same & (self.scans >= SELF_HIT_SCANS)
-                & (self._path - self.path0 >= SELF_HIT_MOTION[0])
-                & (self.high_heading - self.low_heading >= SELF_HIT_MOTION[1]))
+                & (self._driven - self.driven0 >= SELF_HIT_MOTION[0])
+                & (self.high_spun - self.low_spun >= SELF_HIT_MOTION[1]))
 
 
 def sectors(angles: np.ndarray, found: np.ndarray) -> list:

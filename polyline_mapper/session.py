@@ -2585,8 +2585,8 @@ class MappingSession:
         r = np.asarray(scan.ranges, dtype=np.float64)[found]
         return [('self_hits', f'laser {scan.frame_id!r}: {int(found.sum())} reading(s) at '
                  f'{where} deg kept their range ({r.min():.2f}-{r.max():.2f} m) while the laser '
-                 f'drove over {SELF_HIT_MOTION[0]:g} m and turned over '
-                 f'{np.degrees(SELF_HIT_MOTION[1]):.0f} deg: something that moves with the robot '
+                 f'drove {SELF_HIT_MOTION[0]:g} m and turned {np.degrees(SELF_HIT_MOTION[1]):.0f} '
+                 f'deg in place: something that moves with the robot '
                  f'(a part of it, or someone walking with it) is mapped as walls along its path; '
                  f'set incremental.min_mapping_range to {r.max() + SELF_HIT_TOLERANCE:.2f} m '
                  f'(their readings and {SELF_HIT_TOLERANCE:g} m of noise), or filter those '
