@@ -1087,13 +1087,21 @@ class PoseSource:
 
     def upside_down(self, frame: str) -> bool:
         """
-        Scan mode: whether the laser ``frame`` hangs upside down under its robot.
+        Scan mode: whether the laser ``frame`` hangs upside down under the root of its tree.
 
-        By the mounts on /tf_static above it, up to the first transform that is not one (an
-        odometry's on /tf turns nothing over).
+        By every transform above it, static or not (a mount a ROS 1 static_transform_publisher
+        or a converted bag sends on /tf: until an audit only /tf_static's counted, and such a
+        laser was mirrored); an odometry's turns nothing over.
         """
-        edges, _, _ = self._static_chain(frame)
-        return sum(e[3] for e in edges) % 2 == 1
+        flips, seen = 0, {frame}
+        while frame in self._tree:
+            parent, _, _, flip = self._tree[frame]
+            flips += flip
+            if parent in seen:
+                break
+            frame = parent
+            seen.add(frame)
+        return flips % 2 == 1
 
     def scan_root(self, frame: str, laser_pose) -> tuple:
         """
@@ -1182,8 +1190,9 @@ class PoseSource:
                 # (another frame on the topic), mounted elsewhere, would be matched as a jump.
                 raise TransformLookupError(
                     'laser_frame', f'scan in frame {frame!r}, but scan mode follows one laser, '
-                    f'{self._scan_laser!r} (the frame of the first scan): map several with '
-                    "pose_source 'tf' or 'odom' and their mounts on /tf_static")
+                    f'{self._scan_laser!r} (the frame of the first scan; ~/reset follows the '
+                    "next scan's): map several with pose_source 'tf' or 'odom' and their "
+                    'mounts on /tf_static')
             flip = self.upside_down(frame) if scan.pose is None else False
             first = self._flips.setdefault(frame, flip)
             if flip != first and self._flip_note is None:
@@ -1296,10 +1305,11 @@ class PoseSource:
                  'the turn rate over it and smears the map in turns. Publish it at 5 Hz or '
                  'more (diff_drive_controller: publish_rate)')]
 
-    def forget_flips(self) -> None:
-        """Scan mode: decide each laser's flip again at its next scan (a new map)."""
+    def forget_lasers(self) -> None:
+        """Scan mode, a new map: follow the laser of the next scan, its flip decided again."""
         self._flips.clear()
         self._flip_note = None
+        self._scan_laser = None
 
     def flip_notes(self) -> list:
         """Scan mode: the ``laser_flip`` warning once, when a laser's mount turned it over."""
@@ -3580,7 +3590,7 @@ class MappingSession:
             self._trajectory.clear()
             self._first_base = None
             if self._loaded is None:
-                self.poses.forget_flips()   # a new map: the mounts decide again
+                self.poses.forget_lasers()  # a new map: the next scan's laser, its mounts
             self.pose_kept = keep is not None
             self._restart(None if self._loaded is None or keep is not None
                           else self._loaded[2])
