@@ -474,3 +474,26 @@ def test_the_covariance_counts_the_error_of_the_last_scans_chords():
     b = match_scan(pts, np.array([2.03, 2.98, 0.31]), chords, sigma=0.01,
                    chords=np.ones(len(chords), dtype=bool), chord_cov=cov)
     assert np.array_equal(a.pose, b.pose) and np.all(np.diag(b.covariance) > np.diag(a.covariance))
+
+
+@pytest.mark.parametrize('bad, words', [
+    ({'prediction': (np.nan, 1.0, 0.0)}, 'prediction must be 3 finite numbers'),
+    ({'prediction': (0.0, 0.0)}, 'prediction must be 3 finite numbers'),
+    ({'prediction_cov': np.eye(2)}, 'prediction_cov must be 3x3 finite numbers'),
+    ({'chord_cov': np.full((3, 3), np.inf)}, 'chord_cov must be 3x3 finite numbers'),
+    ({'segments': [[[0.0, np.nan], [1.0, 1.0]]]}, 'segments contains NaN or inf'),
+    ({'prior_std': (np.nan, 0.1, 0.05)}, 'prior_std must be 3 finite positive numbers'),
+    ({'prior_std': (0.0, 0.1, 0.05)}, 'prior_std must be 3 finite positive numbers'),
+])
+def test_match_scan_refuses_bad_arguments_naming_them(bad, words):
+    # The core's promise (README): invalid input raises ValueError naming the argument. A NaN
+    # prediction raised scipy's "'x' must be finite", a 2-value one numpy's reshape error, a
+    # (2, 2) prediction_cov a broadcast error; a NaN segment or prior_std was taken, and the
+    # covariance came back NaN (an audit).
+    args = {'points': np.c_[np.linspace(-1.0, 1.0, 50), np.full(50, 2.0)],
+            'prediction': (0.0, 0.0, 0.0), 'segments': [[[-3.0, 2.0], [3.0, 2.0]]],
+            'sigma': 0.01}
+    args.update(bad)
+    with pytest.raises(ValueError, match=words) as info:
+        match_scan(**args)
+    assert '\n' not in str(info.value)

@@ -53,7 +53,8 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt, median_filter
 from scipy.spatial import cKDTree
 
-from .geometry import as_points, sample_segments, se2_compose, se2_inverse, wrap_angle
+from .geometry import (as_points, as_segments, sample_segments, se2_compose, se2_inverse,
+                       wrap_angle)
 from .noise import median
 
 
@@ -310,6 +311,21 @@ def _best_start(near: '_SegmentSamples', pts: np.ndarray, pred: np.ndarray,
     return starts[best].copy() if scores[best] > START_MARGIN * at_pred else pred
 
 
+def _finite(name: str, value, shape: tuple, positive: bool = False) -> np.ndarray:
+    """Return ``value`` as a float array of ``shape``; ValueError naming it if it is not one."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != shape or not np.isfinite(arr).all() or (
+            positive and not (arr > 0).all()):
+        what = 'x'.join(str(n) for n in shape)
+        got = repr(value) if arr is None or arr.size <= 4 else f'shape {arr.shape}'
+        raise ValueError(f'{name} must be {what} finite{" positive" if positive else ""} '
+                         f'numbers, got {" ".join(got.split())}')
+    return arr
+
+
 def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
                gate: float = 0.5, gate_min: float = None, kernel: float = None,
                min_inliers: int = 20, min_share: float = 0.25, max_shift: float = 0.5,
@@ -418,11 +434,15 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     """
     pts = as_points(points)
     pts = spread(pts, max_points)                # the time per scan stays bounded
-    pred = np.asarray(prediction, dtype=np.float64).reshape(3)
-    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
-    prior = np.diag(np.square(np.asarray(prior_std, dtype=np.float64)))
+    pred = _finite('prediction', prediction, (3,))
+    segs = as_segments(segments)
+    prior = np.diag(np.square(_finite('prior_std', prior_std, (3,), positive=True)))
     if not (np.isfinite(sigma) and sigma > 0):
         raise ValueError(f'sigma must be a finite number > 0, got {sigma!r}')
+    if prediction_cov is not None:
+        prediction_cov = _finite('prediction_cov', prediction_cov, (3, 3))
+    if chord_cov is not None:
+        chord_cov = _finite('chord_cov', chord_cov, (3, 3))
     if prediction_prior is not None:
         prediction_prior = np.asarray(prediction_prior, dtype=np.float64).reshape(3, 3)
         if degenerate != 0:
@@ -445,8 +465,6 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     est = None if established is None else np.asarray(established, dtype=bool).reshape(-1)[keep]
     tra = None if transient is None else np.asarray(transient, dtype=bool).reshape(-1)[keep]
     own = None if chords is None else np.asarray(chords, dtype=bool).reshape(-1)[keep]
-    if chord_cov is not None:
-        chord_cov = np.asarray(chord_cov, dtype=np.float64).reshape(3, 3)
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1) / length[:, None]
     near = _SegmentSamples(segs, spacing=float(spacing))
     scale = max(median(np.hypot(pts[:, 0], pts[:, 1])), 1.0)   # metres per radian
