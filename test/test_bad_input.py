@@ -30,10 +30,26 @@ def test_fit_rejects_bad_points(pts, why):
     ({'shrink_fast': 0.9, 'shrink_slow': 0.7}, 'shrink_fast'), ({'init': 'magic'}, 'init'),
     ({'max_iterations': 0}, 'max_iterations'), ({'min_support': 1}, 'min_support'),
     ({'r_over_sigma': float('nan')}, 'r_over_sigma'),
+    # (a TypeError from np.isfinite, and True taken as 1: an audit)
+    ({'sigma': 'abc'}, "sigma must be None or a finite number > 0, got 'abc'"),
+    ({'kappa': True}, 'kappa must be a finite number > 0, got True'),
 ])
 def test_config_rejects_bad_values_with_reason(kwargs, why):
     with pytest.raises(ValueError, match=why):
         SMEMSFConfig(**kwargs)
+
+
+def test_a_loaded_maps_noise_scale_is_a_number_numpy_or_not():
+    # load(sigma=True) set sigma to 1 m; load(sigma=np.float32(0.01)) was refused as not a
+    # finite number (an audit).
+    from polyline_mapper.core.incremental import IncrementalMapper
+    wall = np.array([[[0.0, 0.0], [1.0, 0.0]]])
+    with pytest.raises(ValueError, match='sigma must be a finite number > 0'):
+        IncrementalMapper().load(wall, [10.0], sigma=True)
+    mapper = IncrementalMapper()
+    mapper.load(wall, [10.0], sigma=np.float32(0.01))
+    assert mapper.sigma == pytest.approx(0.01)
+    assert SMEMSFConfig(sigma=np.float32(0.01)).sigma == pytest.approx(0.01)
 
 
 def test_unknown_config_key_named():

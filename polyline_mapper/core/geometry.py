@@ -53,6 +53,17 @@ def as_points(points, name: str = 'points') -> np.ndarray:
     return arr
 
 
+def is_number(value) -> bool:
+    """
+    Whether ``value`` is one finite real number (numpy scalars too, booleans not).
+
+    >>> is_number(np.float32(0.01)), is_number(True), is_number('0.1'), is_number(float('inf'))
+    (True, False, False, False)
+    """
+    return (isinstance(value, (int, float, np.integer, np.floating))
+            and not isinstance(value, (bool, np.bool_)) and bool(np.isfinite(value)))
+
+
 def as_segments(segments, name: str = 'segments') -> np.ndarray:
     """Validate and convert segments to a ``(K, 2, 2)`` float64 array (K may be 0)."""
     arr = np.asarray(segments, dtype=np.float64)

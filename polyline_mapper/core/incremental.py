@@ -87,7 +87,7 @@ from typing import Optional
 import numpy as np
 
 from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
-from .geometry import as_points, in_box, lengths, sample_segments
+from .geometry import as_points, in_box, is_number, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
 from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
@@ -413,7 +413,7 @@ class IncrementalMapper:
                              f'{LOAD_CELL_SEGMENTS} segments or {LOAD_CELL_LENGTH:g} m: not a '
                              'map of walls')
         for name, v in (('sigma', sigma), ('r', r)):
-            if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+            if v is not None and not (is_number(v) and v > 0):
                 raise ValueError(f'{name} must be a finite number > 0 (m), got {v!r}')
         sup = None if support is None else np.asarray(support, dtype=np.float64)
         if sup is not None and (sup.shape != (len(segs),) or np.isinf(sup).any()

@@ -34,7 +34,7 @@ import numpy as np
 
 from .cleanup import as_origins, beam_evidence, origin_runs
 from .emsf import emsf_step, extend_for
-from .geometry import as_points, as_segments, lengths
+from .geometry import as_points, as_segments, is_number, lengths
 from .index import piece_pairs, PointIndex
 from .merge import merge_segments
 from .noise import estimate_noise, median
@@ -130,11 +130,11 @@ class SMEMSFConfig:
                     'noise_radius', 'join_over_r']
         for name in positive:
             v = getattr(self, name)
-            if not (isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0):
+            if not (is_number(v) and v > 0):
                 raise ValueError(f'{name} must be a finite number > 0, got {v!r}')
         for name in ('sigma', 'sigma_start'):
             v = getattr(self, name)
-            if v is not None and not (np.isfinite(v) and v > 0):
+            if v is not None and not (is_number(v) and v > 0):
                 raise ValueError(f'{name} must be None or a finite number > 0, got {v!r}')
         for name in ('shrink_fast', 'shrink_slow'):
             v = getattr(self, name)
