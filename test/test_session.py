@@ -547,6 +547,29 @@ def test_misstamped_scans_leave_scans_alone_mapping_as_without_them(hall_scans_a
     assert np.array_equal(a.segments, b.segments) and np.array_equal(a.support, b.support)
 
 
+@pytest.mark.parametrize('lag', [-60.0, 60.0])
+def test_another_robots_transforms_stamped_off_this_clock_change_nothing(office_drive, lag):
+    # A fleet on one /tf, frames prefixed: another robot's transforms stamped a minute behind
+    # (a clock set wrong, a robot on sim time) were taken for a jump of the clock against the
+    # newest stamp of all, and each dropped every stored transform (a multi-robot audit: 5 of
+    # 60 scans used, the localizer restarted at its start); a minute ahead, each of this
+    # robot's own transforms did. Only this robot's chain decides a clock jump.
+    clean, _ = live(FakeClock(), fixed_frame='map')
+    session, warned = live(FakeClock(), fixed_frame='map')
+    for k in range(60):
+        stamp = 100.0 + 0.1 * k
+        for s in (clean, session):
+            s.add(tf(stamp, 'map', 'laser', office_drive.poses[k]))
+        session.add(tf(stamp + lag, 'robot3/odom', 'robot3/base_link', (0.01 * k, 0.0, 0.0)))
+        for s in (clean, session):
+            s.add(scan_of(office_drive, k, stamp))
+            s.step()
+    for s in (clean, session):
+        s.flush()
+    assert 'time_jump' not in causes(warned) and session.used == clean.used == 60, warned
+    assert np.array_equal(session.map_value().segments, clean.map_value().segments)
+
+
 def test_scans_stamped_far_off_their_lasers_time_line_are_skipped_with_tf(office_drive):
     # tf mode: copies stamped 5 s early were placed at the robot's pose of 5 s before (node
     # audit: 117 segments against 24), and one scan stamped 1e6 s late raised the laser's
