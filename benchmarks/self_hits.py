@@ -7,8 +7,9 @@ Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
 A laser that sees its robot's posts reads them at the same range wherever the robot goes, and
 the mapper draws each as a wall along the path. ``scan.SelfHits`` (README, "Running the
-node") flags a reading that stays within 0.1 m while the laser drives 3 m and turns 90 deg in
-place. This script measures, with the laser poses the logs and drives carry:
+node") flags a reading that stays within 0.1 m while the laser drives 3 m and its heading
+spans 90 deg with 90 deg turned in place. This script measures, with the laser poses the logs
+and drives carry:
 
 - detection: four posts of 6 deg at 0.25 m (45, 135, -45, -135 deg; 2 and 3 cm of noise) added
   to the simulated drives that turn in place gradually (``step=0.1,turn=0.1``): the first scan

@@ -185,17 +185,17 @@ SELF_HIT_TOLERANCE = 0.1
 """A reading is "the same" while it lies within this (m) of the first of its run: twice the
 span of a 2-3 cm noise lidar's readings."""
 SELF_HIT_MOTION = (3.0, np.radians(90.0))
-"""How far (m) the laser must drive, and how far its heading must turn in place, while a
-reading stays the same, before it is taken for the robot itself. A wall keeps one beam's range
-while the laser drives along it (a corridor's side, a round wall followed at a constant
-distance: an audit's ring corridor), or turns in a round room's centre; a turn in place
-changes every wall's range but that of a round room around the laser, where no driving keeps
-it. So the two are counted apart (``SELF_HIT_SPIN``): driving on steps that are mostly a
-translation, turning on steps that are mostly a turn, as the span of the heading those
-turned."""
-SELF_HIT_SPIN = 0.5
-"""A step whose translation (m) is at most this times its turn (rad) turns in place (a laser
-mounted up to 0.5 m off the axis the robot turns about); any other step drives."""
+"""How far (m) the laser must drive, and how far it must turn, while a reading stays the same,
+before it is taken for the robot itself. A wall keeps one beam's range while the laser drives
+along it (a corridor's side, a round wall followed at a constant distance: an audit's ring
+corridor) or turns in a round room's centre; a turn in place changes every wall's range but
+that of a round room around the laser, where no driving keeps it. So the run must drive this
+far on steps that are mostly a translation, and its heading must span this much with as much
+turned in place (``SELF_HIT_SPIN``): the span alone is a ring corridor's, the turns in place
+alone add up a corridor's small corrections (an audit of the rule without the span)."""
+SELF_HIT_SPIN = 1.0
+"""A step whose translation (m) is at most this times its turn (rad) turns in place: a laser
+mounted up to 1 m off the axis the robot turns about. One farther off is never found."""
 SELF_HIT_STEP = (0.5, np.radians(20.0))
 """A step (m) or turn (rad) from one scan to the next beyond which every run starts over: the
 readings were not watched through it (an instant U-turn in a symmetric corridor reads the same
@@ -211,16 +211,18 @@ class SelfHits:
     A laser that sees a post of its own robot at 0.25 m reads 0.25 m in those beams wherever
     the robot goes, and the mapper draws a wall along the whole path (sim:office, four posts of
     6 deg: 26 -> 764 segments). Such a reading keeps its range (within ``SELF_HIT_TOLERANCE``)
-    while the laser drives ``SELF_HIT_MOTION[0]`` and turns in place through
-    ``SELF_HIT_MOTION[1]``; nothing in the world does. ``add`` follows each beam's run of the
-    same reading, vectorised over the beams; a change of the beam count starts over.
+    while the laser drives ``SELF_HIT_MOTION[0]`` and its heading spans
+    ``SELF_HIT_MOTION[1]``, turned in place; nothing in the world does. ``add`` follows each
+    beam's run of the same reading, vectorised over the beams; a change of the beam count
+    starts over.
     """
 
     def __init__(self):
         self.count = -1
         self._pose = None
         self._driven = 0.0              # the laser's path so far on driving steps (m)
-        self._spun = 0.0                # its heading turned so far on turning steps (rad)
+        self._spun = 0.0                # the turns in place so far, in absolute value (rad)
+        self._heading = 0.0             # its heading, unwrapped (rad)
 
     def add(self, ranges, pose, low: float) -> np.ndarray:
         """
@@ -235,8 +237,9 @@ class SelfHits:
             self.count = len(r)
             self.ref = np.full(len(r), np.nan)
             self.driven0 = np.zeros(len(r))
-            self.low_spun = np.zeros(len(r))
-            self.high_spun = np.zeros(len(r))
+            self.spun0 = np.zeros(len(r))
+            self.low_heading = np.zeros(len(r))
+            self.high_heading = np.zeros(len(r))
             self.scans = np.zeros(len(r), dtype=np.int64)
         elif self._pose is not None:
             step = float(np.hypot(*(pose[:2] - self._pose[:2])))
@@ -244,9 +247,10 @@ class SelfHits:
             if step > SELF_HIT_STEP[0] or abs(turn) > SELF_HIT_STEP[1]:
                 self.ref[:] = np.nan            # not watched through that motion: start over
             if turn != 0.0 and step <= SELF_HIT_SPIN * abs(turn):
-                self._spun += turn
+                self._spun += abs(turn)
             else:
                 self._driven += step
+            self._heading += turn
         self._pose = pose
         with np.errstate(invalid='ignore'):
             watched = np.isfinite(r) & (r >= low) & (r <= SELF_HIT_REACH)
@@ -254,14 +258,16 @@ class SelfHits:
         new = ~same
         self.ref[new] = np.where(watched[new], r[new], np.nan)
         self.driven0[new] = self._driven
-        self.low_spun[new] = self.high_spun[new] = self._spun
+        self.spun0[new] = self._spun
+        self.low_heading[new] = self.high_heading[new] = self._heading
         self.scans[new] = 0
         self.scans += 1
-        np.minimum(self.low_spun, self._spun, out=self.low_spun)
-        np.maximum(self.high_spun, self._spun, out=self.high_spun)
+        np.minimum(self.low_heading, self._heading, out=self.low_heading)
+        np.maximum(self.high_heading, self._heading, out=self.high_heading)
         return (same & (self.scans >= SELF_HIT_SCANS)
                 & (self._driven - self.driven0 >= SELF_HIT_MOTION[0])
-                & (self.high_spun - self.low_spun >= SELF_HIT_MOTION[1]))
+                & (self.high_heading - self.low_heading >= SELF_HIT_MOTION[1])
+                & (self._spun - self.spun0 >= SELF_HIT_MOTION[1]))
 
 
 def sectors(angles: np.ndarray, found: np.ndarray) -> list:

@@ -140,6 +140,23 @@ def test_round_walls_are_not_taken_for_the_robot(how):
         assert not hits.add(ranges, pose, 0.05).any(), k
 
 
+def test_small_corrections_in_place_do_not_add_up_to_a_turn():
+    # A robot following a corridor's wall 0.5 m off, drifting left 0.3 deg a scan while it
+    # drives 0.05 m and turning back 5 deg in place every 17 scans: its heading stays within
+    # 5 deg and the wall's beam keeps its range. Counting only the turns in place, they added
+    # up to 90 deg and the rule (of 88ddd43) advised a min_mapping_range of 1.48 m, dropping
+    # both walls (an audit); the heading's span must reach 90 deg too.
+    hits, pose = SelfHits(), np.zeros(3)
+    ranges = np.full(360, 5.0)
+    ranges[90] = 0.5
+    for k in range(2000):
+        assert not hits.add(ranges, pose, 0.05).any(), k
+        if k % 17 == 16:
+            pose = pose + [0.0, 0.0, -np.radians(5.1)]
+        else:
+            pose = pose + [0.05 * np.cos(pose[2]), 0.05 * np.sin(pose[2]), np.radians(0.3)]
+
+
 def test_a_reading_is_followed_only_through_motion_it_was_watched_in():
     # A post at 0.3 m; the laser turns in place 90 deg (0.1 rad a scan), then drives 0.1 m a
     # scan: found once it drove 3 m. Turned by a jump (a U-turn between two scans) or with
