@@ -136,7 +136,17 @@ class ReplayResult:
                    if mean is not None and np.isfinite(mean) else '')
                 + free_space_text(stats)
                 + (f", update median {ms['p50']:.1f} ms, p99 {ms['p99']:.1f} ms" if ms else '')
+                + loop_text(stats.get('loop_closure'))
                 + f", {stats.get('total_seconds', self.seconds):.1f} s")
+
+
+def loop_text(info: Optional[dict]) -> str:
+    """Return ', loop closure applied (N loops)' or ', loop closure not applied: why'."""
+    if not info:
+        return ''
+    if info.get('applied'):
+        return f", loop closure applied ({info.get('kept', info.get('loops', '?'))} loops)"
+    return f", loop closure not applied: {info.get('reason', 'no reason given')}"
 
 
 def free_space_text(stats: dict) -> str:
@@ -262,7 +272,7 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
               input_type=source.description, pose_source=options.pose_source,
               scan_topic=source.scan_topic,
               odom_topic=source.odom_topic if options.pose_source == 'odom' else None,
-              every=int(options.every), fixed_frame=session.fixed_frame,
+              every=int(options.every), fixed_frame=value.frame_id,
               update_ms_median=round(ms['p50'], 3) if ms else None,
               update_ms_p99=round(ms['p99'], 3) if ms else None,
               seconds=round(time.perf_counter() - t0, 3))

@@ -59,6 +59,10 @@ def test_loop_closure_closes_the_first_loops_of_the_intel_log(tmp_path, monkeypa
     assert st['contradicted_share'] == info['contradicted_after'] < 0.5 * before
     assert len(runs[True].map_value.trajectory) == len(truth)      # every scan mapped
     assert runs[True].map_value.frame_id == runs[False].map_value.frame_id
+    # the stats name the closed map's frame (they named the second pass's session frame, an
+    # audit: 'odom' beside a map in 'map'), and the summary says the closure was applied
+    assert st['fixed_frame'] == runs[True].map_value.frame_id
+    assert f"loop closure applied ({info['kept']} loops)" in runs[True].summary('m.json')
     assert evidence['contradicted_share'] < 0.5 * before                # 0.0 %
     # the defaults map these scans without the doubled walls (0.40 % on an Intel Xeon VM):
     # nothing to close here
@@ -80,6 +84,8 @@ def test_without_a_loop_to_close_the_matched_map_is_kept(tmp_path):
     assert not info['applied'] and info['active'] == 0
     assert info['reason'] == 'no loop beyond the band'
     assert 'loop_closure' not in plain.map_value.stats
+    assert ', loop closure not applied: no loop beyond the band, ' in closed.summary('m.json')
+    assert 'loop closure' not in plain.summary('m.json')
 
 
 def test_loop_closure_needs_scan_matching_from_odometry(tmp_path, capsys):
