@@ -1314,7 +1314,7 @@ class PoseSource:
                  'more (diff_drive_controller: publish_rate)')]
 
     def forget_lasers(self) -> None:
-        """Scan mode, a new map: follow the laser of the next scan, its flip decided again."""
+        """Scan mode, after ~/reset: follow the laser of the next scan, its flip decided again."""
         self._flips.clear()
         self._flip_note = None
         self._scan_laser = None
@@ -1656,12 +1656,15 @@ STAMP_LEAP = 1.0
 """Seconds a scan's stamp may lie before its laser's newest scan, or beyond it by more than the
 laser's last step, before it is held with the laser's next scans
 (``MappingSession._add_scan``): ``LEAP_CONFIRM`` scans on the held scan's time line (a clock
-that jumped, scans after a gap; 2 after the laser's first scan, when no step is known yet) take
-it; one back on the old line (closer to the newest than to the last held scan) makes the held
-scans misstamped, skipped (``stamp_order``). One scan stamped 100 s ahead had ended scan mode's
-mapping for good (a gap too long to search, then every later scan a jump back), and copies
-stamped 5 s back were mapped in tf mode at the robot's pose of 5 s before (node audit: 117
-segments against 24)."""
+that jumped, scans after a gap) take it; one back on the old line (closer to the newest than
+to the last held scan) makes the held scans misstamped, skipped (``stamp_order``). One scan
+stamped 100 s ahead had ended scan mode's mapping for good (a gap too long to search, then
+every later scan a jump back), and copies stamped 5 s back were mapped in tf mode at the
+robot's pose of 5 s before (node audit: 117 segments against 24). A laser's second scan more
+than 1 s after its first is held too (no step is known yet): a recording thinned to scans
+more than ``transform_cache`` / 3 apart (``replay --every``) loses it as too_old, while one
+or two misstamped scans right after the first are skipped (taking the second at once, or on
+one more scan, bent scan mode's map: two audits)."""
 LEAP_CONFIRM = 3
 """Scans on a new time line (the held one and the next) that make it the laser's: two copies
 stamped 5 s early in a row passed as a clock jump with 2 (helper audit). A burst of this many
@@ -2214,11 +2217,7 @@ class MappingSession:
         if held:
             if last is None or abs(record.stamp - held[-1][0].stamp) <= abs(record.stamp - last):
                 held.append((record, self._now()))
-                # After a laser's first scan no step says how far the next may come: one scan
-                # on from the held one confirms it. `replay --every 20` of a 1 Hz log kept
-                # scans 20 s apart, and with three the second was taken 60 s on, when the
-                # 30 s transform cache no longer had its pose (too_old; a docs audit).
-                if len(held) >= (LEAP_CONFIRM if step is not None else 2):
+                if len(held) >= LEAP_CONFIRM:
                     notes.extend(self._take_held(frame))
                 return notes
             del self._leaps[frame]
@@ -3597,8 +3596,7 @@ class MappingSession:
             self._points.clear()
             self._trajectory.clear()
             self._first_base = None
-            if self._loaded is None:
-                self.poses.forget_lasers()  # a new map: the next scan's laser, its mounts
+            self.poses.forget_lasers()      # the next scan's laser, its mounts decide again
             self.pose_kept = keep is not None
             self._restart(None if self._loaded is None or keep is not None
                           else self._loaded[2])
