@@ -454,17 +454,18 @@ def cmd_record_map(args) -> int:
         print(f'polyline-mapper: warning: {args.output} has no noise scale (stats.sigma: the '
               "publisher's /diagnostics did not report one): localizing on it needs one, "
               "replay --set sigma=M or the node's smemsf.sigma", file=sys.stderr)
-    if args.grid_topic and grid is None and st.get('grid_shared_with'):
+    if args.grid_topic != '' and grid is None and st.get('grid_shared_with'):
         print(f"polyline-mapper: warning: {args.output} has no grid: {st['grid_topic']} is "
               f"also published by {', '.join(st['grid_shared_with'])} (the node does not "
               "publish its grid beside another map publisher): remap the node's grid (-r "
               'map:=polyline_map/grid) and pass --grid-topic polyline_map/grid',
               file=sys.stderr)
-    elif args.grid_topic and grid is None:
+    elif args.grid_topic != '' and grid is None:
         print(f'polyline-mapper: warning: no planner map (nav_msgs/OccupancyGrid) of frame '
               f"{value.frame_id} on {st['grid_topic']}: {args.output} has no grid, so `export` "
               "marks the segments occupied and leaves the rest unknown (is the node's "
-              'grid_publish_period 0?)', file=sys.stderr)
+              'grid_publish_period 0, or its grid on another topic? --grid-topic names it)',
+              file=sys.stderr)
     if not args.quiet:
         how = f', stopped by {signal.Signals(stops[0]).name}' if stops else ''
         with_grid = '' if grid is None else (f', with its planner map ({grid.width} x '
@@ -1387,9 +1388,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help='polyline_mapper_msgs/PolylineMap topic (default: polyline_map)')
     rm.add_argument('-o', '--output', required=True, help='map JSON to write')
     rm.add_argument('--plot', metavar='PNG', help='also write a PNG of the map')
-    rm.add_argument('--grid-topic', default='map', metavar='TOPIC',
+    rm.add_argument('--grid-topic', default=None, metavar='TOPIC',
                     help="the node's planner map (nav_msgs/OccupancyGrid), stored with the map "
-                    "for export (default: map; '' for none)")
+                    "for export (default: map beside the map's topic, /robot1/map for "
+                    "/robot1/polyline_map; '' for none)")
     rm.add_argument('--once', action='store_true', help='save the first map received and stop')
     rm.add_argument('--idle', type=SECONDS, metavar='SECONDS',
                     help='stop once no new map came for this long (default: run until Ctrl-C '

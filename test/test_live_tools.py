@@ -306,10 +306,22 @@ class Node:
     """What MapRecorder asks of an rclpy node (no subscription is made)."""
 
     def resolve_topic_name(self, topic):
-        return '/' + topic
+        return topic if topic.startswith('/') else '/' + topic
 
     def create_subscription(self, *args):
         return None
+
+
+@pytest.mark.parametrize('topic, grid, want', [
+    ('polyline_map', None, '/map'), ('/robot2/polyline_map', None, '/robot2/map'),
+    ('/robot2/polyline_map', 'planner/map', '/planner/map'), ('/robot2/polyline_map', '', None),
+])
+def test_record_map_takes_the_grid_beside_the_map_it_records(topic, grid, want):
+    # record-map /robot2/polyline_map took the grid on /map (its own namespace's), so robot2's
+    # map was saved without its grid, and the warning asked whether grid_publish_period was 0
+    # (a multi-robot audit).
+    from polyline_mapper.ros.recorder import MapRecorder
+    assert MapRecorder(Node(), topic, grid).grid_topic == want
 
 
 def test_record_map_refuses_a_map_that_disagrees_with_itself():

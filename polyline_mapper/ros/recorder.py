@@ -72,9 +72,17 @@ def _resolved(node, topic: str) -> str:
 class MapRecorder:
     """Keep the newest PolylineMap of ``topic`` on ``node`` (and when it came), and its grid."""
 
-    def __init__(self, node, topic: str = 'polyline_map', grid_topic: str = 'map'):
-        """Subscribe to ``topic`` and, unless ``grid_topic`` is empty, to the planner map."""
+    def __init__(self, node, topic: str = 'polyline_map', grid_topic: Optional[str] = None):
+        """
+        Subscribe to ``topic`` and, unless ``grid_topic`` is empty, to the planner map.
+
+        ``grid_topic`` None: ``map`` beside ``topic`` (the node publishes both in its
+        namespace): /robot2/map for /robot2/polyline_map (it was ``map`` in the recorder's
+        own namespace, so another robot's map was stored without its grid: an audit).
+        """
         self.topic = _resolved(node, topic)
+        if grid_topic is None:
+            grid_topic = self.topic.rpartition('/')[0] + '/map'
         self.grid_topic = _resolved(node, grid_topic) if grid_topic else None
         self.latest: Optional[PolylineMap] = None
         self.latest_grid: Optional[OccupancyGrid] = None
@@ -188,13 +196,14 @@ class MapRecorder:
 def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float = None,
                    timeout: float = 30.0, ros_args=None,
                    should_stop: Callable[[], bool] = None,
-                   grid_topic: str = 'map') -> RecordedMap:
+                   grid_topic: Optional[str] = None) -> RecordedMap:
     """
     Wait for the map published on ``topic``; return the newest, with its planner map.
 
     Runs its own rclpy context; see the module docstring for when it stops. ``timeout`` None
     or 0 waits for the first map forever. ``should_stop`` is polled every 50 ms. The planner
-    map comes from ``grid_topic`` (nav_msgs/OccupancyGrid; '' or None: none is taken); a grid
+    map comes from ``grid_topic`` (nav_msgs/OccupancyGrid; None: ``map`` beside ``topic``; '':
+    none is taken); a grid
     older than the map after ``GRID_WAIT`` s is taken as it is (``stats['grid_stamp']``).
     """
     import rclpy
@@ -233,7 +242,7 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
         # already received is taken: a Ctrl-C does not wait).
         try:
             end = time.monotonic() + GRID_WAIT
-            while (grid_topic and not rec.grid_current() and time.monotonic() < end
+            while (rec.grid_topic and not rec.grid_current() and time.monotonic() < end
                    and not (should_stop is not None and should_stop())):
                 executor.spin_once(timeout_sec=0.05)
         except KeyboardInterrupt:
