@@ -1097,6 +1097,15 @@ def cmd_export(args) -> int:
     data = read_map(args.map)
     if args.trajectory or (args.format or '') == 'tum' or ext == 'tum':
         fmt = export_trajectory(data, args.output, args.format, inputs=[args.map])
+        stamps = data.value.trajectory[:, 0]
+        back = int((stamps[1:] <= np.maximum.accumulate(stamps)[:-1]).sum())
+        if back:
+            # (a recording whose clock restarted: a bag played twice, a simulation reset;
+            # TUM tools such as evo expect increasing stamps; an audit)
+            print(f'polyline-mapper: warning: {args.output}: {back} of the '
+                  f'{len(data.value.trajectory)} poses are stamped at or before an earlier '
+                  "one (the recording's clock went back): tools that read TUM or CSV "
+                  'trajectories expect increasing stamps', file=sys.stderr)
         if not args.quiet:
             print(f'wrote {args.output}: the trajectory, {len(data.value.trajectory)} poses '
                   f'({"TUM" if fmt == "tum" else "CSV t,x,y,yaw"})')

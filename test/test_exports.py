@@ -198,7 +198,17 @@ def test_the_trajectory_exports_as_csv_and_tum(tmp_path, capsys):
     yaw = 2 * np.arctan2(tum[:, 6], tum[:, 7])
     assert np.allclose(np.angle(np.exp(1j * (yaw - traj[:, 3]))), 0.0, atol=1e-5)
     assert np.allclose(np.hypot(tum[:, 6], tum[:, 7]), 1.0, atol=1e-5)
-    capsys.readouterr()
+    assert 'warning' not in capsys.readouterr().err
+    # A recording whose clock went back (a bag played twice): the rows are written as mapped,
+    # and a warning says how many are not after the one before (it was silent; an audit).
+    twice = json.loads(out.read_text())
+    t = twice['trajectory']
+    twice['trajectory'] = t + [[row[0] - 5.0] + row[1:] for row in t[:10]]
+    twice_path = tmp_path / 'twice.json'
+    twice_path.write_text(json.dumps(twice))
+    assert main(['export', str(twice_path), '-o', str(tmp_path / 'twice.tum')]) == 0
+    err = capsys.readouterr().err
+    assert f'twice.tum: 10 of the {len(t) + 10} poses are stamped at or before an' in err, err
     # A map without a trajectory (a batch fit) and a format that cannot hold one: one line.
     assert main(['fit', 'sim:corridors', '-o', str(tmp_path / 'fit.json'), '-q']) == 0
     assert main(['export', str(tmp_path / 'fit.json'), '--trajectory', '-o',
