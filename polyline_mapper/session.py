@@ -1121,6 +1121,11 @@ class PoseSource:
             return None, None, (f'the mounts above {frame} turn it upside down and its scans '
                                 'were placed upright, or the other way round (a mount that '
                                 'came after the first scans)')
+        if not any(e[3] for e in edges):        # upright mounts: composed as before, exactly
+            pose = np.asarray(laser_pose, dtype=np.float64)
+            for edge in edges:
+                pose = _compose(pose, _inverse(np.asarray(edge[:3])))
+            return root, pose, ''
         # Planar poses as 2D affine maps (``_affine``). The root's map is the laser's times the
         # inverse of the chain's (root -> laser).
         chain = np.eye(3)
