@@ -252,9 +252,23 @@ def test_scans_alone_publish_the_pose_and_the_laser_under_the_map(tmp_path):
         last = peer.play(scans, RATE, mode='scan')
         assert peer.spin_until(lambda: poses and stamp_of(poses[-1]) == pytest.approx(
             last, abs=1e-6) and diags, TIMEOUT), node.stderr()[-3000:]
+        # Its own broadcasts, read back, are no other localizer; another node's map -> laser
+        # is (two scan-mode nodes on one unprefixed frame went unwarned: a multi-robot audit).
+        from polyline_mapper.ros.messages import planar_transform_msg, time_msg
+        assert not node.lines('another node broadcasts'), node.stderr()[-2000:]
+        tfs = list(tfs)
+        for _ in range(20):
+            peer.tf_pub.publish(peer.TFMessage(transforms=[planar_transform_msg(
+                'map', 'laser', time_msg(time.time()), (0.1, 0.0, 0.0))]))
+            peer.spin_for(0.05)
+        assert peer.spin_until(lambda: node.lines('another node broadcasts'), 10.0), \
+            node.stderr()[-3000:]
     finally:
         peer.close()
         node.stop()
+    warned = node.lines('another node broadcasts')
+    assert len(warned) == 1 and 'map -> laser on /tf, as this node does with pose_source ' \
+        'scan' in warned[0] and 'frame prefix' in warned[0], warned
     assert len(poses) >= 70 and {p.header.frame_id for p in poses} == {'map'}
     # the laser's pose (no mount known), the first scan at the origin of map
     laser = np.asarray(drive.poses[:80], dtype=float)

@@ -215,6 +215,7 @@ class PolylineMapperNode(Node):
             self._tf_message = TFMessage
         self._localized = None              # the Localization last published
         self._sent = deque(maxlen=256)      # (sec, nanosec) of the map -> odom it broadcast
+        self._scan_child = None             # scan mode: the frame it broadcasts under the map
         if self.settings.scan_matching:
             self.tf_pub = self.create_publisher(TFMessage, '/tf', TF_QOS)
             self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, 'pose', MAP_QOS)
@@ -382,7 +383,7 @@ class PolylineMapperNode(Node):
         self.session.add(scan_from_msg(msg))      # (checked there, as replay checks it)
 
     def _on_tf(self, msg) -> None:
-        if self.settings.scan_matching:
+        if self.settings.scan_matching or self.settings.pose_source == 'scan':
             self._check_localizers(msg)
         self.session.add_many(transforms_from_msg(msg, False))
 
@@ -390,22 +391,29 @@ class PolylineMapperNode(Node):
         """
         Warn (throttled) when another node broadcasts fixed_frame -> X as this one does.
 
-        X: the odometry frame this node broadcasts to (once it is known); another robot's
-        fixed_frame -> its own odometry frame, on a shared map frame, is not a fight.
+        X: the odometry frame this node broadcasts to (once it is known), in scan mode the root
+        of the laser's tree it broadcasts (two scan-mode nodes on one unprefixed base_link went
+        unwarned, the robot jumping between their poses: a multi-robot audit); another robot's
+        fixed_frame -> its own frame, on a shared map frame, is not a fight.
         """
         frame = self.settings.fixed_frame
-        odom = self.session.poses.odom_frame
+        odom = self.session.poses.odom_frame or self._scan_child
         for t in msg.transforms:
             if (t.header.frame_id.lstrip('/') == frame and odom is not None
                     and t.child_frame_id.lstrip('/') == odom
                     and (t.header.stamp.sec, t.header.stamp.nanosec) not in self._sent):
-                forced = (' (scan_matching is on because map_input_path is given)'
-                          if self.settings.input_path else '')
+                if self.session.poses.odom_frame is None:     # scan mode
+                    how, advice = ('with pose_source scan', 'give each robot its own frames '
+                                   '(a frame prefix: robot1/base_link)')
+                else:
+                    forced = (' (scan_matching is on because map_input_path is given)'
+                              if self.settings.input_path else '')
+                    how, advice = (f'with scan matching{forced}', 'run this node without '
+                                   'scan_matching and map_input_path to map with its poses')
                 self.warnings.warn('two_localizers', f'another node broadcasts {frame} -> '
                                    f'{t.child_frame_id.lstrip("/")} on /tf, as this node does '
-                                   f'with scan matching{forced}: two localizers fight over the '
-                                   'robot pose. Stop the other, or run this node without '
-                                   'scan_matching and map_input_path to map with its poses')
+                                   f'{how}: two localizers fight over the robot pose. Stop '
+                                   f'the other, or {advice}')
                 return
 
     def _on_tf_static(self, msg) -> None:
@@ -547,8 +555,11 @@ class PolylineMapperNode(Node):
                 # get two (REP 105: one); wait as a scan waits for its transforms.
                 self._localized = None
                 return
+            stamp = time_msg(loc.stamp)
+            self._sent.append((stamp.sec, stamp.nanosec))
+            self._scan_child = child
             self.tf_pub.publish(self._tf_message(transforms=[planar_transform_msg(
-                frame, child, time_msg(loc.stamp), pose)]))
+                frame, child, stamp, pose)]))
             return
         if loc.odom_frame is None or loc.odom_frame == frame:
             self.warnings.warn('tf_frames', f'not broadcasting {frame} -> {loc.odom_frame}: the '
