@@ -430,6 +430,17 @@ def motion_velocity(motion, stamp: float) -> Optional[np.ndarray]:
     return step / (t1 - t0)
 
 
+def _one_laser(first: Optional[str], frame: str, says: Callable[[str], str]) -> str:
+    """
+    Return the laser frame a pose source follows: ``first``, or ``frame`` when there is none.
+
+    Another frame raises TransformLookupError('laser_frame', ...) with ``says(first)``.
+    """
+    if first is not None and frame != first:
+        raise TransformLookupError('laser_frame', f'scan in frame {frame!r}, but {says(first)}')
+    return frame
+
+
 def _affine(x: float, y: float, yaw: float, flip: bool) -> np.ndarray:
     """Return a planar pose as a 2D affine map (3, 3); an upside-down frame's mirrors its y."""
     c, s = math.cos(yaw), math.sin(yaw)
@@ -1196,16 +1207,12 @@ class PoseSource:
         if self.options.pose_source == 'scan':
             self.fixed_frame = self.fixed_frame or 'map'
             frame = scan.frame_id
-            if self._scan_laser is None:
-                self._scan_laser = frame
-            elif frame != self._scan_laser:
-                # Each scan is predicted from the last ones' motion: another laser's scans
-                # (another frame on the topic), mounted elsewhere, would be matched as a jump.
-                raise TransformLookupError(
-                    'laser_frame', f'scan in frame {frame!r}, but scan mode follows one laser, '
-                    f'{self._scan_laser!r} (the frame of the first scan; ~/reset follows the '
-                    "next scan's): map several with pose_source 'tf' or 'odom' and their "
-                    'mounts on /tf_static')
+            # Each scan is predicted from the last ones' motion: another laser's scans
+            # (another frame on the topic), mounted elsewhere, would be matched as a jump.
+            self._scan_laser = _one_laser(self._scan_laser, frame, lambda first: (
+                f'scan mode follows one laser, {first!r} (the frame of the first scan; '
+                "~/reset follows the next scan's): map several with pose_source 'tf' or "
+                "'odom' and their mounts on /tf_static"))
             flip = self.upside_down(frame) if scan.pose is None else False
             first = self._flips.setdefault(frame, flip)
             if flip != first and self._flip_note is None:
@@ -1232,14 +1239,10 @@ class PoseSource:
             if self.options.mount is not None:
                 # One mount for one laser: a second laser's scans (another frame on the
                 # topic) placed with it would draw its room turned and shifted.
-                if self._mount_laser is None:
-                    self._mount_laser = frame
-                elif frame != self._mount_laser:
-                    raise TransformLookupError(
-                        'laser_frame', f'scan in frame {frame!r}, but the laser mount '
-                        f'(laser_x, laser_y, laser_yaw) is that of {self._mount_laser!r}, the '
-                        "frame of the first scan: pose_source 'odom' places one laser; map "
-                        "several with pose_source 'tf' and their mounts on /tf_static")
+                self._mount_laser = _one_laser(self._mount_laser, frame, lambda first: (
+                    f'the laser mount (laser_x, laser_y, laser_yaw) is that of {first!r}, the '
+                    "frame of the first scan: pose_source 'odom' places one laser; map "
+                    "several with pose_source 'tf' and their mounts on /tf_static"))
                 frame = MOUNT_FRAME
         elif self.localizer:
             target = self._odometry_target(frame)
