@@ -1222,7 +1222,7 @@ class PoseSource:
                 self._flip_note = ('laser_flip', (
                     f'the mounts above {frame!r} now say it is {now}, but its first scans were '
                     f'placed {then} '
-                    '(no mount on /tf_static yet): its scans stay placed so, and the map is '
+                    '(no mount known yet): its scans stay placed so, and the map is '
                     'mirrored if the mount is right: call ~/reset (or replay again)'))
             return PlanarPose(0.0, 0.0, 0.0, first)
         if scan.pose is not None:
@@ -2221,7 +2221,6 @@ class MappingSession:
                                f'{record.stamp}: not a time')]
         held = self._leaps.get(frame)
         last = self._scan_stamps.get(frame)
-        step = self._scan_steps.get(frame)
         if held:
             if last is None or abs(record.stamp - held[-1][0].stamp) <= abs(record.stamp - last):
                 held.append((record, self._now()))
@@ -2236,7 +2235,7 @@ class MappingSession:
                     f'stamped {record.stamp:.3f}, on the old time line: a misstamped scan')))
         if last is not None and not (
                 last - STAMP_LEAP <= record.stamp
-                <= last + STAMP_LEAP + (0.0 if step is None else step)):
+                <= last + STAMP_LEAP + self._scan_steps.get(frame, 0.0)):
             if len(self._leaps) >= MAX_SCAN_FRAMES:
                 notes.extend(self._take_held(next(iter(self._leaps))))
             self._leaps[frame] = [(record, self._now())]
