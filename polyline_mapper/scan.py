@@ -231,7 +231,8 @@ class SelfHits:
         ``ranges`` (B,) m; ``pose``: the laser's (x, y, yaw) where the scan was placed;
         ``low``: readings below it are not mapped, so not watched.
         """
-        r = np.asarray(ranges, dtype=np.float64)
+        with np.errstate(invalid='ignore'):     # (a damaged message's signalling NaNs)
+            r = np.asarray(ranges, dtype=np.float64)
         pose = np.asarray(pose, dtype=np.float64)
         if len(r) != self.count:
             self.count = len(r)
