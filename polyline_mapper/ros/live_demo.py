@@ -74,7 +74,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
     from rclpy.signals import SignalHandlerOptions
     from diagnostic_msgs.msg import DiagnosticArray
     from .player import first_scan_of, Player
-    from .recorder import GRID_WAIT, MapRecorder, publisher_config, publisher_noise_scale
+    from .recorder import MapRecorder, take_map
     from ..recordings import open_recording
 
     if domain_id is None:
@@ -141,14 +141,7 @@ def run_live_demo(world: str = 'sim:office', rate: float = 1.0, seed: int = 1,
             info = dict(diag)
             # What record-map writes too: the planner map as new as the map, the node's
             # settings and noise scale (a map to localize on, to export for Nav2).
-            _wait(recorder.grid_current, proc, GRID_WAIT)
-            recorder.check_grid(node)
-            grid = recorder.grid()
-            config, _, publisher = publisher_config(node, _Spun(), recorder.topic)
-            scale = None if publisher is None else publisher_noise_scale(
-                recorder, _Spun(), publisher)
-            value = recorder.to_value({} if scale is None else {'sigma': scale[0],
-                                                                'r': scale[1]})
+            value, grid, config = take_map(recorder, node, _Spun())[:3]
         finally:
             executor.shutdown(timeout_sec=1.0)
             if spinner is not None:

@@ -238,28 +238,38 @@ def run_record_map(topic: str = 'polyline_map', once: bool = False, idle: float 
             pass
         if rec.count == 0:
             raise ValueError(f'interrupted before any map arrived on {rec.topic}')
-        # A grid as new as the map, unless a signal ended the recording (then the newest grid
-        # already received is taken: a Ctrl-C does not wait).
-        try:
-            end = time.monotonic() + GRID_WAIT
-            while (rec.grid_topic and not rec.grid_current() and time.monotonic() < end
-                   and not (should_stop is not None and should_stop())):
-                executor.spin_once(timeout_sec=0.05)
-        except KeyboardInterrupt:
-            pass
-        rec.check_grid(node)
-        grid = rec.grid()
-        config, why, publisher = publisher_config(node, executor, rec.topic, should_stop)
-        noise = None if publisher is None else publisher_noise_scale(
-            rec, executor, publisher, should_stop)
-        extra = {} if noise is None else {'sigma': noise[0], 'r': noise[1]}
-        if publisher is not None:       # (reported with the noise scale, or before it)
-            extra.update(rec.scans.get(f'{publisher}: mapping', {}))
-        value = rec.to_value(extra)
+        taken = take_map(rec, node, executor, should_stop)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
-    return RecordedMap(value, grid, config, why, noise)
+    return taken
+
+
+def take_map(rec: MapRecorder, node, executor, should_stop=None) -> RecordedMap:
+    """
+    Return what ``rec`` holds once the recording ends, with what a map file needs besides.
+
+    The grid as new as the map (up to ``GRID_WAIT`` s, unless a signal ended the recording:
+    then the newest already received; a Ctrl-C does not wait), the publisher's mapper
+    settings, noise scale and scan counts. ``executor`` spins ``node``'s callbacks (an
+    object whose ``spin_once`` only waits, when another thread spins them: the live demo).
+    """
+    try:
+        end = time.monotonic() + GRID_WAIT
+        while (rec.grid_topic and not rec.grid_current() and time.monotonic() < end
+               and not (should_stop is not None and should_stop())):
+            executor.spin_once(timeout_sec=0.05)
+    except KeyboardInterrupt:
+        pass
+    rec.check_grid(node)
+    grid = rec.grid()
+    config, why, publisher = publisher_config(node, executor, rec.topic, should_stop)
+    noise = None if publisher is None else publisher_noise_scale(
+        rec, executor, publisher, should_stop)
+    extra = {} if noise is None else {'sigma': noise[0], 'r': noise[1]}
+    if publisher is not None:       # (reported with the noise scale, or before it)
+        extra.update(rec.scans.get(f'{publisher}: mapping', {}))
+    return RecordedMap(rec.to_value(extra), grid, config, why, noise)
 
 
 def publisher_noise_scale(rec: MapRecorder, executor, publisher: str,
