@@ -147,8 +147,7 @@ class SMEMSFConfig:
             raise ValueError(f'split_fraction must be in [0, 1), got {self.split_fraction!r}')
         if not self.gap_p < 1:
             raise ValueError(f'gap_p must be in (0, 1), got {self.gap_p!r}')
-        if not (isinstance(self.range_noise, (int, float, np.number))
-                and np.isfinite(self.range_noise) and 0 <= self.range_noise <= 1):
+        if not (is_number(self.range_noise) and 0 <= self.range_noise <= 1):
             raise ValueError(f'range_noise must be a share of the range in [0, 1], got '
                              f'{self.range_noise!r}')
         if not (np.isfinite(self.min_density) and self.min_density >= 0):
