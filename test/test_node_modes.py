@@ -123,6 +123,11 @@ def test_the_diagnostics_status_says_lost_first():
     assert mapping_status(0, 0, 0, 0, False, '/scan', None, 2) == (
         0, 'waiting for scans on /scan: 2 publishers matched, no scan received yet')
     assert mapping_status(10, 10, 0, 50, False, '/scan') == (0, 'mapping')
+    # on a saved map, scans that match nothing of it: not localized (dead reckoning)
+    level, message = mapping_status(10, 10, 0, 50, False, '/scan', 50, 1, None, None, None,
+                                    (12, 1.2))
+    assert level == 1 and message.startswith('not localized: the last 12 scans (1.2 s) matched '
+                                             'nothing of the saved map')
     # the scans stopped: a node that never used one said OK 'mapping' (node audit)
     assert mapping_status(0, 0, 0, 90, False, '/scan', 0) == (
         1, '90 scans received, none used yet (see the warnings)')

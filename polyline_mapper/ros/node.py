@@ -651,7 +651,8 @@ class PolylineMapperNode(Node):
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'), st['scans_used'],
                                         self.publishers_matched.get('scan'), silent,
-                                        p.wrong_start, self.incompatible.get('scan'))
+                                        p.wrong_start, self.incompatible.get('scan'),
+                                        p.unmatched)
         if silent is not None and not self._silence_said:
             self.warnings.warn('scans_stopped', message)    # once a stop (counted once)
         self._silence_said = silent is not None
@@ -666,7 +667,7 @@ class PolylineMapperNode(Node):
         # stores it in the map file (stats.sigma, stats.r), as ~/save_map does
         values = {'segments': self._published_count(), 'sigma_m': f'{sigma:.9g}',
                   'r_m': f'{r:.9g}',
-                  'lost': int(p.lost),
+                  'lost': int(p.lost), 'unmatched_scans': (p.unmatched or (0,))[0],
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}
         for topic, count in sorted(self.publishers_matched.items()):
@@ -757,7 +758,7 @@ class PolylineMapperNode(Node):
 def mapping_status(received: int, used: int, dropped: int, total: int, lost: bool,
                    topic: str, total_used: int = None, publishers: int = None,
                    silent: float = None, wrong_start: float = None,
-                   incompatible: str = None) -> tuple:
+                   incompatible: str = None, unmatched: tuple = None) -> tuple:
     """
     Return the /diagnostics (level, message) of one period: 0 OK, 1 WARN.
 
@@ -768,7 +769,9 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     the scans stopped (``PolylineMapperNode._scans_silent``), else None; ``wrong_start``: on a
     saved map, the share of the first scans' beams through its walls when they were matched
     onto a wrong place (``MappingSession.wrong_start``), else None; ``incompatible``: the
-    QoS policy of the last scan publisher whose QoS could not match, else None.
+    QoS policy of the last scan publisher whose QoS could not match, else None; ``unmatched``:
+    on a saved map, (scans, seconds) not matched in a row when they make the localizer not
+    localized (``MappingSession.unmatched``), else None.
     """
     if silent is not None and total:
         return 1, (f'no scan on {topic} for {silent:.1f} s ({total} received before): has the '
@@ -783,6 +786,10 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
         return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
                    'robot?) or searches for the scans (after a gap in them, near a pose '
                    'estimate); scans are not mapped until one matches the map again')
+    if unmatched is not None:
+        return 1, (f'not localized: the last {unmatched[0]} scans ({unmatched[1]:.1f} s) matched '
+                   'nothing of the saved map (the laser blocked, or the robot off the map?); '
+                   'the pose follows the odometry until a scan matches')
     if received and not used:
         return 1, f'{received} scans received, none used (see the warnings)'
     if dropped:
