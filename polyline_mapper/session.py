@@ -58,7 +58,7 @@ import numpy as np
 
 from .core.cleanup import seen_through
 from .core.freespace import passing_beams
-from .core.geometry import in_box, se2_compose, se2_inverse, wrap_angle
+from .core.geometry import in_box, is_number, se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.index import nearest_distance
@@ -896,11 +896,10 @@ class SessionOptions:
                              f'{self.max_latency!r}')
         for name in ('tolerance', 'wait', 'cache_seconds', 'odom_gap_factor'):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if not (is_number(v) and v >= 0):
                 raise ValueError(f'{name} must be a finite number >= 0, got {v!r}')
         v = self.scan_time_offset
-        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
-                                       and abs(v) <= MAX_SCAN_TIME_OFFSET):
+        if not (is_number(v) and abs(v) <= MAX_SCAN_TIME_OFFSET):
             raise ValueError(f'scan_time_offset must be a number of seconds within '
                              f'+-{MAX_SCAN_TIME_OFFSET:g}, got {v!r}')
         if self.fixed_frame is not None and not str(self.fixed_frame).strip():
@@ -1657,13 +1656,11 @@ def saved_noise_scale(stats) -> tuple:
     """
     stats = stats or {}
     sigma, r = stats.get('sigma'), stats.get('r')
-    if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool)
-            and math.isfinite(sigma) and 0 < sigma <= MAX_MAP_SIGMA):
+    if not (is_number(sigma) and 0 < sigma <= MAX_MAP_SIGMA):
         sigma = None
-    if sigma is None or not (isinstance(r, (int, float)) and not isinstance(r, bool)
-                             and math.isfinite(r) and 0 < r <= MAX_MAP_SIGMA * R_OVER_SIGMA):
+    if sigma is None or not (is_number(r) and 0 < r <= MAX_MAP_SIGMA * R_OVER_SIGMA):
         r = None
-    return sigma, r
+    return (None if sigma is None else float(sigma)), (None if r is None else float(r))
 
 
 def require_noise_scale(value: MapValue, sigma_given: bool, advice: str) -> tuple:

@@ -9,7 +9,8 @@ from polyline_mapper.formats.records import Odometry, Scan, Transform
 from polyline_mapper.poses import quaternion_from_yaw, se2_compose
 from polyline_mapper.replay import replay_records
 from polyline_mapper.scan import check_scan, ScanError
-from polyline_mapper.session import MappingSession, SessionOptions, WarningThrottle
+from polyline_mapper.session import (MappingSession, saved_noise_scale, SessionOptions,
+                                     WarningThrottle)
 import pytest
 
 
@@ -696,3 +697,18 @@ def test_scans_after_a_leap_in_their_stamps_are_taken_the_last_at_the_end(office
     clock.t += 0.2
     session.step()
     assert session.used == 21 and session.queued_scans() == 0 and not warned
+
+
+def test_session_numbers_take_numpy_scalars_and_refuse_booleans():
+    # Audit J (session 61) left these checks on (int, float): a numpy scalar (a value computed
+    # with numpy, a map file's stats read through numpy) was refused, and True taken as 1 s.
+    options = SessionOptions(tolerance=np.float64(0.1), scan_time_offset=np.float32(0.02))
+    assert options.tolerance == 0.1 and abs(options.scan_time_offset - 0.02) < 1e-9
+    for name, bad in (('tolerance', True), ('wait', np.nan), ('cache_seconds', -1.0),
+                      ('scan_time_offset', True), ('odom_gap_factor', '2')):
+        with pytest.raises(ValueError, match=f'^{name} must be'):
+            SessionOptions(**{name: bad})
+    sigma, r = saved_noise_scale({'sigma': np.float32(0.01), 'r': np.float64(0.05)})
+    assert type(sigma) is float and abs(sigma - 0.01) < 1e-9 and r == 0.05
+    assert saved_noise_scale({'sigma': True, 'r': 0.05}) == (None, None)
+    assert saved_noise_scale({'sigma': 0.01, 'r': np.inf}) == (0.01, None)
