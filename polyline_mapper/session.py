@@ -61,7 +61,6 @@ from .core.freespace import passing_beams
 from .core.geometry import in_box, is_number, se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
-from .core.index import nearest_distance
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
 from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, DEFAULT_CHORD_KNOTS, match_scan,
@@ -233,29 +232,42 @@ would be nothing, and no scan would ever be matched or mapped again.
 """
 ANCHOR_SHARE = 0.5
 """
-Localization on a saved map (``SessionOptions.mapping`` False): a scan's chords are kept for the
-next matches (``RecentChords``) only when at least this share of its points lies on the map's
-own segments at its matched pose (within 4 sigma, exact distances); a scan not matched keeps
-none. The map does not grow there, so chords of a scan it does not explain are all the next scans
-can match: a laser blocked all round (0.4 m on every beam) for 30 scans of the drifted office
-drive (seed 1) was matched to its own chords, scan after scan, with a 1-10 mm covariance while
-the odometry drove 8 m, and seeing again 4 m away it was matched into another room for good
-(blocked from scan 10, 20, ..., 320: 32 of 32 runs 1-14 m off at the end). With the rule the
-blocked scans keep the odometry's pose and 29 of the 32 take the map back (at most 6 cm off at
-the end); in the other 3 the 0.4 m ring, tangent to walls, matched the map itself at 10-27 % of
-its points. Shares of the scans matched on their own saved maps (drift seed 0): office 0.99 and
-more, Intel 3 of 910 scans below 0.5 (0.19 the least), CSAIL 1 of 406 (0.49); in
-``benchmarks/covariance.py`` (seeds 0, 1) every scan stays matched, the median errors move
-2.15 -> 2.10 cm (Intel, seed 0) and 2.02 -> 2.00 cm (CSAIL, seed 0), the rest is unchanged.
+Localization on a saved map from odometry or TF (``SessionOptions.mapping`` False): a scan's
+chords are kept for the next matches (``RecentChords``) only when its match puts at least this
+share of its points on the map and the chords kept (``ScanMatch.share``); a scan not matched
+keeps none. The map does not grow there, so chords of scans it does not explain can move with
+the robot: a laser blocked all round (0.4 m on every beam) for 30 scans of the drifted office
+drive (seed 1) was kept as chords at its predicted pose and the next blocked scans were matched
+to them, with a 1-10 mm covariance while the odometry drove 8 m; seeing again 4 m away it was
+matched into another room for good (blocked from scan 10, 20, ..., 320: 32 of 32 runs 1-14 m
+off at the end). Where the saved map lacks walls, scans matched to the chords of the scans
+before them keep carrying the robot (the office map cut at x = 10, 12 or 14 m, a third of the
+drive beyond: 0.5-0.8 cm RMS, as before); counting the map's own segments alone (session 62's
+first attempt) left it 4 m off there. Scan mode has no odometry to fall back on: unchanged.
 """
 UNMATCHED_STREAK = (10, 1.0)
 """
-Localization on a saved map (``SessionOptions.mapping`` False): this many scans in a row, over at
-least this many seconds, that match nothing of the map make the session not localized
-(``unmatched``, the ``not_localized`` warning, WARN on /diagnostics) until a scan matches: their
-poses are the odometry's since the last match (the laser blocked, the robot off the saved map).
-One or two unmatched scans in clutter are not a loss (none on the office, Intel and CSAIL drives
-of ``benchmarks/covariance.py``).
+Localization on a saved map from odometry or TF (``SessionOptions.mapping`` False): this many
+scans in a row not matched, the newest at least this many seconds after the first (at 10 Hz the
+11th), make the session not localized (``unmatched``, the ``not_localized`` warning, WARN on
+/diagnostics) until a scan is found (``RECKONED_SEARCH``): their poses are the odometry's since
+the last match (the laser blocked, the robot off the saved map). Scans searched for near a pose
+estimate or after a gap are not counted (the session is lost then, and says so). One or two
+unmatched scans in clutter are not a loss (none on the office, Intel and CSAIL drives of
+``benchmarks/covariance.py``). Scan mode has no odometry to follow: not counted there.
+"""
+RECKONED_SEARCH = 0.5
+"""
+Localization on a saved map, not localized (``UNMATCHED_STREAK``): only a search ends it. A
+scan is searched for within ``POSE_ESTIMATE_SIGMAS`` standard deviations of the odometry's
+error since the last match (``_reckon``; at least the match's own reach, at most ``GAP_REACH``
+m and half a turn), at most once per this many seconds of scan stamps (a search costs 40-85
+ms), and the pose found taken as after a gap (``GAP_SHARE`` of the scan on the map, no rival
+place 0.5 m or 0.3 rad away); the other scans keep the odometry's pose, whatever their match
+from it says (counted 'not localized'). After 3 s of scans that match nothing on the drifted
+office drive the odometry was 0.7-1.5 m and 0.2-0.47 rad off (seed 1, 4 of 32 windows), beyond
+the match's reach (``MATCH_REACH``, ``RELOCALIZE``): matched from there, the robot settled
+0.8-12 m off for good.
 """
 CONFIRM_JUMP = 3
 """
@@ -1787,18 +1799,6 @@ def _percentiles(values) -> dict:
             'p99': float(np.percentile(v, 99)), 'max': float(v.max())}
 
 
-def map_share(local: np.ndarray, pose: np.ndarray, segs: np.ndarray, gate: float) -> float:
-    """
-    Return the share of laser-frame points ``local`` at ``pose`` within ``gate`` of ``segs``.
-
-    Exact point-to-segment distances (``core.index.nearest_distance``); 0.0 for no points.
-    """
-    if not len(local):
-        return 0.0
-    d, _ = nearest_distance(transform(local, pose), segs, radius=gate)
-    return float(np.count_nonzero(d <= gate)) / len(local)
-
-
 def _not_seen_through(segs: np.ndarray, support: np.ndarray, recent: np.ndarray,
                       origin: np.ndarray, points: np.ndarray, tol: float) -> tuple:
     """
@@ -1975,6 +1975,10 @@ class MappingSession:
         """Scan matching: 'residual', 'correction' and 'odometry' jumps warned about
         (``_localize``)."""
         self._residuals = deque(maxlen=JUMP_WINDOW)
+        self._reckoned = None
+        """Scan matching: the odometry's error since the last matched scan (``_reckon``)."""
+        self._searched = None
+        """Scan matching: the stamp of the last ``_search_reckoned`` (``RECKONED_SEARCH``)."""
         self._unmatched = None
         """On a saved map: [first stamp, scans, warned] of the scans not matched since the last
         matched one (``UNMATCHED_STREAK``); None after a match."""
@@ -2186,6 +2190,8 @@ class MappingSession:
         self._intervals.clear()
         self._found = False
         self._unmatched = None
+        self._reckoned = None
+        self._searched = None
 
     # -- producers -----------------------------------------------------------------------------
     def add(self, record) -> None:
@@ -2884,6 +2890,14 @@ class MappingSession:
             m = self._confirm(local, given, m, near, sigma, degenerate)
         elif m.ok:
             self._proposals.clear()
+        if self.unmatched is not None:      # not localized: only a search ends it
+            found = self._search_reckoned(local, prediction, sigma, stamp)
+            if found is not None:
+                m = found
+                self._proposals.clear()
+            elif m.ok:
+                m = m._replace(ok=False, reason='not localized', pose=prediction,
+                               covariance=_PRIOR, proposal=None, relocalized=False)
         self._found = lost and m.ok
         self._last_match = m
         if not m.ok:
@@ -2897,25 +2911,15 @@ class MappingSession:
         self.held += m.held > 0
         self._set_anchor(base, stamp, m.pose)
         self._shares.append(m.share)
-        if self._anchored(local, m.pose, segs, sigma):
+        if not self._fixed() or m.share >= ANCHOR_SHARE:
             self._keyframe(local, m.pose)
         self._correction = _compose(m.pose, _inverse(given))
         return m.pose, None
 
     def _fixed(self) -> bool:
-        """Whether the session localizes on a saved map it never changes (mapping off)."""
-        return self._loaded is not None and not self.options.mapping
-
-    def _anchored(self, local: np.ndarray, pose: np.ndarray, segs: np.ndarray,
-                  sigma: float) -> bool:
-        """
-        Whether a matched scan's chords may be kept: always while mapping, else ``ANCHOR_SHARE``.
-
-        ``segs``: the map's segments the scan was matched to (the chords left out).
-        """
-        if not self._fixed():
-            return True
-        return bool(len(segs)) and map_share(local, pose, segs, 4.0 * sigma) >= ANCHOR_SHARE
+        """Whether the session localizes on a saved map it never changes, from odometry or TF."""
+        return (self._loaded is not None and not self.options.mapping
+                and self.options.pose_source != 'scan')
 
     def _set_anchor(self, base, stamp, pose) -> None:
         """
@@ -3046,6 +3050,43 @@ class MappingSession:
         self._odom_jump = (math.hypot(step[0], step[1]), abs(wrap_angle(float(step[2]))), dt,
                            'searched', self._reset_window)
         return None
+
+    def _search_reckoned(self, local: np.ndarray, prediction: np.ndarray, sigma: float,
+                         stamp: Optional[float]) -> Optional[ScanMatch]:
+        """
+        Search a scan not matched while not localized within the odometry's error; or None.
+
+        ``RECKONED_SEARCH``: the window from ``_reckoned``, the candidates of
+        ``search_after_gap`` refined by ``match_scan``, the best taken (relocalized) when it
+        puts ``_gap_share`` of the scan on the map and no place 0.5 m / 0.3 rad from it comes
+        within ``GAP_RIVAL`` of that share.
+        """
+        if self._reckoned is None or stamp is None or (
+                self._searched is not None and 0 <= stamp - self._searched < RECKONED_SEARCH):
+            return None
+        self._searched = stamp
+        cov = self._reckoned[0]
+        sd = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2]).max()), 0.0))
+        radius = min(max(POSE_ESTIMATE_SIGMAS * sd, RELOCALIZE), GAP_REACH)
+        turn = min(max(POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0)), MATCH_REACH[1]),
+                   math.pi)
+        segs = self.mapper.segments
+        far = radius + 0.5 + float(np.hypot(local[:, 0], local[:, 1]).max())
+        near = segs[in_box(segs, prediction[:2] - far, prediction[:2] + far)]
+        found = [m for m in (match_scan(local, c, near, sigma,
+                                        degenerate=MATCH_DEGENERATE['scan'])
+                             for c in search_after_gap(local, near, prediction, radius, turn))
+                 if m.ok]
+        if not found:
+            return None
+        found.sort(key=lambda m: -m.share)
+        best = found[0]
+        rivals = [m for m in found[1:] if m.share >= best.share - GAP_RIVAL and (
+            math.hypot(*(m.pose[:2] - best.pose[:2])) > 0.5
+            or abs(wrap_angle(m.pose[2] - best.pose[2])) > 0.3)]
+        if best.share < self._gap_share() or rivals:
+            return None
+        return best._replace(relocalized=True)
 
     def _gap_share(self) -> float:
         """Return the share of a scan a pose found by a search must put on the map (GAP_SHARE)."""
@@ -3238,22 +3279,49 @@ class MappingSession:
         self._proposals.clear()
         return again._replace(relocalized=True)
 
+    def _reckon(self, base: Optional[np.ndarray], matched: bool) -> None:
+        """
+        Carry the odometry's error since the last matched scan to this scan's base pose.
+
+        ``_reckoned``: [covariance (odometry frame), the last base pose]; each step's error
+        (``odometry_covariance``) is added and the heading's error so far moves the step's
+        end sideways (an EKF's prediction: J P J^T + Q). Reset at a matched scan; None without
+        base poses.
+        """
+        if base is None:
+            self._reckoned = None
+            return
+        base = np.asarray(base, dtype=np.float64)
+        if matched or self._reckoned is None:
+            self._reckoned = [np.zeros((3, 3)), base.copy()]
+            return
+        cov, last = self._reckoned
+        dx, dy = base[0] - last[0], base[1] - last[1]
+        jac = np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])
+        self._reckoned = [jac @ cov @ jac.T + odometry_covariance(_compose(_inverse(last), base)),
+                          base.copy()]
+
     def _unmatched_spread(self, m: Optional[ScanMatch], base: Optional[np.ndarray]) -> np.ndarray:
         """
         Return what a scan not matched adds to its pose's covariance (m^2, rad^2; laser frame).
 
         The prediction's own prior (``_PRIOR``, 0.1 m and 0.05 rad) claimed a pose good to 10 cm
         while the session was lost and the error grew to metres (an audit). Added: the
-        odometry's error over the motion since the last matched scan (``odometry_covariance``
-        of the straight step from there: a loop back near that scan adds little),
-        a refused match's distance from the prediction (the scans may be either place), while
-        searched for (after a gap or near a pose estimate) the search window's spread
+        odometry's error over the motion since the last matched scan (``_reckon``: step by
+        step along the path, each step's heading error moving the rest; until 2026-12-01 the
+        straight step from there, so a loop back near that scan added little), a refused
+        match's distance from the prediction (the scans may be either place), while searched
+        for (after a gap or near a pose estimate) the search window's spread
         (``POSE_ESTIMATE_SIGMAS`` standard deviations), and once that search gave up
-        ``GAP_REACH`` metres and half a turn as standard deviations: not localized.
+        ``GAP_REACH`` metres and half a turn as standard deviations: not localized (the
+        odometry's error left out then: the pose is not known).
         """
         add = np.zeros((3, 3))
-        if base is not None and self._anchor is not None:
-            add += odometry_covariance(_compose(_inverse(self._anchor), base))
+        given_up = self._gap is not None and self._gap.final
+        if base is not None and self._reckoned is not None and not given_up:
+            c, s = math.cos(self._correction[2]), math.sin(self._correction[2])
+            turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])   # odom -> map
+            add += turn @ self._reckoned[0] @ turn.T
         if m is not None and m.proposal is not None:
             dx, dy = np.asarray(m.proposal[:2], dtype=np.float64) - m.pose[:2]
             turn = wrap_angle(float(m.proposal[2]) - float(m.pose[2]))
@@ -3278,6 +3346,7 @@ class MappingSession:
         cov = np.array(m.covariance if m is not None else _PRIOR, dtype=np.float64)
         pose = np.asarray(laser, dtype=np.float64)
         base = self.poses.base_pose(stamp)
+        self._reckon(base, matched)
         if not matched:
             cov = cov + self._unmatched_spread(m, base)
             if cov[2, 2] > math.pi ** 2:        # a heading beyond half a turn says no more
@@ -3352,10 +3421,10 @@ class MappingSession:
 
     def _count_unmatched(self, stamp: float, matched: bool) -> list:
         """Count a scan not matched on a saved map (``UNMATCHED_STREAK``); return its warning."""
-        if matched or not self._fixed():
-            self._unmatched = None
+        if matched or not self._fixed() or self._gap is not None:
+            self._unmatched = None      # (searched for near an estimate, after a gap: lost)
             return []
-        if self._unmatched is None:
+        if self._unmatched is None or stamp < self._unmatched[0]:   # (a clock jump back)
             self._unmatched = [stamp, 0, False]
         run = self._unmatched
         run[1] += 1
@@ -3373,7 +3442,8 @@ class MappingSession:
         """
         Return (scans, seconds) not matched in a row on a saved map when not localized, else None.
 
-        Not localized: ``UNMATCHED_STREAK`` scans and seconds since the last match.
+        Not localized (``UNMATCHED_STREAK``): at least that many scans not matched in a row, the
+        newest at least that many seconds after the first of them (at 10 Hz the 11th scan).
         """
         run = self._unmatched
         if run is None or self.localization is None:

@@ -287,7 +287,10 @@ def test_estimates_in_a_bag_are_taken_in_their_turn_as_the_node_takes_them(
 def test_on_the_intel_log_an_estimate_localizes_as_a_true_start():
     # Real data (benchmarks/pose_estimate.py): Intel's map from the corrected poses, the log
     # localized on it with drifting odometry whose frame starts 2.5 m and 0.6 rad off. With
-    # nothing given the scans are matched onto wrong places (6 m RMS). An estimate 0.3-1.0 m
+    # nothing given the first scans are matched onto wrong places (6 m RMS until 2026-12-01;
+    # 0.25 m since: the chords of scans put under half on the map and the chords are no longer
+    # kept, so those wrong places do not carry on, and the map takes the track back). An
+    # estimate 0.3-1.0 m
     # and 0.1-0.5 rad off before scan 10 localizes as a true start does (3.4 cm). Tracked at
     # constant velocity instead of by the odometry, the scans after the estimate (0.5 m apart
     # in this log) were never found: 900 of 910 not mapped.
@@ -298,12 +301,13 @@ def test_on_the_intel_log_an_estimate_localizes_as_a_true_start():
     # Localizing on a wrong place is warned of once (40 % of the first 10 scans' beams pass
     # through the saved walls, median), the true start not (1 %); an estimate after the
     # warning is not warned of again.
-    assert rows['no start']['rms_m'] > 1.0 and rows['no start']['warnings']['wrong_start'] == 1
+    reference = rows['true start']['rms_m']
+    assert rows['no start']['rms_m'] > 5 * reference
+    assert rows['no start']['warnings']['wrong_start'] == 1
     assert 'wrong_start' not in rows['true start']['warnings']
     # and it stays said (the node's /diagnostics WARN) until a pose is given: a node audit saw
     # a robot tracked 6 m off with /diagnostics OK after the one warning
     assert rows['no start']['wrong_start_at_end'] and not rows['true start']['wrong_start_at_end']
-    reference = rows['true start']['rms_m']
     assert reference < 0.05
     estimates = [r for case, r in rows.items() if case.startswith('estimate')]
     assert len(estimates) == 3

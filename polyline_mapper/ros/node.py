@@ -648,11 +648,12 @@ class PolylineMapperNode(Node):
         if 'scan' in self.incompatible and not self.count_publishers(
                 self.resolve_topic_name('scan')):
             del self.incompatible['scan']       # that publisher has gone (an audit: WARN stayed)
+        unmatched = p.unmatched
         level, message = mapping_status(received, used, dropped, st['scans'], p.lost,
                                         self.resolve_topic_name('scan'), st['scans_used'],
                                         self.publishers_matched.get('scan'), silent,
                                         p.wrong_start, self.incompatible.get('scan'),
-                                        p.unmatched)
+                                        unmatched)
         if silent is not None and not self._silence_said:
             self.warnings.warn('scans_stopped', message)    # once a stop (counted once)
         self._silence_said = silent is not None
@@ -667,7 +668,7 @@ class PolylineMapperNode(Node):
         # stores it in the map file (stats.sigma, stats.r), as ~/save_map does
         values = {'segments': self._published_count(), 'sigma_m': f'{sigma:.9g}',
                   'r_m': f'{r:.9g}',
-                  'lost': int(p.lost), 'unmatched_scans': (p.unmatched or (0,))[0],
+                  'lost': int(p.lost), 'unmatched_scans': (unmatched or (0,))[0],
                   'scans_received': st['scans'], 'scans_used': st['scans_used'],
                   'scans_dropped': st['dropped'], 'updates': st['updates']}
         for topic, count in sorted(self.publishers_matched.items()):
