@@ -239,11 +239,12 @@ keeps none. The map does not grow there, so chords of scans it does not explain 
 the robot: a laser blocked all round (0.4 m on every beam) for 30 scans of the drifted office
 drive (seed 1) was kept as chords at its predicted pose and the next blocked scans were matched
 to them, with a 1-10 mm covariance while the odometry drove 8 m; seeing again 4 m away it was
-matched into another room for good (blocked from scan 10, 20, ..., 320: 32 of 32 runs 1-14 m
-off at the end). Where the saved map lacks walls, scans matched to the chords of the scans
-before them keep carrying the robot (the office map cut at x = 10, 12 or 14 m, a third of the
-drive beyond: 0.5-0.8 cm RMS, as before); counting the map's own segments alone (session 62's
-first attempt) left it 4 m off there. Scan mode has no odometry to fall back on: unchanged.
+matched into another room for good (blocked from scan 10, 20, ..., 310: 29 of 31 windows
+1-14 m off from the 10th scan after the block on). Where the saved map lacks walls, scans
+matched to the chords of the scans before them keep carrying the robot (the office map cut at
+x = 10, 12 or 14 m, a third of the drive beyond: 0.5-0.8 cm RMS, as before); counting the
+map's own segments alone (session 62's first attempt) left it 4 m off there. Scan mode has no
+odometry to fall back on: unchanged.
 """
 UNMATCHED_STREAK = (10, 1.0)
 """
@@ -265,7 +266,7 @@ m and half a turn), at most once per this many seconds of scan stamps (a search 
 ms), and the pose found taken as after a gap (``GAP_SHARE`` of the scan on the map, no rival
 place 0.5 m or 0.3 rad away); the other scans keep the odometry's pose, whatever their match
 from it says (counted 'not localized'). After 3 s of scans that match nothing on the drifted
-office drive the odometry was 0.7-1.5 m and 0.2-0.47 rad off (seed 1, 4 of 32 windows), beyond
+office drive the odometry was 0.7-1.5 m and 0.2-0.47 rad off (seed 1, 4 of 31 windows), beyond
 the match's reach (``MATCH_REACH``, ``RELOCALIZE``): matched from there, the robot settled
 0.8-12 m off for good.
 """
@@ -3057,9 +3058,11 @@ class MappingSession:
         Search a scan not matched while not localized within the odometry's error; or None.
 
         ``RECKONED_SEARCH``: the window from ``_reckoned``, the candidates of
-        ``search_after_gap`` refined by ``match_scan``, the best taken (relocalized) when it
-        puts ``_gap_share`` of the scan on the map and no place 0.5 m / 0.3 rad from it comes
-        within ``GAP_RIVAL`` of that share.
+        ``search_after_gap`` refined by ``match_scan`` against the map and the chords kept (where
+        the saved map lacks walls they are all there is: review R, a laser blocked for 1.5 s
+        there was never found against the map alone, 4-10 m off at the end), the best taken
+        (relocalized) when it puts ``_gap_share`` of the scan on them and no place 0.5 m / 0.3
+        rad from it comes within ``GAP_RIVAL`` of that share.
         """
         if self._reckoned is None or stamp is None or (
                 self._searched is not None and 0 <= stamp - self._searched < RECKONED_SEARCH):
@@ -3070,9 +3073,10 @@ class MappingSession:
         radius = min(max(POSE_ESTIMATE_SIGMAS * sd, RELOCALIZE), GAP_REACH)
         turn = min(max(POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0)), MATCH_REACH[1]),
                    math.pi)
-        segs = self.mapper.segments
         far = radius + 0.5 + float(np.hypot(local[:, 0], local[:, 1]).max())
-        near = segs[in_box(segs, prediction[:2] - far, prediction[:2] + far)]
+        lo, hi = prediction[:2] - far, prediction[:2] + far
+        pieces = (self.mapper.segments, self._recent.chords())
+        near = np.concatenate([s[in_box(s, lo, hi)] for s in pieces])
         found = [m for m in (match_scan(local, c, near, sigma,
                                         degenerate=MATCH_DEGENERATE['scan'])
                              for c in search_after_gap(local, near, prediction, radius, turn))
@@ -3434,8 +3438,8 @@ class MappingSession:
         sd = math.sqrt(max(self.localization.covariance[0, 0], self.localization.covariance[1, 1]))
         return [('not_localized', f'not localized since {run[0]:.3f} s: {run[1]} scans in a '
                  'row matched nothing of the saved map (the laser blocked, or the robot off the '
-                 "map?); the poses are the odometry's until a scan matches (now "
-                 f'{sd:.2f} m std)')]
+                 "map?); the poses are the odometry's until a search finds the scans on the "
+                 f'map (now {sd:.2f} m std)')]
 
     @property
     def unmatched(self) -> Optional[tuple]:

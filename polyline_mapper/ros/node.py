@@ -790,7 +790,7 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     if unmatched is not None:
         return 1, (f'not localized: the last {unmatched[0]} scans ({unmatched[1]:.1f} s) matched '
                    'nothing of the saved map (the laser blocked, or the robot off the map?); '
-                   'the pose follows the odometry until a scan matches')
+                   'the pose follows the odometry until a search finds the scans on the map')
     if received and not used:
         return 1, f'{received} scans received, none used (see the warnings)'
     if dropped:
