@@ -1,0 +1,121 @@
+"""
+A laser that sees nothing of the saved map for 3 s: localization only, and finding the map again.
+
+Usage (from the repository root, after ``bash tools/dev.sh setup``)::
+
+    .venv/bin/python benchmarks/blocked_laser.py [--seeds 1] [--quick]
+
+``sim:office`` is mapped with true poses; the same drive, with drifting odometry (issue 19's
+model, ``drive_messages(odom_drift=seed)``), is localized on that map (``mapping: false``) with
+30 of its scans (3 s, the odometry driving 6-9 m) replaced from scan 10, 20, ..., 310 by
+
+- ``ring``: 0.4 m on every beam (the laser covered, people all round the robot), or
+- ``none``: no return on any beam (each such scan is skipped as unusable).
+
+Per window: the largest error of the base pose from the 10th scan after the block to the end,
+the error at the end, the first scan matched after the block, and for every scan not matched
+NEES = e^T S^-1 e of its published covariance (3 on average, under 7.81 for 95 % of the scans
+when S is the error's covariance). README "Localization on a saved map" states what the
+session does (``ANCHOR_SHARE``, ``UNMATCHED_STREAK``, ``RECKONED_SEARCH``).
+
+Writes the table into benchmarks/README.md (between the ``blocked-laser`` markers) and the rows
+to results/blocked_laser.json (not with ``--quick``: windows 30, 100, 190 only, printed).
+"""
+
+import argparse
+import dataclasses
+import json
+import sys
+
+from common import publish, stamp
+import numpy as np
+from polyline_mapper.formats.records import Scan
+from polyline_mapper.poses import se2_compose, se2_inverse
+from polyline_mapper.recordings import drive_messages, flat_records, make_drive, SIM_MOUNT
+from polyline_mapper.replay import replay_records
+from polyline_mapper.session import SessionOptions
+
+CHI2_95_3DOF = 7.815
+BLOCK = 30
+VALUES = {'ring': 0.4, 'none': float('inf')}
+
+
+def window(records, saved, truth, start: int, value: float) -> dict:
+    """Localize ``records`` on ``saved`` with scans [start, start + BLOCK) blocked."""
+    blocked, n = [], 0
+    for rec in records:
+        if isinstance(rec, Scan):
+            if start <= n < start + BLOCK:
+                rec = dataclasses.replace(rec, ranges=np.full(len(rec.ranges), value,
+                                                              dtype=np.float32))
+            n += 1
+        blocked.append(rec)
+    rows, warned = [], []
+
+    def keep(session):
+        loc = session.localization
+        if loc is not None and (not rows or rows[-1][0] != loc.stamp):
+            rows.append((loc.stamp, loc.pose, loc.covariance, loc.matched))
+    replay_records(blocked, options=SessionOptions(mapping=False), start_map=saved,
+                   progress=keep, warn=lambda cause, text: warned.append(cause))
+    stamps = np.array([r[0] for r in rows])
+    index = np.searchsorted(truth[0], stamps - 1e-6)
+    err = np.array([r[1] for r in rows]) - truth[1][index]
+    err[:, 2] = np.angle(np.exp(1j * err[:, 2]))
+    dist = np.hypot(err[:, 0], err[:, 1])
+    matched = np.array([r[3] for r in rows])
+    nees = [float(e @ np.linalg.solve(r[2], e)) for e, r, m in zip(err, rows, matched) if not m]
+    end = start + BLOCK
+    after = np.flatnonzero(matched & (index >= end))
+    return {'start': start, 'tail_m': float(dist[index >= end + 10].max()),
+            'end_m': float(dist[-1]), 'found_after': int(index[after[0]] - end) if len(after)
+            else None, 'nees': nees, 'not_localized': warned.count('not_localized')}
+
+
+def main() -> int:
+    """Run the windows; write the table and the raw rows."""
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
+    ap.add_argument('--seeds', type=int, nargs='+', default=[1])
+    ap.add_argument('--quick', action='store_true', help='three windows, printed')
+    args = ap.parse_args()
+    meta = stamp('.venv/bin/python benchmarks/blocked_laser.py ' + ' '.join(sys.argv[1:]))
+    office = make_drive('sim:office')
+    saved = replay_records(flat_records(drive_messages(office))).map_value()
+    base = se2_compose(np.asarray(office.poses), se2_inverse(np.asarray(SIM_MOUNT)))
+    starts = [30, 100, 190] if args.quick else list(range(10, 320, 10))
+    rows = []
+    for seed in args.seeds:
+        drive = make_drive('sim:office', seed=seed)
+        records = flat_records(drive_messages(drive, odom_drift=seed))
+        truth = (1000.0 + np.asarray(drive.stamps), base)
+        for mode, value in VALUES.items():
+            for start in starts:
+                r = {'mode': mode, 'seed': seed, **window(records, saved, truth, start, value)}
+                rows.append(r)
+                print(json.dumps({k: v for k, v in r.items() if k != 'nees'}), file=sys.stderr,
+                      flush=True)
+    lines = [f"Measured {meta['date']} on {meta['machine']}, commit {meta['commit']}: "
+             f"`{meta['command']}`.", '',
+             '| blocked | seed | windows | end within 6 cm | within 6 cm from 10 scans after | '
+             'worst then (m) | found after (scans: median, max) | not matched: NEES mean / '
+             'median, < 7.81 |', '|---|---:|---:|---:|---:|---:|---|---|']
+    for seed in args.seeds:
+        for mode in VALUES:
+            sel = [r for r in rows if r['mode'] == mode and r['seed'] == seed]
+            found = [r['found_after'] for r in sel if r['found_after'] is not None]
+            nees = np.concatenate([r['nees'] for r in sel]) if sel else np.zeros(0)
+            spread = (f'{nees.mean():.1f} / {np.median(nees):.2f}, '
+                      f'{100 * np.mean(nees < CHI2_95_3DOF):.0f} % ({len(nees)})' if len(nees)
+                      else 'none (the scans are skipped)')
+            lines.append(
+                f"| {mode} | {seed} | {len(sel)} | {sum(r['end_m'] <= 0.06 for r in sel)} | "
+                f"{sum(r['tail_m'] <= 0.06 for r in sel)} | "
+                f"{max(r['tail_m'] for r in sel):.2f} | "
+                f"{int(np.median(found)) if found else '-'}, {max(found) if found else '-'} | "
+                f'{spread} |')
+    publish('blocked-laser', 'blocked_laser', meta, rows, lines, args.quick)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
