@@ -1800,6 +1800,30 @@ def _percentiles(values) -> dict:
             'p99': float(np.percentile(v, 99)), 'max': float(v.max())}
 
 
+def _found_places(points: np.ndarray, segments: np.ndarray, center: np.ndarray, radius: float,
+                  turn: float, sigma: float) -> tuple:
+    """
+    Search ``points`` on ``segments`` within ``radius`` m and ``turn`` rad of ``center``.
+
+    Returns (best, rivals): ``search_after_gap``'s candidates refined by ``match_scan`` (scan
+    mode's degeneracy guard), the one putting most of the points on the segments (None when
+    none matched), and the others more than 0.5 m or 0.3 rad from it within ``GAP_RIVAL`` of
+    its share, best first. After a gap, near a pose estimate, and when not localized.
+    """
+    far = radius + 0.5 + float(np.hypot(points[:, 0], points[:, 1]).max())
+    near = segments[in_box(segments, center[:2] - far, center[:2] + far)]
+    found = [m for m in (match_scan(points, c, near, sigma, degenerate=MATCH_DEGENERATE['scan'])
+                         for c in search_after_gap(points, near, center, radius, turn))
+             if m.ok]
+    if not found:
+        return None, []
+    found.sort(key=lambda m: -m.share)
+    best = found[0]
+    return best, [m for m in found[1:] if m.share >= best.share - GAP_RIVAL and (
+        math.hypot(*(m.pose[:2] - best.pose[:2])) > 0.5
+        or abs(wrap_angle(m.pose[2] - best.pose[2])) > 0.3)]
+
+
 def _not_seen_through(segs: np.ndarray, support: np.ndarray, recent: np.ndarray,
                       origin: np.ndarray, points: np.ndarray, tol: float) -> tuple:
     """
@@ -3073,22 +3097,10 @@ class MappingSession:
         radius = min(max(POSE_ESTIMATE_SIGMAS * sd, RELOCALIZE), GAP_REACH)
         turn = min(max(POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0)), MATCH_REACH[1]),
                    math.pi)
-        far = radius + 0.5 + float(np.hypot(local[:, 0], local[:, 1]).max())
-        lo, hi = prediction[:2] - far, prediction[:2] + far
-        pieces = (self.mapper.segments, self._recent.chords())
-        near = np.concatenate([s[in_box(s, lo, hi)] for s in pieces])
-        found = [m for m in (match_scan(local, c, near, sigma,
-                                        degenerate=MATCH_DEGENERATE['scan'])
-                             for c in search_after_gap(local, near, prediction, radius, turn))
-                 if m.ok]
-        if not found:
-            return None
-        found.sort(key=lambda m: -m.share)
-        best = found[0]
-        rivals = [m for m in found[1:] if m.share >= best.share - GAP_RIVAL and (
-            math.hypot(*(m.pose[:2] - best.pose[:2])) > 0.5
-            or abs(wrap_angle(m.pose[2] - best.pose[2])) > 0.3)]
-        if best.share < self._gap_share() or rivals:
+        best, rivals = _found_places(
+            local, np.concatenate([self.mapper.segments, self._recent.chords()]), prediction,
+            radius, turn, sigma)
+        if best is None or best.share < self._gap_share() or rivals:
             return None
         return best._replace(relocalized=True)
 
@@ -3134,7 +3146,6 @@ class MappingSession:
         and when it gives up. ``reset``: the odometry came back near its origin after a gap
         (``_reset_after_gap``; ``_localize`` warns that it is lost).
         """
-        degenerate = MATCH_DEGENERATE['scan']
         track = self._gap
         if track is None:
             since = self._motion[-1][0] if self._motion and estimate is None else stamp
@@ -3154,25 +3165,15 @@ class MappingSession:
         if not track.final and track.add(stamp, local, sigma,       # a new keyframe:
                                          MATCH_DEGENERATE[self.options.pose_source],
                                          given if odometry else None):
-            points = track.points()
-            center, (radius, turn) = track.center, track.window
-            far = radius + 0.5 + float(np.hypot(points[:, 0], points[:, 1]).max())
-            near = segments[in_box(segments, center[:2] - far, center[:2] + far)]
-            found = [m for m in (match_scan(points, c, near, sigma, degenerate=degenerate)
-                                 for c in search_after_gap(points, near, center, radius, turn))
-                     if m.ok]
-            found.sort(key=lambda m: -m.share)
+            center = track.center
+            best, rivals = _found_places(track.points(), segments, center, *track.window, sigma)
             need = self._gap_share()
             track.why = 'no pose puts the scans on the map'
-            if found:
-                best = found[0]
+            if best is not None:
                 if track.estimate is None and (
                         math.hypot(*(best.pose[:2] - center[:2])) <= GAP_NEAR[0]
                         and abs(wrap_angle(best.pose[2] - center[2])) <= GAP_NEAR[1]):
                     need = RELOCALIZE_SHARE     # where a match from the prediction would be
-                rivals = [m for m in found[1:] if m.share >= best.share - GAP_RIVAL and (
-                    math.hypot(*(m.pose[:2] - best.pose[:2])) > 0.5
-                    or abs(wrap_angle(m.pose[2] - best.pose[2])) > 0.3)]
                 if rivals and track.estimate is not None and track.final:
                     # the last search near an estimate, else given up: its prior decides
                     best, rivals = _nearest_estimate([best] + rivals, center, track.window,
