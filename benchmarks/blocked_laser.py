@@ -28,14 +28,13 @@ import json
 import sys
 
 from common import publish, stamp
+from covariance import CHI2_95_3DOF, localize
 import numpy as np
 from polyline_mapper.formats.records import Scan
 from polyline_mapper.poses import se2_compose, se2_inverse
 from polyline_mapper.recordings import drive_messages, flat_records, make_drive, SIM_MOUNT
 from polyline_mapper.replay import replay_records
-from polyline_mapper.session import SessionOptions
 
-CHI2_95_3DOF = 7.815
 BLOCK = 30
 VALUES = {'ring': 0.4, 'none': float('inf')}
 
@@ -50,21 +49,14 @@ def window(records, saved, truth, start: int, value: float) -> dict:
                                                               dtype=np.float32))
             n += 1
         blocked.append(rec)
-    rows, warned = [], []
-
-    def keep(session):
-        loc = session.localization
-        if loc is not None and (not rows or rows[-1][0] != loc.stamp):
-            rows.append((loc.stamp, loc.pose, loc.covariance, loc.matched))
-    replay_records(blocked, options=SessionOptions(mapping=False), start_map=saved,
-                   progress=keep, warn=lambda cause, text: warned.append(cause))
-    stamps = np.array([r[0] for r in rows])
+    warned = []
+    stamps, poses, covs, matched = localize(blocked, saved,
+                                            warn=lambda cause, text: warned.append(cause))
     index = np.searchsorted(truth[0], stamps - 1e-6)
-    err = np.array([r[1] for r in rows]) - truth[1][index]
+    err = poses - truth[1][index]
     err[:, 2] = np.angle(np.exp(1j * err[:, 2]))
     dist = np.hypot(err[:, 0], err[:, 1])
-    matched = np.array([r[3] for r in rows])
-    nees = [float(e @ np.linalg.solve(r[2], e)) for e, r, m in zip(err, rows, matched) if not m]
+    nees = [float(e @ np.linalg.solve(c, e)) for e, c, m in zip(err, covs, matched) if not m]
     end = start + BLOCK
     after = np.flatnonzero(matched & (index >= end))
     return {'start': start, 'tail_m': float(dist[index >= end + 10].max()),

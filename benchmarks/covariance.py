@@ -48,8 +48,12 @@ CHI2_95_3DOF = 7.815
 LOGS = ['intel-corrected', 'csail-corrected']
 
 
-def localize(records, saved) -> tuple:
-    """Localize ``records`` on the map ``saved``; return (stamps, poses, covariances, matched)."""
+def localize(records, saved, warn=None) -> tuple:
+    """
+    Localize ``records`` on the map ``saved``; return (stamps, poses, covariances, matched).
+
+    ``warn``: the session's warnings, (cause, text), as ``replay_records`` takes them.
+    """
     rows = []
 
     def keep(session):
@@ -57,7 +61,7 @@ def localize(records, saved) -> tuple:
         if loc is not None and (not rows or rows[-1][0] != loc.stamp):
             rows.append((loc.stamp, loc.pose, loc.covariance, loc.matched))
     replay_records(records, options=SessionOptions(mapping=False), start_map=saved,
-                   progress=keep)
+                   progress=keep, warn=warn)
     stamps, poses, covs, matched = zip(*rows)
     return (np.array(stamps), np.array(poses), np.array(covs), np.array(matched))
 
