@@ -21,10 +21,8 @@ false, through the session):
 
 Scores: the trajectory (base poses of the scans used) against the corrected base poses from
 ``--at`` + 20 on: RMS, p95 and the share within 0.2 m; the scans not mapped; the match
-outcomes; the warnings, and where a ``wrong_start`` was taken back by the session
-(``session.START_CLEAR``: the scans on the saved walls again) the scan, how far off the base
-was there and the RMS from there on. Writes the table into benchmarks/README.md (between the
-``pose-estimate`` markers) and the raw numbers to benchmarks/results/pose_estimate.json.
+outcomes. Writes the table into benchmarks/README.md (between the ``pose-estimate`` markers)
+and the raw numbers to benchmarks/results/pose_estimate.json.
 """
 
 import argparse
@@ -54,19 +52,14 @@ def localize(records: list, saved, initial=None, estimate=None, at: int = 0) -> 
     """
     Localize ``records`` on the saved map value; a PoseEstimate before scan ``at``.
 
-    Returns (session, Counter of the warnings' causes, the scan count at each cause's first
-    warning).
+    Returns (session, Counter of the warnings' causes).
     """
-    warned, first = Counter(), {}
-    n = 0
-
-    def warn(cause, text):
-        warned.update([cause])
-        first.setdefault(cause, n)
-
+    warned = Counter()
     session = MappingSession(None, SessionOptions(pose_source='odom', keep_points=True,
-                                                  mapping=False), warn=warn)
+                                                  mapping=False),
+                             warn=lambda cause, text: warned.update([cause]))
     session.load_map(saved, initial)
+    n = 0
     for record in records:
         if isinstance(record, Scan):
             if n == at and estimate is not None:
@@ -75,24 +68,18 @@ def localize(records: list, saved, initial=None, estimate=None, at: int = 0) -> 
         session.add(record)
         session.step()
     session.flush()
-    return session, warned, first
+    return session, warned
 
 
 def score(run: tuple, stamps: np.ndarray, base: np.ndarray, start: int) -> dict:
     """Errors of the trajectory's base poses from scan ``start`` on, outcomes and warnings."""
-    session, warned, first = run
+    session, warned = run
     rows = np.asarray(session.map_value().trajectory)
     scan = np.searchsorted(stamps, rows[:, 0] - 1e-6)
     late = scan >= start
     err = np.hypot(*(rows[late, 1:3] - base[scan[late], :2]).T)
     out = {'not_mapped': int(len(stamps) - len(rows)), 'matches': dict(session.matches),
            'warnings': dict(warned), 'wrong_start_at_end': session.wrong_start is not None}
-    cleared = first.get('wrong_start_cleared')
-    if cleared is not None:             # the track back on the map by itself: how far off then
-        after = np.hypot(*(rows[scan >= cleared - 1, 1:3]
-                           - base[scan[scan >= cleared - 1], :2]).T)
-        out.update(cleared_at_scan=int(cleared), cleared_off_m=round(float(after[0]), 3),
-                   rms_after_clear_m=round(float(np.sqrt(np.mean(after ** 2))), 3))
     if len(err):
         out.update(rms_m=round(float(np.sqrt(np.mean(err ** 2))), 3),
                    p95_m=round(float(np.percentile(err, 95)), 3),
@@ -151,9 +138,6 @@ def main() -> int:
                if 'rms_m' in r else '- | -')
         outcomes, warned = (', '.join(f'{k} {v}' for k, v in sorted(r[key].items()))
                             for key in ('matches', 'warnings'))
-        if 'cleared_at_scan' in r:
-            warned += (f" (cleared at scan {r['cleared_at_scan']}, {r['cleared_off_m']:.2f} m "
-                       f"off; {r['rms_after_clear_m']:.3f} m RMS after)")
         lines.append(f"| {r['log']} ({r['scans']}) | {r['case']} | {err} | {r['not_mapped']} "
                      f"| {outcomes} | {warned or '-'} |")
     write_readme('pose-estimate', '\n'.join(lines) + '\n')

@@ -159,16 +159,14 @@ def free_space_text(stats: dict) -> str:
 
 
 REPORTED = ('time_increment', 'time_jump', 'scan_gap', 'scan_gap_given_up', 'pose_estimate',
-            'pose_estimate_given_up', 'wrong_start', 'wrong_start_cleared', 'odom_jump',
-            'odom_reset_given_up', 'scan_clock', 'odom_rate', 'map_frame', 'self_hits',
-            'not_localized')
+            'pose_estimate_given_up', 'wrong_start', 'odom_jump', 'odom_reset_given_up',
+            'scan_clock', 'odom_rate', 'map_frame', 'self_hits', 'not_localized')
 """Session warnings a replay prints (the first, with a count): input problems that no skip
 count shows (a scan used without motion compensation, pose data dropped at a clock jump, scans
 not found after a gap in them or near a pose estimate on /initialpose, a localization that
-starts on a wrong place and its track coming back onto the map, an odometry that jumped: a
-driver restart, scans stamped off the pose data's clock, odometry much slower than the scans,
-a saved map taken in another frame, readings of the robot itself, a localization on a saved
-map whose scans stopped matching it)."""
+starts on a wrong place, an odometry that jumped: a driver restart, scans stamped off the
+pose data's clock, odometry much slower than the scans, a saved map taken in another frame,
+readings of the robot itself, a localization on a saved map whose scans stopped matching it)."""
 
 
 def replay_records(records, config: IncrementalConfig = None,

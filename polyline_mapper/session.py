@@ -57,11 +57,10 @@ from typing import Callable, Iterable, NamedTuple, Optional
 import numpy as np
 
 from .core.cleanup import seen_through
-from .core.freespace import passing_beams, TOL as FREESPACE_TOL
+from .core.freespace import passing_beams
 from .core.geometry import in_box, is_number, se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
-from .core.index import PointIndex
 from .core.mapvalue import MapValue
 from .core.polylines import MapGeometry
 from .core.register import (CHORD_KNOTS, CHORD_MIN_EXTENT, DEFAULT_CHORD_KNOTS, match_scan,
@@ -382,21 +381,6 @@ logs (``benchmarks/pose_estimate.py``, first 10 scans): at the right place 1 % a
 beams pass through the saved walls (CSAIL's walls have gaps), at a wrong place where every scan
 still matched (a start 2.5 m and 0.6 rad off) 40 % and 49 %. Not caught: the simulated office
 started 1.7 m off, matched 0.8 m off along its walls (11 %).
-"""
-START_CLEAR = (20, 0.1, 0.9)
-"""
-After a ``wrong_start`` warning: when, over the last this-many scans placed, the median share
-of their beams that pass through the saved walls is at most the second number and the median
-share of their points within ``core.freespace.TOL`` (10 cm) of the saved walls at least the
-third, the warning is taken back (``wrong_start`` None, a ``wrong_start_cleared`` note): the
-track came back onto the saved map by itself. Both are needed: off the saved map few beams
-pass through its walls. Measured 2026-12-01 (``benchmarks/pose_estimate.py``'s logs, no start,
-odometry 2.5 m / 0.6 rad off): at the right place 0-5 % pass and 93-98 % lie on the walls
-(Intel, scans 150 on: median, 10th percentile); Intel's track came back at about scan 65 and
-clears at scan 74 (0.06 m off; 0.034 m RMS after); CSAIL's was 3-60 m off with 0-95 % passing
-but 0-30 % on the walls, and clears at scan 374 of 406 (0.02 m off; 0.044 m RMS after). Judged
-on the passing beams alone over 10 scans (26 % against 33 % when warned) Intel's cleared at
-scan 35, 1.3 m off, and CSAIL's (20 scans under 10 %) at about scan 85, 27 m off.
 """
 GAP_SHARE, GAP_RIVAL = 0.9, 0.1
 """
@@ -2001,12 +1985,10 @@ class MappingSession:
         """(m, rad) around ``_place`` to search (a pose estimate, ``set_pose``), or None."""
         self._start_check = []
         """On a loaded map: the pass-through shares of the first scans placed (``START_CHECK``)."""
-        self._recheck = deque(maxlen=START_CLEAR[0])
-        """After ``wrong_start``: the last scans' (passing, on walls) shares (``START_CLEAR``)."""
         self.wrong_start = None
         """On a loaded map: the median share of the first scans' beams that pass through its
         walls when beyond ``START_CHECK`` (matched onto a wrong place), until the next reset or
-        pose estimate, or until the last scans lie on it again (``START_CLEAR``); else None."""
+        pose estimate; else None."""
         self.matches = Counter()
         """
         Scan matching outcomes: 'matched', 'relocalized' (``RELOCALIZE``), 'no map yet', and
@@ -2220,7 +2202,6 @@ class MappingSession:
         self._tracked = None
         """The correction (map from odometry) of the scans matched before a pose estimate."""
         self._start_check = []
-        self._recheck.clear()
         self.wrong_start = None
         self._correction = np.zeros(3)
         self._gap = None
@@ -2675,8 +2656,6 @@ class MappingSession:
                 self._first_base = np.array([row[0], row[1], float(wrap_angle(row[2]))])
         if self._loaded is not None and len(self._start_check) < START_CHECK[0]:
             notes += self._check_start(pts, xyz[:2])
-        elif self.wrong_start is not None:
-            notes += self._recheck_start(pts, xyz[:2])
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
 
@@ -2724,30 +2703,6 @@ class MappingSession:
                  f'of them, median): the scans are likely matched onto a wrong place; give the '
                  "robot's pose (initial_pose, --initial-pose, or a pose estimate on "
                  'initialpose)')]
-
-    def _recheck_start(self, pts: np.ndarray, origin: np.ndarray) -> list:
-        """``START_CLEAR``: one more scan placed after ``wrong_start``; the note, if it is due."""
-        saved = self._loaded[0].segments
-        if not len(saved) or not len(pts):
-            return []
-        near = np.compress(in_box(saved, pts.min(axis=0) - FREESPACE_TOL,
-                                  pts.max(axis=0) + FREESPACE_TOL), saved, axis=0)
-        on = np.zeros(len(pts), dtype=bool)
-        if len(near):
-            on[PointIndex(pts).pairs(near, FREESPACE_TOL).pt] = True
-        self._recheck.append((float(passing_beams(saved, origin, pts).mean()), float(on.mean())))
-        if len(self._recheck) < START_CLEAR[0]:
-            return []
-        passing, walls = np.median(np.asarray(self._recheck), axis=0)
-        if passing > START_CLEAR[1] or walls < START_CLEAR[2]:
-            return []
-        was, self.wrong_start = self.wrong_start, None
-        self._recheck.clear()
-        return [('wrong_start_cleared', f'localizing on the saved map, the last '
-                 f'{START_CLEAR[0]} scans lie on its walls ({100 * walls:.0f} % of their points, '
-                 f'{100 * passing:.0f} % of their beams through them, medians; '
-                 f'{100 * was:.0f} % through them when a wrong place was warned of): the track '
-                 'is back on the saved map')]
 
     def _predict(self, stamp: float) -> np.ndarray:
         """

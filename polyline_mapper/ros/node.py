@@ -769,8 +769,7 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
     matched on the scan topic (None: not known); ``silent``: seconds since the last scan when
     the scans stopped (``PolylineMapperNode._scans_silent``), else None; ``wrong_start``: on a
     saved map, the share of the first scans' beams through its walls when they were matched
-    onto a wrong place, until the scans lie on its walls again (``MappingSession.wrong_start``),
-    else None; ``incompatible``: the
+    onto a wrong place (``MappingSession.wrong_start``), else None; ``incompatible``: the
     QoS policy of the last scan publisher whose QoS could not match, else None; ``unmatched``:
     on a saved map, (scans, seconds) not matched in a row when they make the localizer not
     localized (``MappingSession.unmatched``), else None.
@@ -783,8 +782,7 @@ def mapping_status(received: int, used: int, dropped: int, total: int, lost: boo
         return 1, (f'localizing on the saved map from a wrong place: {100 * wrong_start:.0f} % '
                    "of the first scans' beams pass through its walls; the poses, map -> odom "
                    "and the map are not to be trusted until the robot's pose is given "
-                   '(initial_pose, or a pose estimate on initialpose) or the scans lie on '
-                   'its walls again')
+                   '(initial_pose, or a pose estimate on initialpose)')
     if lost:
         return 1, ('lost: scan matching refuses the predicted pose (wheel slip, a kidnapped '
                    'robot?) or searches for the scans (after a gap in them, near a pose '
