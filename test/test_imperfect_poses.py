@@ -292,16 +292,16 @@ def _office_turning():
 
 @pytest.mark.parametrize('drift', range(1, 7))
 def test_drifting_odometry_and_a_moving_sensor_keep_each_map_true_to_itself(drift):
-    # Issue 19's office bar over drift seeds 1-6, read as the absolute trajectory error
-    # (the trajectory aligned rigidly to the truth, as the drifted Radish logs' 0.25 m is
-    # read) with the walls of the map moved by the same alignment. As the poses stand 4 of
-    # these 12 meet 5 cm (benchmarks/office_drift.py, 5 of 12 with numpy 1.26): the drift
-    # model's white heading steps bend the first scans through the per-beam compensation and
-    # turn the whole map frame by up to 0.016 rad (with the beams taken at once all 12 meet it
-    # as they stand). Each map holds: ATE <= 0.040 m, aligned F1 1.00 on every seed (numpy
-    # 2.4 and 1.26). One test per seed, so the two test workers share them. Seeds 7-12 (each
-    # passed on 2026-12-01, Intel Xeon VM) are left to benchmarks/office_drift.py, which maps
-    # all twelve: each costs 8-10 s, and the suite has to stay under 20 minutes.
+    # Issue 19's office bar over drift seeds 1-6, read as the absolute trajectory error (the
+    # trajectory aligned rigidly to the truth, as the drifted Radish logs' 0.25 m is read) with the
+    # walls of the map moved by the same alignment. As the poses stand 4 of the 12 seeds of
+    # benchmarks/office_drift.py meet 5 cm (5 of 12 with numpy 1.26): the drift model's white
+    # heading steps bend the first scans through the per-beam compensation and turn the whole map
+    # frame by up to 0.016 rad (with the beams taken at once all 12 meet it as they stand). Each
+    # map holds: ATE <= 0.040 m, aligned F1 1.00 on every seed (numpy 2.4 and 1.26). One test per
+    # seed, so the two test workers share them. Seeds 7-12 (each passed on 2026-12-01, Intel Xeon
+    # VM) are left to benchmarks/office_drift.py, which maps all twelve: each costs 8-10 s, and the
+    # suite has to stay under 20 minutes.
     drive = _office_turning()
     session = replay_records(records(drive, drift),
                              options=SessionOptions(scan_matching=True, keep_points=True))
@@ -843,18 +843,17 @@ def test_median_chord_knots_keep_a_turtlebot_class_lidar_on_course():
 
 
 def test_true_odometry_matched_holds_a_turtlebot_class_lidar_along_its_corridors():
-    # 10 m corridor loop, 2 m wide, a 3.5 m lidar: along each side the scans barely constrain
-    # the axis. Corrections along it under the kernel scale (about 3 cm) were taken although
-    # 5 sigma of a 4 cm step's odometry error is 1 cm: the matched pose lagged the true one
-    # (16 cm along an 8 m side with range-noise seed 2). One drive is chaotic across CPUs:
-    # seed 1 gave 0.047 m RMS, walls F1 0.96 on an AMD EPYC VM and 0.039 m, F1 0.83 on an Intel
-    # Xeon one (its walls cut by stubs), so the claim is judged over several drives. Drives 1-10
-    # on the Xeon:
-    # RMS 0.032-0.103 m (median 0.052), F1 0.72-1.00 (median 0.92); with every correction
-    # taken (register.WEAK_SIGMAS infinite, as before the hold) 0.119-0.260 m (median 0.183),
-    # F1 0.21-0.76 (median 0.44). Drives 1-5 here (10 s each; the suite has to stay under 20
-    # minutes): on 2026-12-01 (Intel Xeon VM, 36daaa7) drives 1-5 gave RMS median 0.040 m,
-    # max 0.082, F1 median 0.947; drives 1-10 0.041 m, 0.082, 0.948 (drive 9: F1 0.78).
+    # 10 m corridor loop, 2 m wide, a 3.5 m lidar: along each side the scans barely constrain the
+    # axis. Corrections along it under the kernel scale (about 3 cm) were taken although 5 sigma of
+    # a 4 cm step's odometry error is 1 cm: the matched pose lagged the true one (16 cm along an 8
+    # m side with range-noise seed 2). One drive is chaotic across CPUs: seed 1 gave 0.047 m RMS,
+    # walls F1 0.96 on an AMD EPYC VM and 0.039 m, F1 0.83 on an Intel Xeon one (its walls cut by
+    # stubs), so the claim is judged over several drives. Drives 1-10 on the Xeon: RMS 0.032-0.103
+    # m (median 0.052), F1 0.72-1.00 (median 0.92); with every correction taken
+    # (register.WEAK_SIGMAS infinite, as before the hold) 0.119-0.260 m (median 0.183), F1
+    # 0.21-0.76 (median 0.44). Drives 1-5 here (10 s each; the suite has to stay under 20 minutes):
+    # on 2026-12-01 (Intel Xeon VM, 36daaa7) drives 1-5 gave RMS median 0.040 m, max 0.082, F1
+    # median 0.947; drives 1-10 0.041 m, 0.082, 0.948 (drive 9: F1 0.78).
     rms, f1 = [], []
     for seed in range(1, 6):
         drive = lds_drive(seed, corridors=True)
