@@ -115,20 +115,23 @@ def test_scan_only_replay_of_fr079_follows_its_turns():
     assert own['mean_distance'] < 0.03 and own['coverage_0_10m'] > 0.95, own
 
 
-def test_scan_only_replay_of_all_of_fr079_stays_on_its_corrected_poses():
-    # The whole log from its scans alone (about 80 s). At scan 1825 the robot backs up and
-    # turns 0.1 rad, which constant velocity misses: the match landed in a wrong basin within
-    # the gate (half of the points on the map), and without relocalizing near the prediction
-    # the replay ended 1.4-2.0 m ATE off in five runs on an AMD EPYC VM (0.086 m on an Intel
-    # Xeon VM: chaos decides where such a scan falls). With it: 0.074-0.096 m.
+def test_scan_only_replay_of_fr079_stays_on_its_corrected_poses_past_its_backing_up():
+    # The log's first 2000 scans from its scans alone (30 s; benchmarks/scan_only.py replays all
+    # 4791: ATE 0.074-0.096 m). At scan 1825 the robot backs up and turns 0.1 rad, which
+    # constant velocity misses: the match landed in a wrong basin within the gate (half of the
+    # points on the map), and without relocalizing near the prediction the whole replay ended
+    # 1.4-2.0 m ATE off in five runs on an AMD EPYC VM (0.086 m on an Intel Xeon VM: chaos
+    # decides where such a scan falls). The replay is causal: its first 2000 poses are the whole
+    # log's. 2000 scans on 2026-12-01 (Intel Xeon VM): ATE 0.079 m, the map 2.0 cm from its
+    # points, 97.9 % covered, 2 scans relocalized (chaos decides whether any is).
     log = read_carmen(str(radish_log('freiburg-079-corrected.log.gz')))
     stamps, _ = log.stamps(1.0)
-    scans = log.scans(stamps, with_pose=False)
+    scans = log.scans(stamps, with_pose=False)[:2000]
     s = replay_records(scans, options=SessionOptions(pose_source='scan', keep_points=True,
                                                      grid_resolution=None))
     value = s.map_value()
-    assert len(value.trajectory) == len(stamps)
-    truth = np.array([r.pose for r in log.records])
+    assert len(value.trajectory) == len(scans)
+    truth = np.array([r.pose for r in log.records[:len(scans)]])
     err = trajectory_error(value.trajectory[:, 1:], truth)
     assert err['ate'] < 0.15, err['ate']
     own = map_metrics(s.points(), value.segments)
