@@ -653,7 +653,8 @@ def drive_beams(drive) -> tuple:
     """
     Return the points of a simulated drive and their laser positions, two (N, 2) arrays.
 
-    ``points`` equal ``drive.points()`` (true poses); ``origins`` are the scan poses.
+    ``points`` equal ``drive.points()`` (true poses); ``origins`` are the scan poses, or each
+    beam's with a moving sensor (``Drive.origins``).
     """
     return drive.points(), drive.origins()
 

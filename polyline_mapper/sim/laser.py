@@ -130,7 +130,12 @@ class SimulatedDrive:
         return pts, hits
 
     def origins(self) -> np.ndarray:
-        """Return the laser position of each point of ``points()``, (N, 2) metres."""
+        """
+        Return the laser position of each point of ``points()``, (N, 2) metres.
+
+        With a moving sensor (``time_increment`` > 0) each beam's own: ``smemsf.fit`` takes
+        a run of equal rows as one look, so give it the scan poses instead (its ``origins``).
+        """
         ok = [valid_ranges(r, self.spec.range_min, self.spec.range_max) for r in self.ranges]
         if self.time_increment > 0:
             return (np.concatenate([self.beam_poses(k)[m, :2] for k, m in enumerate(ok)])
