@@ -68,11 +68,9 @@ setup() {
   want="$(hash_of "$repo/tools/requirements.txt")"
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     log "installing Python packages (about a minute on a fresh machine)"
-    # --no-compile: Python compiles what is imported, on the first import; compiling every
-    # module of every package at install took 17 of its 44 s (2026-12-01, Intel Xeon VM)
     local plog="$venv/pip-install.log"
     { "$vpy" -m pip install --upgrade pip \
-      && "$vpy" -m pip install --no-compile -r "$repo/tools/requirements.txt" \
+      && "$vpy" -m pip install -r "$repo/tools/requirements.txt" \
       && { command -v cmake >/dev/null 2>&1 || "$vpy" -m pip install cmake; }; } > "$plog" 2>&1 \
       || { grep -v '^WARNING: Location' "$plog" | tail -30 >&2; die "pip install failed (log: $plog)"; }
     echo "$want" > "$stamp"
@@ -108,8 +106,7 @@ setup() {
   want="$(hash_of "$repo/tools/requirements-colcon.txt")"
   if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     log "installing colcon"
-    if "$vpy" -m pip install --no-compile -r "$repo/tools/requirements-colcon.txt" \
-        > "$venv/pip-colcon.log" 2>&1
+    if "$vpy" -m pip install -r "$repo/tools/requirements-colcon.txt" > "$venv/pip-colcon.log" 2>&1
     then
       echo "$want" > "$stamp"
     else
