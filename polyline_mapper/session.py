@@ -3036,6 +3036,11 @@ class MappingSession:
         self._anchor = np.asarray(base, dtype=np.float64).copy()
         self._anchor_at = (stamp, np.asarray(paced.pose, dtype=np.float64).copy())
         self._odom_jump = (shift, turn, dt, 'anchored', None)
+        if dt > 0:
+            # The motion the scan fits is the pace on: a kept pace with a turn the scan did not
+            # fit (an instant turn before the jump) would turn again at every later judgement
+            # (a node that fell behind judged a second jump 0.4 s on: 113 deg off that pace).
+            self._anchor_step = (np.asarray(best, dtype=np.float64).copy(), dt)
         return best
 
     def _reset_after_gap(self, local: np.ndarray, given: np.ndarray, base: np.ndarray,
