@@ -1939,7 +1939,8 @@ class MappingSession:
         """Scan matching: (stamp s, laser pose in the fixed frame) of that scan."""
         self._anchor_step = None
         """Scan matching: (base motion (x, y, yaw) in the base frame, seconds) between the two
-        last matched scans: the pace an odometry jump is judged against and predicted with."""
+        last matched scans: the pace an odometry jump is judged against and predicted with.
+        After a jump re-anchored on a pace, that pace's trial motion (``_odometry_jumped``)."""
         self._odom_jump = None
         """Scan matching: an odometry jump judged at this scan, to warn of: (its metres and
         radians off the pace, seconds since the last matched scan, 'anchored' on the pace,
@@ -2952,8 +2953,9 @@ class MappingSession:
         """
         Note the last matched scan: its base pose (given), stamp and laser pose; the step.
 
-        The step into a scan where the odometry jumped is no pace (``_odometry_jumped``): the
-        one before is kept.
+        The step into a scan where the odometry jumped is no pace (``_odometry_jumped``):
+        the pace stays as that judgement left it (none when the odometry was followed or
+        kept; the trial motion whose match was taken when map -> odom was re-anchored).
         """
         base = np.asarray(base, dtype=np.float64).copy()
         if (self._odom_jump is None and self._anchor is not None and stamp is not None
@@ -2973,7 +2975,8 @@ class MappingSession:
         matched onto copies of the map shifted by the jump (measured: sim:office reset at scan
         150, poses 16.6 m off, walls F1 0.65), or searched for within 1 m only. The odometry's
         motion since the last matched scan is judged against its previous step, carried on at
-        that pace (constant velocity; neither may span more than ``MAX_MOTION_GAP``): off by
+        that pace (constant velocity; neither may span more than ``MAX_MOTION_GAP``; after a
+        re-anchored jump, the trial motion taken there): off by
         more than ``ODOM_JUMP`` (or its heading by more than ``ODOM_JUMP_TURN``), the scan is
         matched (``_trial_match``) from both: from where the pace puts the robot (or that pace
         without its turn, or standing still: whichever the scan fits best), and from where the
@@ -3037,9 +3040,10 @@ class MappingSession:
         self._anchor_at = (stamp, np.asarray(paced.pose, dtype=np.float64).copy())
         self._odom_jump = (shift, turn, dt, 'anchored', None)
         if dt > 0:
-            # The motion the scan fits is the pace on: a kept pace with a turn the scan did not
-            # fit (an instant turn before the jump) would turn again at every later judgement
-            # (a node that fell behind judged a second jump 0.4 s on: 113 deg off that pace).
+            # The trial motion whose match was taken is the pace on (its start, not the match's
+            # refined motion): a kept pace with a turn the scan did not fit (an instant turn
+            # before the jump) would turn again at every later judgement (a node that fell
+            # behind judged a second jump 0.4 s on: 113 deg off that pace).
             self._anchor_step = (np.asarray(best, dtype=np.float64).copy(), dt)
         return best
 
