@@ -654,7 +654,7 @@ def drive_beams(drive) -> tuple:
     Return the points of a simulated drive and their laser positions, two (N, 2) arrays.
 
     ``points`` equal ``drive.points()`` (true poses); ``origins`` are the scan poses, or each
-    beam's with a moving sensor (``Drive.origins``).
+    beam's with a moving sensor (``SimulatedDrive.origins``).
     """
     return drive.points(), drive.origins()
 

@@ -9,7 +9,6 @@ from polyline_mapper.core.incremental import IncrementalConfig
 from polyline_mapper.core.index import nearest_distance, PointIndex
 from polyline_mapper.recordings import drive_messages
 from polyline_mapper.replay import replay_records
-from polyline_mapper.scan import valid_ranges
 from polyline_mapper.session import SessionOptions
 from polyline_mapper.sim import corridor_loop, LaserSpec, simulate_drive
 import pytest
@@ -90,10 +89,7 @@ def test_the_batch_fit_of_the_beams_gives_far_points_their_noise_too(loop):
     # moving sensor's own origin per beam (loop.origins()) made every beam a look: the same
     # segments here, 36 s instead of 1.7 s (2026-12-01, Intel Xeon VM).
     every = slice(None, None, 6)            # a sixth of the points (42k): the fit's time / 6
-    valid = [np.count_nonzero(valid_ranges(r, RPLIDAR.range_min, RPLIDAR.range_max))
-             for r in loop.ranges]
-    origins = np.repeat(loop.poses[:, :2], valid, axis=0)
-    pts, origins = loop.points()[every], origins[every]
+    pts, origins = loop.points()[every], loop.origins(per_beam=False)[every]
     _, _, short = _scores(fit(pts, origins=origins).segments, loop)
     assert short >= 10
     result = fit(pts, SMEMSFConfig(range_noise=0.01), origins=origins)

@@ -423,8 +423,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
         the fit. With ``config.range_noise``, the ranges set each point's noise scale too.
         None (bare points): nothing changes, and ``FitResult.beams`` is 0. A run of equal
         consecutive rows is one look (one scan): give each scan's points its one laser
-        position, as ``MappingSession.origins`` does. An origin per beam (a moving sensor's,
-        as ``sim.Drive.origins`` gives them) makes every beam a look: the evidence decays
+        position, as ``MappingSession.origins`` and ``SimulatedDrive.origins(per_beam=False)``
+        do. An origin per beam (a moving sensor's) makes every beam a look: the evidence decays
         beam by beam, and the fit is about 20 times slower (test_range_noise's two fits of 42k
         points: 36 s against 1.7 s).
     free_space_window : int

@@ -129,15 +129,16 @@ class SimulatedDrive:
                                for r, h in zip(self.ranges, self.hits)])
         return pts, hits
 
-    def origins(self) -> np.ndarray:
+    def origins(self, per_beam: bool = True) -> np.ndarray:
         """
         Return the laser position of each point of ``points()``, (N, 2) metres.
 
-        With a moving sensor (``time_increment`` > 0) each beam's own: ``smemsf.fit`` takes
-        a run of equal rows as one look, so give it the scan poses instead (its ``origins``).
+        With a moving sensor (``time_increment`` > 0) each beam's own, unless ``per_beam`` is
+        False: then its scan's pose, as for a fixed sensor. ``smemsf.fit`` takes a run of
+        equal rows as one look (one scan), so give it ``origins(per_beam=False)``.
         """
         ok = [valid_ranges(r, self.spec.range_min, self.spec.range_max) for r in self.ranges]
-        if self.time_increment > 0:
+        if per_beam and self.time_increment > 0:
             return (np.concatenate([self.beam_poses(k)[m, :2] for k, m in enumerate(ok)])
                     if ok else np.zeros((0, 2)))
         n = [np.count_nonzero(m) for m in ok]
