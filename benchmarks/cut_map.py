@@ -14,9 +14,9 @@ with drifting odometry (issue 19's model, ``drive_messages(odom_drift=seed)``, n
 
 Per window: how many scans after the block the first is matched, the largest error of a
 matched scan from then on (a wrong place taken shows here), the error at the end, the RMS over
-the whole drive, and the ``not_localized`` warnings. ``RECKONED_CONFIRM`` (session.py) says
-what the session does; review R's window (cut at 14 m, blocked from scan 190, seed 1) was never
-found again before it.
+the whole drive, and the ``not_localized`` warnings. ``RECKONED_SEARCH`` (session.py) says
+what the session does; review R's window (cut at 14 m, blocked from scan 190, seed 1) is never
+found again (benchmarks/README.md says why, and what was tried).
 
 Writes the table into benchmarks/README.md (between the ``cut-map`` markers) and the rows to
 results/cut_map.json (not with ``--quick``: cut 14 m, seed 1, blocked from scan 190 only,

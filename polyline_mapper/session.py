@@ -268,23 +268,7 @@ place 0.5 m or 0.3 rad away); the other scans keep the odometry's pose, whatever
 from it says (counted 'not localized'). After 3 s of scans that match nothing on the drifted
 office drive the odometry was 0.7-1.5 m and 0.2-0.47 rad off (seed 1, 4 of 31 windows), beyond
 the match's reach (``MATCH_REACH``, ``RELOCALIZE``): matched from there, the robot settled
-0.8-12 m off for good. A pose found with less of the scan on the map is taken when the search
-before found the same place (``RECKONED_CONFIRM``).
-"""
-RECKONED_CONFIRM = (1.5, 0.5)
-"""
-Localization on a saved map, not localized: (seconds, share). The ``GAP_SHARE`` bar is set by
-the scans matched before the loss. Where the saved map lacks part of the area, those scans were
-matched to the chords of the scans before them (all of each scan explained), and a scan seen
-back on the map sees parts the map lacks: review R's window (the office map cut at x = 14 m,
-the laser blocked for 1.5 s from scan 190 beyond it, drifting odometry seed 1) found the true
-pose with no rival but 0.35-0.83 of the scan on the map against the bar's 0.90, and the robot
-was never localized again (4.5-9.5 m off at the end). So a pose found with no rival and at
-least this share of the scan on the map is also taken when the search before, at most this
-many seconds of scan stamps earlier, found the same place with at least this share too (its
-correction, map from odometry, within 0.5 m and 0.3 rad of this one's): the same place twice,
-the odometry's motion between. The wrong places the searches found there (0.13-0.63 of the
-scan, 0.3-7.7 m off) never were found twice so.
+0.8-12 m off for good.
 """
 CONFIRM_JUMP = 3
 """
@@ -2023,9 +2007,6 @@ class MappingSession:
         """Scan matching: the odometry's error since the last matched scan (``_reckon``)."""
         self._searched = None
         """Scan matching: the stamp of the last ``_search_reckoned`` (``RECKONED_SEARCH``)."""
-        self._candidate = None
-        """Scan matching, not localized: (stamp, correction) of the last search's pose found with
-        too little of the scan on the map to be taken alone (``RECKONED_CONFIRM``)."""
         self._unmatched = None
         """On a saved map: [first stamp, scans, warned] of the scans not matched since the last
         matched one (``UNMATCHED_STREAK``); None after a match."""
@@ -2238,7 +2219,7 @@ class MappingSession:
         self._found = False
         self._unmatched = None
         self._reckoned = None
-        self._searched = self._candidate = None
+        self._searched = None
 
     # -- producers -----------------------------------------------------------------------------
     def add(self, record) -> None:
@@ -2938,7 +2919,7 @@ class MappingSession:
         elif m.ok:
             self._proposals.clear()
         if self.unmatched is not None:      # not localized: only a search ends it
-            found = self._search_reckoned(local, given, prediction, sigma, stamp)
+            found = self._search_reckoned(local, prediction, sigma, stamp)
             if found is not None:
                 m = found
                 self._proposals.clear()
@@ -3106,8 +3087,8 @@ class MappingSession:
                            'searched', self._reset_window)
         return None
 
-    def _search_reckoned(self, local: np.ndarray, given: np.ndarray, prediction: np.ndarray,
-                         sigma: float, stamp: Optional[float]) -> Optional[ScanMatch]:
+    def _search_reckoned(self, local: np.ndarray, prediction: np.ndarray, sigma: float,
+                         stamp: Optional[float]) -> Optional[ScanMatch]:
         """
         Search a scan not matched while not localized within the odometry's error; or None.
 
@@ -3116,9 +3097,7 @@ class MappingSession:
         the saved map lacks walls they are all there is: review R, a laser blocked for 1.5 s
         there was never found against the map alone, 4-10 m off at the end), the best taken
         (relocalized) when it puts ``_gap_share`` of the scan on them and no place 0.5 m / 0.3
-        rad from it comes within ``GAP_RIVAL`` of that share; or with less, no rival, when the
-        search before found the same place (``RECKONED_CONFIRM``). ``given``: the scan's pose as
-        TF or odometry gives it.
+        rad from it comes within ``GAP_RIVAL`` of that share.
         """
         if self._reckoned is None or stamp is None or (
                 self._searched is not None and 0 <= stamp - self._searched < RECKONED_SEARCH):
@@ -3132,19 +3111,8 @@ class MappingSession:
         best, rivals = _found_places(
             local, np.concatenate([self.mapper.segments, self._recent.chords()]), prediction,
             radius, turn, sigma)
-        before, self._candidate = self._candidate, None
-        seconds, share = RECKONED_CONFIRM
-        if best is None or rivals or best.share < share:
+        if best is None or best.share < self._gap_share() or rivals:
             return None
-        if best.share < self._gap_share():
-            # Found with less of the scan on the map: taken when found twice (RECKONED_CONFIRM).
-            self._candidate = (stamp, _compose(best.pose, _inverse(given)))
-            if before is None or not 0 < stamp - before[0] <= seconds:
-                return None
-            d = _compose(_inverse(_compose(before[1], given)), best.pose)
-            if math.hypot(d[0], d[1]) > 0.5 or abs(wrap_angle(float(d[2]))) > 0.3:
-                return None
-        self._candidate = None
         return best._replace(relocalized=True)
 
     def _gap_share(self) -> float:
