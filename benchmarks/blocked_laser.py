@@ -39,16 +39,22 @@ BLOCK = 30
 VALUES = {'ring': 0.4, 'none': float('inf')}
 
 
-def window(records, saved, truth, start: int, value: float) -> dict:
-    """Localize ``records`` on ``saved`` with scans [start, start + BLOCK) blocked."""
+def blocked_scans(records, start: int, count: int, value: float) -> list:
+    """Return ``records`` with the scans [start, start + count) reading ``value`` on every beam."""
     blocked, n = [], 0
     for rec in records:
         if isinstance(rec, Scan):
-            if start <= n < start + BLOCK:
+            if start <= n < start + count:
                 rec = dataclasses.replace(rec, ranges=np.full(len(rec.ranges), value,
                                                               dtype=np.float32))
             n += 1
         blocked.append(rec)
+    return blocked
+
+
+def window(records, saved, truth, start: int, value: float) -> dict:
+    """Localize ``records`` on ``saved`` with scans [start, start + BLOCK) blocked."""
+    blocked = blocked_scans(records, start, BLOCK, value)
     warned = []
     stamps, poses, covs, matched = localize(blocked, saved,
                                             warn=lambda cause, text: warned.append(cause))

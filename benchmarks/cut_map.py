@@ -28,10 +28,10 @@ import dataclasses
 import json
 import sys
 
+from blocked_laser import blocked_scans
 from common import publish, stamp
 from covariance import localize
 import numpy as np
-from polyline_mapper.formats.records import Scan
 from polyline_mapper.poses import se2_compose, se2_inverse
 from polyline_mapper.recordings import drive_messages, flat_records, make_drive, SIM_MOUNT
 from polyline_mapper.replay import replay_records
@@ -49,14 +49,7 @@ def cut_map(value, x: float):
 
 def window(records, saved, truth, start) -> dict:
     """Localize ``records`` on ``saved``, scans [start, start + BLOCK) blocked (None: none)."""
-    blocked, n = [], 0
-    for rec in records:
-        if isinstance(rec, Scan):
-            if start is not None and start <= n < start + BLOCK:
-                rec = dataclasses.replace(rec, ranges=np.full(len(rec.ranges), RING,
-                                                              dtype=np.float32))
-            n += 1
-        blocked.append(rec)
+    blocked = records if start is None else blocked_scans(records, start, BLOCK, RING)
     warned = []
     stamps, poses, _, matched = localize(blocked, saved,
                                          warn=lambda cause, text: warned.append(cause))
