@@ -32,7 +32,8 @@ from covariance import CHI2_95_3DOF, localize
 import numpy as np
 from polyline_mapper.formats.records import Scan
 from polyline_mapper.poses import se2_compose, se2_inverse
-from polyline_mapper.recordings import drive_messages, flat_records, make_drive, SIM_MOUNT
+from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, SIM_MOUNT,
+                                        SIM_START)
 from polyline_mapper.replay import replay_records
 
 BLOCK = 30
@@ -85,7 +86,7 @@ def main() -> int:
     for seed in args.seeds:
         drive = make_drive('sim:office', seed=seed)
         records = flat_records(drive_messages(drive, odom_drift=seed))
-        truth = (1000.0 + np.asarray(drive.stamps), base)
+        truth = (SIM_START + np.asarray(drive.stamps), base)
         for mode, value in VALUES.items():
             for start in starts:
                 r = {'mode': mode, 'seed': seed, **window(records, saved, truth, start, value)}

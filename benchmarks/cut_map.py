@@ -33,7 +33,8 @@ from common import publish, stamp
 from covariance import localize
 import numpy as np
 from polyline_mapper.poses import se2_compose, se2_inverse
-from polyline_mapper.recordings import drive_messages, flat_records, make_drive, SIM_MOUNT
+from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, SIM_MOUNT,
+                                        SIM_START)
 from polyline_mapper.replay import replay_records
 
 BLOCK = 15
@@ -81,7 +82,7 @@ def main() -> int:
     for seed in seeds:
         drive = make_drive('sim:office', seed=seed)
         records = flat_records(drive_messages(drive, odom_drift=seed))
-        truth = (1000.0 + np.asarray(drive.stamps), base)
+        truth = (SIM_START + np.asarray(drive.stamps), base)
         for x in cuts:
             saved = cut_map(full, x)
             for start in starts:
