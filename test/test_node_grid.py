@@ -44,7 +44,11 @@ def grid_run(office_drive, tmp_path_factory):
                                 'grid_publish_period': 0.3, 'transform_timeout': 0.3,
                                 # off its default, where the drive's 541 beams never reach it:
                                 # record-map must store the node's value
-                                'incremental.max_scan_points': 6000})
+                                'incremental.max_scan_points': 6000,
+                                # every scan mapped however loaded the machine (the default
+                                # 1 s latency dropped 5 of 223 in a dds run alone, and
+                                # record-map rightly warned of it)
+                                'max_scan_latency': 0.0, 'scan_buffer_size': 400})
     peer = Peer('test_peer_grid')
     late = None
     try:

@@ -214,6 +214,7 @@ class PolylineMapperNode(Node):
                                   'tools/dev.sh setup') from None
             self._tf_message = TFMessage
         self._localized = None              # the Localization last published
+        self._root_waiting = None           # scan mode: its transform held back (the mount)
         self._sent = deque(maxlen=256)      # (sec, nanosec) of the map -> odom it broadcast
         self._scan_child = None             # scan mode: the frame it broadcasts under the map
         if self.settings.scan_matching:
@@ -536,11 +537,14 @@ class PolylineMapperNode(Node):
     def _publish_localization(self) -> None:
         """Broadcast map -> odom and publish the pose of the newest localized scan (once)."""
         loc = self.session.localization
-        if loc is None or loc is self._localized:
+        if loc is None or (loc is self._localized and loc is not self._root_waiting):
             return
-        self._localized = loc
         frame = self.settings.fixed_frame
-        self.pose_pub.publish(pose_msg(frame, time_msg(loc.stamp), loc.pose, loc.covariance))
+        if loc is not self._localized:      # each pose once, its transform maybe later
+            self._localized = loc
+            self.pose_pub.publish(pose_msg(frame, time_msg(loc.stamp), loc.pose,
+                                           loc.covariance))
+        self._root_waiting = None
         if loc.odom_frame is None and self.settings.pose_source == 'scan':
             # scans alone: no odometry frame to correct; the robot itself goes under the map
             # frame (hector_mapping's map -> base_link), at its scan's stamp
@@ -552,8 +556,9 @@ class PolylineMapperNode(Node):
                     self.settings.transform_timeout:
                 # The laser without a parent yet: its mount on /tf_static may still be on its
                 # way (discovery races the first scans). Broadcast as its parent, the laser would
-                # get two (REP 105: one); wait as a scan waits for its transforms.
-                self._localized = None
+                # get two (REP 105: one); wait as a scan waits for its transforms. The pose is
+                # out already (published again, one stamp came twice on `pose`).
+                self._root_waiting = loc
                 return
             stamp = time_msg(loc.stamp)
             self._sent.append((stamp.sec, stamp.nanosec))
