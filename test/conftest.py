@@ -123,6 +123,26 @@ def office_drive():
 
 
 @pytest.fixture(scope='session')
+def office_map_file(tmp_path_factory):
+    """
+    Return the path of MAP.json of ``replay sim:office`` (true poses), made once per process.
+
+    Shared by the modules that start from a saved office map (it was made in each of them):
+    ``saved_office_map`` gives each its own copy.
+    """
+    from polyline_mapper.cli import main
+    path = tmp_path_factory.mktemp('office_map') / 'office.json'
+    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
+    return path
+
+
+def saved_office_map(office_map_file, folder) -> pathlib.Path:
+    """Copy ``office_map_file`` into ``folder``; return the copy's path (office.json)."""
+    import shutil
+    return pathlib.Path(shutil.copyfile(office_map_file, pathlib.Path(folder) / 'office.json'))
+
+
+@pytest.fixture(scope='session')
 def office_fit(office_drive):
     """Fit the office drive once, shared by several tests."""
     from polyline_mapper.core import fit

@@ -3,6 +3,7 @@
 import dataclasses
 import json
 
+from conftest import saved_office_map
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.formats.bag import BagWriter
@@ -129,11 +130,9 @@ def test_replay_says_when_a_scans_time_increment_is_ignored(drifted, tmp_path, c
 
 
 @pytest.fixture(scope='module')
-def office_map(tmp_path_factory):
+def office_map(office_map_file, tmp_path_factory):
     """Return the office mapped with its true poses (MAP.json)."""
-    path = tmp_path_factory.mktemp('saved') / 'office.json'
-    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
-    return path
+    return saved_office_map(office_map_file, tmp_path_factory.mktemp('saved'))
 
 
 @pytest.mark.parametrize('start, off', [(None, False), ('--initial-pose=0.5,0.3,20', True),

@@ -5,6 +5,7 @@ import json
 import math
 
 from bag_helpers import write_bag
+from conftest import saved_office_map
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.core.geometry import sample_segments
@@ -89,11 +90,10 @@ def map_arrays(path) -> dict:
 
 
 @pytest.fixture(scope='module')
-def saved(office, tmp_path_factory):
+def saved(office, office_map_file, tmp_path_factory):
     """Map the office once with true poses (replay sim:office); write a drifted bag of it."""
     folder = tmp_path_factory.mktemp('localization')
-    path = folder / 'office.json'
-    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
+    path = saved_office_map(office_map_file, folder)
     bag = write_bag(folder / 'drifted', drifted_messages(office, 1))
     return folder, path, bag
 

@@ -3,6 +3,7 @@
 import json
 import os
 
+from conftest import saved_office_map
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.core.grid import FREE, OCCUPIED, UNKNOWN
@@ -12,12 +13,10 @@ import yaml
 
 
 @pytest.fixture(scope='module')
-def replayed(tmp_path_factory):
+def replayed(office_map_file, tmp_path_factory):
     """Replay the simulated office; return the folder and the map JSON path."""
     folder = tmp_path_factory.mktemp('office')
-    out = folder / 'office.json'
-    assert main(['replay', 'sim:office', '-o', str(out), '-q']) == 0
-    return folder, out
+    return folder, saved_office_map(office_map_file, folder)
 
 
 def read_pgm(path) -> np.ndarray:

@@ -13,7 +13,7 @@ import json
 import sys
 
 from bag_helpers import write_bag
-from conftest import radish_log, REPO
+from conftest import radish_log, REPO, saved_office_map
 import numpy as np
 from polyline_mapper.cli import main
 from polyline_mapper.core.geometry import se2_compose, se2_inverse
@@ -39,11 +39,9 @@ def office():
 
 
 @pytest.fixture(scope='module')
-def saved_file(office, tmp_path_factory):
+def saved_file(office, office_map_file, tmp_path_factory):
     """Return the path of the office mapped with true poses (replay)."""
-    path = tmp_path_factory.mktemp('estimate') / 'office.json'
-    assert main(['replay', 'sim:office', '-o', str(path), '-q']) == 0
-    return path
+    return saved_office_map(office_map_file, tmp_path_factory.mktemp('estimate'))
 
 
 @pytest.fixture(scope='module')
