@@ -329,10 +329,11 @@ PER_SQUARE = IncrementalConfig(free_space_window=10, free_space_ghosts=0,
 """The free-space evidence per square alone (no ghosts, hit margin or memory)."""
 
 
-@pytest.mark.parametrize('seed', [1, pytest.param(3, marks=XEON_SEED3)])
+@pytest.mark.parametrize('seed', [pytest.param(3, marks=XEON_SEED3)])
 def test_a_person_walking_ahead_leaves_the_walls_alone_with_the_evidence(seed):
     # The walls F1 of the second run below (the evidence per square alone), on its own: it
-    # depends on the CPU for seed 3; the poses and holds below do not.
+    # depends on the CPU for seed 3; the poses and holds below do not. (Seed 1's, the same
+    # run as the one of WALKER_SEEDS there, is judged there.)
     drive = make_drive('sim:office_dynamic', seed)
     session = replay_records(records(drive), PER_SQUARE,
                              SessionOptions(scan_matching=True, keep_points=True))
@@ -385,6 +386,8 @@ def test_a_person_walking_ahead_does_not_drag_the_matched_poses(evidence):
         s = score(drive, session)
         assert s['rms'] < 0.25 and (f1 is None or s['walls']['f1'] >= f1), \
             (config, seed, s['rms'], s['walls'])
+        if evidence and seed == 1:      # the walls left alone (the test above, for seed 3)
+            assert s['walls']['f1'] >= 0.95, (s['rms'], s['walls'])
         assert session.held >= 10 and session.matches['matched'] == len(drive.poses) - 1
         errors.append(s['rms'])
     assert np.median(errors) < rms, (config, np.round(errors, 3))
