@@ -557,7 +557,8 @@ class PolylineMapperNode(Node):
                 # The laser without a parent yet: its mount on /tf_static may still be on its
                 # way (discovery races the first scans). Broadcast as its parent, the laser would
                 # get two (REP 105: one); wait as a scan waits for its transforms. The pose is
-                # out already (published again, one stamp came twice on `pose`).
+                # out already (it was published again on every pass of the worker while the
+                # transform waited, about every 50 ms: one stamp several times on `pose`).
                 self._root_waiting = loc
                 return
             stamp = time_msg(loc.stamp)
