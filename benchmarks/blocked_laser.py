@@ -53,6 +53,23 @@ def blocked_scans(records, start: int, count: int, value: float) -> list:
     return blocked
 
 
+def office_on_true_poses() -> tuple:
+    """Return ``sim:office`` mapped with true poses (MapValue) and its base poses (N, 3)."""
+    office = make_drive('sim:office')
+    saved = replay_records(flat_records(drive_messages(office))).map_value()
+    return saved, se2_compose(np.asarray(office.poses), se2_inverse(np.asarray(SIM_MOUNT)))
+
+
+def drifted_office(seed: int, base: np.ndarray) -> tuple:
+    """
+    Return ``sim:office`` (noise seed ``seed``) with drifting odometry (``odom_drift=seed``) as
+    records, and the truth to score it: (records, (stamps, base poses)).
+    """
+    drive = make_drive('sim:office', seed=seed)
+    records = flat_records(drive_messages(drive, odom_drift=seed))
+    return records, (SIM_START + np.asarray(drive.stamps), base)
+
+
 def window(records, saved, truth, start: int, value: float) -> dict:
     """Localize ``records`` on ``saved`` with scans [start, start + BLOCK) blocked."""
     blocked = blocked_scans(records, start, BLOCK, value)
@@ -78,15 +95,11 @@ def main() -> int:
     ap.add_argument('--quick', action='store_true', help='three windows, printed')
     args = ap.parse_args()
     meta = stamp('.venv/bin/python benchmarks/blocked_laser.py ' + ' '.join(sys.argv[1:]))
-    office = make_drive('sim:office')
-    saved = replay_records(flat_records(drive_messages(office))).map_value()
-    base = se2_compose(np.asarray(office.poses), se2_inverse(np.asarray(SIM_MOUNT)))
+    saved, base = office_on_true_poses()
     starts = [30, 100, 190] if args.quick else list(range(10, 320, 10))
     rows = []
     for seed in args.seeds:
-        drive = make_drive('sim:office', seed=seed)
-        records = flat_records(drive_messages(drive, odom_drift=seed))
-        truth = (SIM_START + np.asarray(drive.stamps), base)
+        records, truth = drifted_office(seed, base)
         for mode, value in VALUES.items():
             for start in starts:
                 r = {'mode': mode, 'seed': seed, **window(records, saved, truth, start, value)}

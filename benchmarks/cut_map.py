@@ -28,14 +28,10 @@ import dataclasses
 import json
 import sys
 
-from blocked_laser import blocked_scans
+from blocked_laser import blocked_scans, drifted_office, office_on_true_poses
 from common import publish, stamp
 from covariance import localize
 import numpy as np
-from polyline_mapper.poses import se2_compose, se2_inverse
-from polyline_mapper.recordings import (drive_messages, flat_records, make_drive, SIM_MOUNT,
-                                        SIM_START)
-from polyline_mapper.replay import replay_records
 
 BLOCK = 15
 RING = 0.4
@@ -75,14 +71,10 @@ def main() -> int:
     meta = stamp('.venv/bin/python benchmarks/cut_map.py ' + ' '.join(sys.argv[1:]))
     cuts, seeds = ([14.0], [1]) if args.quick else (args.cuts, args.seeds)
     starts = [190] if args.quick else [None, 150, 170, 190, 210, 230]
-    office = make_drive('sim:office')
-    full = replay_records(flat_records(drive_messages(office))).map_value()
-    base = se2_compose(np.asarray(office.poses), se2_inverse(np.asarray(SIM_MOUNT)))
+    full, base = office_on_true_poses()
     rows = []
     for seed in seeds:
-        drive = make_drive('sim:office', seed=seed)
-        records = flat_records(drive_messages(drive, odom_drift=seed))
-        truth = (SIM_START + np.asarray(drive.stamps), base)
+        records, truth = drifted_office(seed, base)
         for x in cuts:
             saved = cut_map(full, x)
             for start in starts:
