@@ -62,8 +62,10 @@ def office_on_true_poses() -> tuple:
 
 def drifted_office(seed: int, base: np.ndarray) -> tuple:
     """
-    Return ``sim:office`` (noise seed ``seed``) with drifting odometry (``odom_drift=seed``) as
-    records, and the truth to score it: (records, (stamps, base poses)).
+    Return ``sim:office`` with drifting odometry as records, and the truth to score it.
+
+    Noise seed and drift seed ``seed`` (``odom_drift=seed``); ``base``: the true base poses.
+    Returns (records, (stamps, base poses)).
     """
     drive = make_drive('sim:office', seed=seed)
     records = flat_records(drive_messages(drive, odom_drift=seed))
