@@ -135,8 +135,9 @@ def test_localization_error_stays_within_5_cm_for_other_drifts(saved, office, se
     assert value.frame_id == 'map' and session.fixed_frame == 'map'
 
 
-@pytest.mark.parametrize('start', [100, 190])
-def test_a_laser_blocked_all_round_keeps_the_odometry_and_localizes_again(saved, office, start):
+@pytest.mark.parametrize('start, reading', [(100, 0.4), (190, 0.4), (190, math.inf)])
+def test_a_laser_blocked_all_round_keeps_the_odometry_and_localizes_again(saved, office, start,
+                                                                          reading):
     # Found in session 61: 30 scans read 0.4 m on every beam (the laser covered, people round
     # the robot) while the odometry drives 8 m. The first was kept as chords at its predicted
     # pose, the next were matched to them, so the pose stood still with a millimetre
@@ -145,14 +146,19 @@ def test_a_laser_blocked_all_round_keeps_the_odometry_and_localizes_again(saved,
     # explains now, so the blocked scans keep the odometry's pose; from scan 190 the odometry
     # is then 1.5 m and 0.47 rad off, beyond the match's reach, and the ring matched walls it
     # is tangent to (4 m off to the end): once not localized, only the search within the
-    # odometry's error (RECKONED_SEARCH) takes the map back.
+    # odometry's error (RECKONED_SEARCH) takes the map back. No return on any beam (inf) makes
+    # scans skipped as unusable; until session 67 they were skipped before they were posed, so
+    # they neither counted as not matched nor gave a pose, and the next scan was matched from
+    # the odometry: from scan 190 1.6 m off, reported matched (of the 16 windows from scan 10,
+    # 30, ..., 310, 13 were found again; from 30 and 230 it ended 0.8 and 2.9 m off).
     _, path, _ = saved
     end = start + 30
     records = []
     for record in records_of(drifted_messages(office, 1), end + 30):
         if isinstance(record, Scan):
             if start <= sum(isinstance(r, Scan) for r in records) < end:
-                record = replace(record, ranges=np.full(len(record.ranges), 0.4, np.float32))
+                record = replace(record, ranges=np.full(len(record.ranges), reading,
+                                                        np.float32))
         records.append(record)
     poses, matched, unmatched, warned = [], [], [], []
 
@@ -162,10 +168,12 @@ def test_a_laser_blocked_all_round_keeps_the_odometry_and_localizes_again(saved,
             poses.append((loc.stamp, *loc.pose[:2], math.sqrt(loc.covariance[0, 0])))
             matched.append(loc.matched)
             unmatched.append(session.unmatched)
-    replay_records(records, options=SessionOptions(mapping=False), start_map=read_map(path),
-                   progress=keep, warn=lambda cause, text: warned.append((cause, text)))
+    session = replay_records(records, options=SessionOptions(mapping=False),
+                             start_map=read_map(path), progress=keep,
+                             warn=lambda cause, text: warned.append((cause, text)))
     poses = np.array(poses)
-    assert len(poses) == end + 30
+    assert len(poses) == end + 30                             # every scan posed, in its turn
+    assert session.skipped['bad scan: no_valid_ranges'] == (30 if math.isinf(reading) else 0)
     err = np.hypot(*(poses[:, 1:3] - true_base(office)[:len(poses), :2]).T)
     assert not any(matched[start:end])                        # nothing to match: dead reckoning
     assert err[end - 1] > 0.1 and poses[end - 1, 3] > poses[start - 1, 3] * 10  # its spread grows
