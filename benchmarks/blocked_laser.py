@@ -10,7 +10,8 @@ model, ``drive_messages(odom_drift=seed)``), is localized on that map (``mapping
 30 of its scans (3 s, the odometry driving 6-9 m) replaced from scan 10, 20, ..., 310 by
 
 - ``ring``: 0.4 m on every beam (the laser covered, people all round the robot), or
-- ``none``: no return on any beam (each such scan is skipped as unusable).
+- ``none``: no return on any beam (each such scan is posed as a scan not matched, then skipped
+  as unusable).
 
 Per window: the largest error of the base pose from the 10th scan after the block to the end,
 the error at the end, the first scan matched after the block, and for every scan not matched
