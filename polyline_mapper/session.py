@@ -9,8 +9,8 @@ converts messages to records and the map value back to messages; the offline too
 from ``recordings``. The session does, in this order:
 
 1. **Check** each scan (``scan.check_scan``: REP 117 ranges, geometry); a bad one is counted
-   under ``bad scan: <cause>`` (localizing on a saved map, one with no usable reading is posed
-   first, as a scan not matched: ``_blind``).
+   under ``bad scan: <cause>`` (with scan matching from odometry or TF, one with no usable
+   reading is posed first, as a scan not matched: ``_blind``).
 2. **Pose** it (``PoseSource``): ``pose_source='tf'`` looks the scan's frame up in the fixed
    frame through the transform tree (``poses.TransformBuffer2D`` fed by /tf and /tf_static);
    ``'odom'`` uses the odometry pose composed with the laser mount (``mount``, or the scan
@@ -1988,6 +1988,9 @@ class MappingSession:
         """The initial base pose (x, y, yaw) the next posed scan is placed at, or None."""
         self._spread = None
         """(m, rad) around ``_place`` to search (a pose estimate, ``set_pose``), or None."""
+        self._rearm = None
+        """``_spread`` of a pose estimate whose first scan saw nothing (``_blind``): the next
+        scan is searched for there, carried by the odometry; or None."""
         self._start_check = []
         """On a loaded map: the pass-through shares of the first scans placed (``START_CHECK``)."""
         self.wrong_start = None
@@ -2202,7 +2205,7 @@ class MappingSession:
         ``place`` None: where its given pose (or scan mode's first prediction) puts it.
         """
         self._place = place
-        self._spread = None
+        self._spread = self._rearm = None
         self._last_match = None                 # (it made a restart look localized, an audit)
         self._tracked = None
         """The correction (map from odometry) of the scans matched before a pose estimate."""
@@ -2255,10 +2258,14 @@ class MappingSession:
                                record.range_min, record.range_max, record.intensities,
                                angle_max=record.angle_max)
             except ScanError as exc:
-                if exc.cause == 'no_valid_ranges' and self._fixed():
-                    # Localizing, a scan that sees nothing is a scan not matched all the same
-                    # (``UNMATCHED_STREAK``): posed in its turn, skipped there (``_blind``).
-                    return self._add_scan(record)
+                if exc.cause == 'no_valid_ranges' and self._localizes_blind():
+                    # A scan that sees nothing is a scan not matched all the same: posed in its
+                    # turn, localized and skipped there (``_blind``). It does not hold back a
+                    # partial group's flush (``idle_seconds``): that waits for usable scans.
+                    idle = self._last_add
+                    notes = self._add_scan(record)
+                    self._last_add = idle
+                    return notes
                 return [self._skip('bad scan', exc.cause, str(exc))]
             return self._add_scan(record)
         if isinstance(record, Skipped):
@@ -2577,6 +2584,12 @@ class MappingSession:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
                 start, window, estimate = None, None, None
+                if self._rearm is not None:     # blind scans since an estimate (``_blind``)
+                    if self._place is None:
+                        self._place = _compose(self._correction,
+                                               self.poses.robot_pose(scan, pose))
+                        self._spread = self._rearm
+                    self._rearm = None
                 placing = self._place, self._spread
                 if self._place is not None:     # the first scan on a loaded map, an estimate
                     if scan_mode:               # no given pose: predicted at the place itself
@@ -2637,9 +2650,10 @@ class MappingSession:
                             self._skip('not mapped', 'lost', f'the scan at {scan.stamp:.3f} s: '
                                        f'{why} after a refused jump')
                             return notes
-                    elif self._fixed():
-                        if placing[0] is not None:      # placed (or searched) at the next scan
-                            self._place, self._spread = placing
+                    elif self._localizes_blind():
+                        # An estimate to search around: at the next scan, moved by the odometry
+                        # as the correction just set from it moves this one.
+                        self._rearm = placing[1] if placing[0] is not None else self._rearm
                         return notes + self._blind(scan, xyz)
                 if motion is not None:
                     pts = transform(local, xyz)
@@ -2673,19 +2687,34 @@ class MappingSession:
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
 
+    def _localizes_blind(self) -> bool:
+        """Whether a scan with no usable reading is localized before it is skipped (``_blind``)."""
+        return self.options.scan_matching and self.options.pose_source != 'scan'
+
     def _blind(self, scan: Scan, given: np.ndarray) -> list:
         """
-        Localizing on a saved map: a scan with no reading to match; return the warnings.
+        Scan matching from odometry or TF: a scan with no reading to match; return the warnings.
 
         The laser covered, or nothing within its range or the mapping range: no match, so a
         scan not matched (``_localize``: the odometry's pose, its error since the last match
-        added to the covariance; ``UNMATCHED_STREAK``), then skipped as a bad scan. Skipped
-        before they were posed, 3 s of such scans on the drifted office drive left the robot
-        0.27 m off, matched, to the end (``benchmarks/blocked_laser.py``, 'none').
+        added to the covariance, published like any other, so map -> odom goes on as AMCL
+        republishes it per scan; on a saved map it counts toward ``UNMATCHED_STREAK``), then
+        skipped as a bad scan, nothing mapped. Skipped before they were posed (until
+        2026-12-02), 3 s of such scans on the drifted office drive left the robot 0.27 m off,
+        matched, to the end (``benchmarks/blocked_laser.py``, 'none'), and in mapping nothing
+        was published while the laser saw nothing. A pose estimate or initial pose before it
+        sets the correction as at any first scan, and its search waits for the next scan, moved
+        there by the odometry (``_rearm``; restored as it was, the pose stood at the estimate
+        while the robot drove, a review). The scan before stays the last match until the
+        session is not localized (a reset after one such scan keeps the pose). Scan mode has
+        no odometry to carry the
+        pose: its scans are skipped when they come and the time without them is a gap
+        (``GAP_SECONDS``).
         """
-        before, self._last_match = self._correction, None
-        notes = self._localize(scan.stamp, given, _compose(self._correction, given), before,
-                               scan.frame_id)
+        notes = self._localize(scan.stamp, given, _compose(self._correction, given),
+                               self._correction, scan.frame_id, blind=True)
+        if self.unmatched is not None:      # not localized now: the last match says no more
+            self._last_match = None
         try:
             with np.errstate(invalid='ignore', over='ignore'):
                 check_scan(scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min,
@@ -3375,22 +3404,25 @@ class MappingSession:
             dx, dy = np.asarray(m.proposal[:2], dtype=np.float64) - m.pose[:2]
             turn = wrap_angle(float(m.proposal[2]) - float(m.pose[2]))
             add += np.diag([dx * dx + dy * dy, dx * dx + dy * dy, turn * turn])
-        if self._gap is not None:
-            sd = (np.array([GAP_REACH, math.pi]) if self._gap.final else
-                  np.asarray(self._gap.window, dtype=np.float64) / POSE_ESTIMATE_SIGMAS)
+        if self._gap is not None or self._rearm is not None:
+            sd = (np.asarray(self._rearm, dtype=np.float64) / POSE_ESTIMATE_SIGMAS
+                  if self._gap is None else np.array([GAP_REACH, math.pi]) if self._gap.final
+                  else np.asarray(self._gap.window, dtype=np.float64) / POSE_ESTIMATE_SIGMAS)
             add += np.diag([sd[0] ** 2, sd[0] ** 2, sd[1] ** 2])
         return add
 
     def _localize(self, stamp: float, given: np.ndarray, laser: np.ndarray,
-                  before: np.ndarray, scan_frame: str = None) -> list:
+                  before: np.ndarray, scan_frame: str = None, blind: bool = False) -> list:
         """
         Set ``localization`` after ``_match`` placed a scan; return jump warnings (cause, text).
 
         ``given``: the laser pose in the odometry frame, ``laser``: where the scan went in the
         fixed frame, ``before``: the correction before this scan. The base pose is the laser
         pose moved by the base's offset from the laser (its covariance carried along).
+        ``blind``: a scan with nothing to match (``_blind``): not matched, ``_last_match`` (the
+        scan before) left to the caller.
         """
-        m = self._last_match
+        m = None if blind else self._last_match
         matched = m is not None and m.ok
         cov = np.array(m.covariance if m is not None else _PRIOR, dtype=np.float64)
         pose = np.asarray(laser, dtype=np.float64)
@@ -3470,7 +3502,7 @@ class MappingSession:
 
     def _count_unmatched(self, stamp: float, matched: bool) -> list:
         """Count a scan not matched on a saved map (``UNMATCHED_STREAK``); return its warning."""
-        if matched or not self._fixed() or self._gap is not None:
+        if matched or not self._fixed() or self._gap is not None or self._rearm is not None:
             self._unmatched = None      # (searched for near an estimate, after a gap: lost)
             return []
         if self._unmatched is None or stamp < self._unmatched[0]:   # (a clock jump back)

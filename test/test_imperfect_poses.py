@@ -223,6 +223,43 @@ def test_a_rotation_in_place_and_a_doorway_passage_hold(office_drifting):
     assert s['err'][door].max() < 0.05 and s['yaw'][door].max() < 0.01
 
 
+def test_a_laser_that_sees_nothing_keeps_the_pose_going_and_the_map_alone():
+    # Session 67: mapping with scan matching from odometry, a scan with no return on any beam
+    # was skipped when it came, so nothing was published (no pose, no map -> odom) while the
+    # laser saw nothing, and a planner's transform lookups failed once the last transform was
+    # older than their tolerance. AMCL republishes map -> odom with every scan. Now such a scan
+    # is posed as a scan not matched (the odometry's pose, the covariance growing), and it
+    # maps nothing: the map is the one of the same drive without those scans.
+    drive = make_drive('sim:office', 1)
+    blinded, dropped, n = [], [], 0
+    for r in records(drive, drift=1):
+        if isinstance(r, Scan):
+            n += 1
+            if 100 < n <= 130:
+                blinded.append(dataclasses.replace(r, ranges=np.full(len(r.ranges), np.inf,
+                                                                     np.float32)))
+                continue
+        blinded.append(r)
+        dropped.append(r)
+    rows = []
+
+    def keep(session):
+        loc = session.localization
+        if loc is not None and (not rows or rows[-1][0] != loc.stamp):
+            rows.append((loc.stamp, loc.matched, loc.covariance[0, 0], *loc.pose[:2]))
+    options = SessionOptions(pose_source='odom', scan_matching=True)
+    seen = replay_records(blinded, options=options, progress=keep)
+    assert seen.skipped == {'bad scan: no_valid_ranges': 30}
+    assert np.array_equal(seen.map_value().segments,
+                          replay_records(dropped, options=options).map_value().segments)
+    stamps, matched, var, x, y = (np.array(c) for c in zip(*rows))
+    assert np.array_equal(stamps, 1000.0 + drive.stamps)      # every scan posed, in order
+    assert matched[1:100].all() and not matched[100:130].any() and matched[130:].mean() > 0.95
+    assert var[100:130].min() >= var[99] and var[129] > 10 * var[99]     # its spread grows
+    err = np.hypot(x - drive.poses[:, 0], y - drive.poses[:, 1])
+    assert err[130:].max() <= 0.05, err[130:].max()
+
+
 def test_a_featureless_corridor_does_not_slide():
     # One side of a 60 m corridor loop (2 m wide, the laser's range 12 m): in its middle the
     # scans see two parallel walls and nothing along the axis. The matcher keeps the odometry's
