@@ -48,7 +48,7 @@ is always the one published.
 
 import bisect
 from collections import Counter, deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 import itertools
 import math
 import threading
@@ -811,6 +811,14 @@ def beam_points(ranges, angles, motion: np.ndarray, range_min: float,
     p = motion[ok]
     ang = a[ok] + p[:, 2]
     return np.stack([p[:, 0] + r[ok] * np.cos(ang), p[:, 1] + r[ok] * np.sin(ang)], axis=1)
+
+
+@dataclass
+class _Blind(Scan):
+    """A scan with no usable reading, queued to be posed as not matched (``_blind``)."""
+
+    why: str = ''
+    """Why it is skipped then (``check_scan``'s words)."""
 
 
 class SessionError(ValueError):
@@ -2258,12 +2266,15 @@ class MappingSession:
                                record.range_min, record.range_max, record.intensities,
                                angle_max=record.angle_max)
             except ScanError as exc:
-                if exc.cause == 'no_valid_ranges' and self._localizes_blind():
+                if (exc.cause == 'no_valid_ranges' and self._localizes_blind()
+                        and self._blind_waiting() < self.options.max_waiting):
                     # A scan that sees nothing is a scan not matched all the same: posed in its
                     # turn, localized and skipped there (``_blind``). It does not hold back a
-                    # partial group's flush (``idle_seconds``): that waits for usable scans.
+                    # partial group's flush (``idle_seconds``): that waits for usable scans;
+                    # nor is it shed or counted for load (``_shed_waiting``).
                     idle = self._last_add
-                    notes = self._add_scan(record)
+                    notes = self._add_scan(_Blind(**{f.name: getattr(record, f.name)
+                                                     for f in fields(record)}, why=str(exc)))
                     self._last_add = idle
                     return notes
                 return [self._skip('bad scan', exc.cause, str(exc))]
@@ -2505,6 +2516,7 @@ class MappingSession:
             # shed: those scans are mapped, however late.
             if opts.scan_matching and not final:
                 notes.extend(self._shed_waiting(now))
+            blind = self._blind_waiting()       # (not counted against max_waiting)
             while self._waiting:
                 if opts.scan_matching and len(self._ready) >= opts.update_every_n_scans:
                     # A scan is matched against the map of every scan before it, as in a
@@ -2515,7 +2527,7 @@ class MappingSession:
                     self._waiting.popleft()
                     notes.extend(self._estimate(scan))
                     continue
-                give_up = (final or len(self._waiting) > opts.max_waiting
+                give_up = (final or len(self._waiting) - blind > opts.max_waiting
                            or now - arrived >= opts.wait)
                 if (scan.pose is None and not give_up and math.isfinite(self.poses.latest)
                         and self.poses.newest(scan) < scan.stamp):
@@ -2529,11 +2541,16 @@ class MappingSession:
                         break       # keep the order: later scans wait behind this one
                     self._waiting.popleft()
                     notes.extend(self.poses.held_notes())
+                    if isinstance(scan, _Blind):    # unusable first: skipped as it was
+                        blind -= 1
+                        notes.append(self._skip('bad scan', 'no_valid_ranges', scan.why))
+                        continue
                     notes.append(self._skip('no pose', exc.cause,
                                             f'frame {scan.frame_id!r} at {scan.stamp:.3f}: '
                                             f'{exc}'))
                     continue
                 self._waiting.popleft()
+                blind -= isinstance(scan, _Blind)
                 notes.extend(self.poses.held_notes())
                 notes.extend(self.poses.rate_notes(scan.stamp, scan.frame_id))
                 notes.extend(self.poses.flip_notes())
@@ -2544,10 +2561,20 @@ class MappingSession:
                     notes.append(self._dropped('queue_full'))
         return notes
 
+    def _blind_waiting(self) -> int:
+        """Return how many scans with no usable reading wait for their pose (``_Blind``)."""
+        return sum(isinstance(s, _Blind) for s, _ in self._waiting)
+
     def _shed_waiting(self, now: float) -> list:
-        """Scan matching: load shedding (max_queue, max_latency) on the scans not yet posed."""
+        """
+        Scan matching: load shedding (max_queue, max_latency) on the scans not yet posed.
+
+        Scans with no usable reading (``_Blind``) are neither counted nor shed: they cost a
+        pose, and shed, they would be told as dropped for load where the laser saw nothing.
+        """
         opts, notes = self.options, []
-        scans = [i for i, (s, _) in enumerate(self._waiting) if isinstance(s, Scan)]
+        scans = [i for i, (s, _) in enumerate(self._waiting)
+                 if isinstance(s, Scan) and not isinstance(s, _Blind)]
         drop = set()
         if opts.max_queue is not None and len(scans) > opts.max_queue:
             drop.update(scans[:len(scans) - opts.max_queue])
@@ -2584,11 +2611,13 @@ class MappingSession:
             with np.errstate(invalid='ignore', over='ignore'):
                 angles = pose.beam_angles(scan.angles())
                 start, window, estimate = None, None, None
+                rearmed = None
                 if self._rearm is not None:     # blind scans since an estimate (``_blind``)
                     if self._place is None:
+                        rearmed = self._rearm
                         self._place = _compose(self._correction,
                                                self.poses.robot_pose(scan, pose))
-                        self._spread = self._rearm
+                        self._spread = self._rearm_window(rearmed)
                     self._rearm = None
                 placing = self._place, self._spread
                 if self._place is not None:     # the first scan on a loaded map, an estimate
@@ -2653,7 +2682,8 @@ class MappingSession:
                     elif self._localizes_blind():
                         # An estimate to search around: at the next scan, moved by the odometry
                         # as the correction just set from it moves this one.
-                        self._rearm = placing[1] if placing[0] is not None else self._rearm
+                        if placing[0] is not None:
+                            self._rearm = placing[1] if rearmed is None else rearmed
                         return notes + self._blind(scan, xyz)
                 if motion is not None:
                     pts = transform(local, xyz)
@@ -2687,6 +2717,24 @@ class MappingSession:
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
 
+    def _rearm_window(self, spread: tuple) -> tuple:
+        """
+        Return the window (m, rad) to search an estimate's ``spread`` in after blind scans.
+
+        The odometry carried the estimate over them: its error since (``_reckon``, from the
+        first of them), ``POSE_ESTIMATE_SIGMAS`` standard deviations, is added (in quadrature)
+        to the estimate's own, at most ``GAP_REACH`` and half a turn. Searched within the
+        estimate's spread alone, 100 blind scans after an estimate of 0.6 m left the robot
+        1.9 m off and the search gave up (a review).
+        """
+        radius, turn = spread
+        if self._reckoned is not None:
+            cov = self._reckoned[0]
+            sd = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2]).max()), 0.0))
+            radius = math.hypot(radius, POSE_ESTIMATE_SIGMAS * sd)
+            turn = math.hypot(turn, POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0)))
+        return min(radius, GAP_REACH), min(turn, math.pi)
+
     def _localizes_blind(self) -> bool:
         """Whether a scan with no usable reading is localized before it is skipped (``_blind``)."""
         return self.options.scan_matching and self.options.pose_source != 'scan'
@@ -2704,23 +2752,20 @@ class MappingSession:
         matched, to the end (``benchmarks/blocked_laser.py``, 'none'), and in mapping nothing
         was published while the laser saw nothing. A pose estimate or initial pose before it
         sets the correction as at any first scan, and its search waits for the next scan, moved
-        there by the odometry (``_rearm``; restored as it was, the pose stood at the estimate
-        while the robot drove, a review). The scan before stays the last match until the
-        session is not localized (a reset after one such scan keeps the pose). Scan mode has
-        no odometry to carry the
-        pose: its scans are skipped when they come and the time without them is a gap
-        (``GAP_SECONDS``).
+        there by the odometry, its window widened by the odometry's error (``_rearm``,
+        ``_rearm_window``; restored as it was, the pose stood at the estimate while the robot
+        drove, a review). The scan before stays the last match until the session is not
+        localized (a reset after one such scan keeps the pose). Such scans are not load
+        (``_shed_waiting``), and one whose pose cannot come is skipped as unusable, as before.
+        Scan mode has no odometry to carry the pose: its scans are skipped when they come and
+        the time without them is a gap (``GAP_SECONDS``).
         """
         notes = self._localize(scan.stamp, given, _compose(self._correction, given),
                                self._correction, scan.frame_id, blind=True)
         if self.unmatched is not None:      # not localized now: the last match says no more
             self._last_match = None
-        try:
-            with np.errstate(invalid='ignore', over='ignore'):
-                check_scan(scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min,
-                           scan.range_max, scan.intensities, angle_max=scan.angle_max)
-        except ScanError as exc:
-            return notes + [self._skip('bad scan', exc.cause, str(exc))]
+        if isinstance(scan, _Blind):
+            return notes + [self._skip('bad scan', 'no_valid_ranges', scan.why)]
         return notes + [self._skip('bad scan', 'no_valid_points', 'no reading within the '
                                    f'mapping range at {scan.stamp:.3f} s')]
 
@@ -3327,9 +3372,9 @@ class MappingSession:
         Whether scan matching does not know where the scans are (no scan is mapped meanwhile).
 
         It refused the predicted pose, or it searches for the scans after a gap in them or
-        near a pose estimate.
+        near a pose estimate (or will, at the first scan that sees: ``_rearm``).
         """
-        return bool(self._proposals) or self._gap is not None
+        return bool(self._proposals) or self._gap is not None or self._rearm is not None
 
     def _confirm(self, local: np.ndarray, given: np.ndarray, m: ScanMatch, near: np.ndarray,
                  sigma: float, degenerate: float) -> ScanMatch:

@@ -260,6 +260,54 @@ def test_a_laser_that_sees_nothing_keeps_the_pose_going_and_the_map_alone():
     assert err[130:].max() <= 0.05, err[130:].max()
 
 
+def test_scans_that_see_nothing_are_not_load_nor_missing_poses():
+    # A review of e487f9b (session 67): once scans with no usable reading were queued to be
+    # posed, load shedding counted them (max_queue 5, the odometry 0.65 s late around six of
+    # them: 10 scans dropped against 2, four of them usable, and another map), and those whose
+    # pose could not come were told as 'no pose' (before the odometry started: 'too_old').
+    drive = make_drive('sim:office', 1)
+    stamps = 1000.0 + drive.stamps
+    blind = {60, 61, 63, 64, 66, 67}
+    scans, other = [], []
+    for r in records(drive, drift=1):
+        if not isinstance(r, Scan):
+            other.append(r)
+        elif len(scans) < 200:
+            scans.append(dataclasses.replace(r, ranges=np.full(len(r.ranges), np.inf, np.float32))
+                         if len(scans) in blind else r)
+    events, last = [], 0.0
+    for i, r in enumerate(other):       # (arrival, order, record): late odometry at 5.8-6.8 s
+        last = max(last, r.stamp + (0.65 if stamps[58] <= r.stamp <= stamps[68] else 0.02))
+        events.append((last, 1, i, r))
+    events += [(r.stamp, 0, i, r) for i, r in enumerate(scans)]
+    events.sort(key=lambda e: e[:3])
+
+    def live(skip=()):
+        now = [0.0]
+        session = MappingSession(None, SessionOptions(pose_source='odom', scan_matching=True,
+                                                      max_queue=5, wait=3.0),
+                                 clock=lambda: now[0])
+        for t, _, i, r in events:
+            if not (isinstance(r, Scan) and i in skip):
+                now[0] = max(now[0], t)
+                session.add(r)
+                session.step()
+        session.flush()
+        return session
+    seen, without = live(), live(skip=blind)
+    assert seen.skipped == {'bad scan: no_valid_ranges': 6, 'dropped: queue_full': 2}
+    assert without.skipped == {'dropped: queue_full': 2} and seen.used == without.used == 192
+    assert np.array_equal(seen.map_value().segments, without.map_value().segments)
+    # before the odometry starts: unusable first, as they were
+    early = [r for r in records(drive, drift=1)[:400] if isinstance(r, Scan)
+             or r.stamp >= stamps[5] - 1e-6 or getattr(r, 'static', False)]
+    early = [dataclasses.replace(r, ranges=np.full(len(r.ranges), np.inf, np.float32))
+             if isinstance(r, Scan) and r.stamp < stamps[5] - 1e-6 else r for r in early]
+    session = replay_records(early, options=SessionOptions(pose_source='odom',
+                                                           scan_matching=True))
+    assert session.skipped == {'bad scan: no_valid_ranges': 5}
+
+
 def test_a_featureless_corridor_does_not_slide():
     # One side of a 60 m corridor loop (2 m wide, the laser's range 12 m): in its middle the
     # scans see two parallel walls and nothing along the axis. The matcher keeps the odometry's
