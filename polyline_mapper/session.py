@@ -2729,11 +2729,19 @@ class MappingSession:
         """
         radius, turn = spread
         if self._reckoned is not None:
-            cov = self._reckoned[0]
-            sd = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2]).max()), 0.0))
-            radius = math.hypot(radius, POSE_ESTIMATE_SIGMAS * sd)
-            turn = math.hypot(turn, POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0)))
+            shift, yaw = self._reckoned_reach()
+            radius, turn = math.hypot(radius, shift), math.hypot(turn, yaw)
         return min(radius, GAP_REACH), min(turn, math.pi)
+
+    def _reckoned_reach(self) -> tuple:
+        """
+        Return ``POSE_ESTIMATE_SIGMAS`` standard deviations (m, rad) of ``_reckoned``'s error.
+
+        The position's along its worst direction, the heading's; ``_reckoned`` must be set.
+        """
+        cov = self._reckoned[0]
+        sd = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2]).max()), 0.0))
+        return POSE_ESTIMATE_SIGMAS * sd, POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0))
 
     def _localizes_blind(self) -> bool:
         """Whether a scan with no usable reading is localized before it is skipped (``_blind``)."""
@@ -3210,11 +3218,9 @@ class MappingSession:
                 self._searched is not None and 0 <= stamp - self._searched < RECKONED_SEARCH):
             return None
         self._searched = stamp
-        cov = self._reckoned[0]
-        sd = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2]).max()), 0.0))
-        radius = min(max(POSE_ESTIMATE_SIGMAS * sd, RELOCALIZE), GAP_REACH)
-        turn = min(max(POSE_ESTIMATE_SIGMAS * math.sqrt(max(cov[2, 2], 0.0)), MATCH_REACH[1]),
-                   math.pi)
+        shift, yaw = self._reckoned_reach()
+        radius = min(max(shift, RELOCALIZE), GAP_REACH)
+        turn = min(max(yaw, MATCH_REACH[1]), math.pi)
         best, rivals = _found_places(
             local, np.concatenate([self.mapper.segments, self._recent.chords()]), prediction,
             radius, turn, sigma)
