@@ -376,16 +376,15 @@ a gap is (at most ``GAP_REACH`` metres and half a turn).
 START_CHECK = (10, 0.3)
 """
 Localization on a saved map (``load_map``): after the first this-many scans placed (from the
-start, a reset or a pose estimate; with scan matching, matched: a scan not matched is where the
-odometry put it, and ``unmatched`` speaks of those), when the median share of their beams that
-pass through the saved map's segments (``core.freespace.passing_beams``) exceeds the second
-number, warn once (``wrong_start``): the scans were matched onto a wrong place. Measured on
-the Intel and CSAIL logs (``benchmarks/pose_estimate.py``, first 10 scans): at the right place
-1 % and 18 % of the beams pass through the saved walls (CSAIL's walls have gaps), at a wrong
-place where every scan still matched (a start 2.5 m and 0.6 rad off) 40 % and 49 %
-(2026-12-01, since scans put under half on the map keep no chords: 3 % and 10 % at the right
-place, 33 % and 41 % at the wrong one; Intel's now near the bar). Not caught: the simulated
-office started 1.7 m off, matched 0.8 m off along its walls (11 %).
+start, a reset or a pose estimate), when the median share of their beams that pass through the
+saved map's segments (``core.freespace.passing_beams``) exceeds the second number, warn once
+(``wrong_start``): the scans were matched onto a wrong place. Measured on the Intel and CSAIL
+logs (``benchmarks/pose_estimate.py``, first 10 scans): at the right place 1 % and 18 % of the
+beams pass through the saved walls (CSAIL's walls have gaps), at a wrong place where every scan
+still matched (a start 2.5 m and 0.6 rad off) 40 % and 49 % (2026-12-01, since scans put under
+half on the map keep no chords: 3 % and 10 % at the right place, 33 % and 41 % at the wrong
+one; Intel's now near the bar). Not caught: the simulated office started 1.7 m off, matched 0.8 m
+off along its walls (11 %).
 """
 GAP_SHARE, GAP_RIVAL = 0.9, 0.1
 """
@@ -740,8 +739,6 @@ class GapTrack:
         """Whether the scans paused before it (else they came, and did not match)."""
         self.reset = False
         """Whether the odometry came back near its origin after the gap (a driver restart)."""
-        self.scans = 0
-        """Scans searched for so far (``_find_after_gap``)."""
 
     def add(self, stamp: float, local: np.ndarray, sigma: float, degenerate: float,
             given: np.ndarray = None) -> bool:
@@ -2024,9 +2021,8 @@ class MappingSession:
         self._searched = None
         """Scan matching: the stamp of the last ``_search_reckoned`` (``RECKONED_SEARCH``)."""
         self._unmatched = None
-        """On a saved map: [first stamp, scans, warned, given up] of the scans not matched since
-        the last matched one (``UNMATCHED_STREAK``; given up: a search after a gap or near an
-        estimate gave up, not localized from then on, ``_search_on``); None after a match."""
+        """On a saved map: [first stamp, scans, warned] of the scans not matched since the last
+        matched one (``UNMATCHED_STREAK``); None after a match."""
         self._turns = deque(maxlen=LAG_ROWS)
         """(stamp, the laser's heading from the pose data, matched heading) of the matched
         scans of ``_lag_frame`` (TF or odometry with scan matching): ``lag_costs``' rows."""
@@ -2716,9 +2712,7 @@ class MappingSession:
             self._trajectory.append((scan.stamp, row[0], row[1], float(wrap_angle(row[2]))))
             if self._first_base is None:
                 self._first_base = np.array([row[0], row[1], float(wrap_angle(row[2]))])
-        matched = self._last_match is not None and self._last_match.ok
-        if (self._loaded is not None and len(self._start_check) < START_CHECK[0]
-                and (matched or not self.options.scan_matching)):
+        if self._loaded is not None and len(self._start_check) < START_CHECK[0]:
             notes += self._check_start(pts, xyz[:2])
         self._ready.append((scan, pts, xyz[:2], time.perf_counter() - t0, arrived))
         return notes
@@ -3291,7 +3285,6 @@ class MappingSession:
             if window[0] > GAP_REACH:
                 track.why = (f'the robot may be anywhere within {window[0]:.1f} m, beyond the '
                              f'{GAP_REACH:g} m scan matching searches')
-        track.scans += 1
         odometry = self.options.pose_source != 'scan'
         if not track.final and track.add(stamp, local, sigma,       # a new keyframe:
                                          MATCH_DEGENERATE[self.options.pose_source],
@@ -3341,12 +3334,6 @@ class MappingSession:
             lost, what = f'lost the track after {what}', f'the scans after {what}'
         if track.final and track.warned < 2:
             track.warned = 2
-            if self._fixed() and base is not None:
-                self._search_on(track, stamp, base)
-                return prediction, (f'{cause}_given_up', f'scan matching gave up finding {what}: '
-                                    f'{track.why}; not localized: the poses are the '
-                                    "odometry's, and the scans are searched for within its "
-                                    'error from there until one is found on the map')
             return prediction, (f'{cause}_given_up', f'scan matching gave up finding {what}: '
                                 f'{track.why}; no later scan is mapped (the map stays as it '
                                 'was) until a pose estimate or a reset')
@@ -3355,27 +3342,6 @@ class MappingSession:
         track.warned = 1
         return prediction, (cause, f'scan matching {lost}: {track.why}; scans are not mapped '
                             'until they are found on the map again')
-
-    def _search_on(self, track: GapTrack, stamp: float, base: np.ndarray) -> None:
-        """
-        On a saved map, a search after a gap or near an estimate gave up: not localized instead.
-
-        Given up for good, the session stayed lost until a pose estimate or a reset, where the
-        same scans without that search (the laser blocked, no estimate) were found again by
-        the search within the odometry's error (``RECKONED_SEARCH``): a pose estimate (0.6 m)
-        followed by 200 scans with no return ended 6.4 m off, lost, against 0.001 m without
-        the estimate (a review, note 67). So the session goes on as not localized: its scans
-        so far counted (``unmatched`` at once), the odometry's error since then starting at
-        the search's window (``POSE_ESTIMATE_SIGMAS`` standard deviations, at most ``GAP_REACH``
-        m and half a turn), searched again ``RECKONED_SEARCH`` seconds on.
-        """
-        self._gap = None
-        sd = (min(track.window[0], GAP_REACH) / POSE_ESTIMATE_SIGMAS,
-              min(track.window[1], math.pi) / POSE_ESTIMATE_SIGMAS)
-        self._reckoned = [np.diag([sd[0] ** 2, sd[0] ** 2, sd[1] ** 2]),
-                          np.asarray(base, dtype=np.float64).copy()]
-        self._unmatched = [track.first, track.scans - 1, True, True]  # (this scan: _localize)
-        self._searched = stamp
 
     def _found_after_gap(self, m: ScanMatch, local: np.ndarray, given: np.ndarray,
                          base: np.ndarray) -> tuple:
@@ -3591,7 +3557,7 @@ class MappingSession:
             self._unmatched = None      # (searched for near an estimate, after a gap: lost)
             return []
         if self._unmatched is None or stamp < self._unmatched[0]:   # (a clock jump back)
-            self._unmatched = [stamp, 0, False, False]
+            self._unmatched = [stamp, 0, False]
         run = self._unmatched
         run[1] += 1
         if run[2] or self.unmatched is None:
@@ -3615,7 +3581,7 @@ class MappingSession:
         if run is None or self.localization is None:
             return None
         seconds = self.localization.stamp - run[0]
-        if not run[3] and (run[1] < UNMATCHED_STREAK[0] or seconds < UNMATCHED_STREAK[1]):
+        if run[1] < UNMATCHED_STREAK[0] or seconds < UNMATCHED_STREAK[1]:
             return None
         return run[1], seconds
 
