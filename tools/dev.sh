@@ -189,10 +189,11 @@ sys.exit(pytest.main())' -q -p no:cacheprovider)
     trap 'interrupted=130' INT
     trap 'pass_on 143' TERM
     trap 'pass_on 129' HUP
-    ROS_DOMAIN_ID=$dds_domain "${pytest_run[@]}" -m dds test > "$dds_log" 2>&1 &
+    # --durations: each log ends with its slowest tests (the suite has 20 minutes in CI).
+    ROS_DOMAIN_ID=$dds_domain "${pytest_run[@]}" -m dds --durations=10 test > "$dds_log" 2>&1 &
     dds_pid=$!
     log "the dds tests run beside the others (their output: $dds_log, shown when both end)"
-    nice -n 19 "${pytest_run[@]}" -n "$workers" -m 'not dds' test &
+    nice -n 19 "${pytest_run[@]}" -n "$workers" -m 'not dds' --durations=25 test &
     rest_pid=$!
     # (wait returns early when a trapped signal comes: wait again until the run has ended)
     finished() {
@@ -214,6 +215,7 @@ sys.exit(pytest.main())' -q -p no:cacheprovider)
       log "error: interrupted (tests not marked dds: exit code $rc_rest; dds: $rc_dds)"
       exit "$interrupted"
     fi
+    log "set-up and tests took $SECONDS s"
     if [ "$rc_rest" -ne 0 ] || [ "$rc_dds" -ne 0 ]; then
       die "tests failed: not marked dds exit code $rc_rest, marked dds exit code $rc_dds"
     fi
