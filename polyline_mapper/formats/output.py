@@ -86,12 +86,13 @@ def check_output(path, inputs: Iterable = ()) -> str:
         kind = _kind(st.st_mode)
         if kind is not None:
             raise OutputError(f'{name}: is {kind}, not a regular file; refusing to replace it')
+        # An input first: a read-only input's own message advised removing it (a review).
+        for src in _inputs(inputs):
+            if os.path.samefile(src, target):
+                raise OutputError(f'{name}: is an input of this run; refusing to write over it')
         if not os.access(target, os.W_OK) or not st.st_mode & stat.S_IWUSR:
             raise OutputError(f'{name}: read-only file (mode {stat.S_IMODE(st.st_mode):04o}); '
                               'refusing to replace it (make it writable or remove it first)')
-    for src in _inputs(inputs):
-        if st is not None and os.path.samefile(src, target):
-            raise OutputError(f'{name}: is an input of this run; refusing to write over it')
     _check_place(name, target, inputs)
     return target
 
