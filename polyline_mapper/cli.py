@@ -530,8 +530,10 @@ def _replay_options(args, every: int = 1, group: int = 1, matching: bool = False
                        f'with --pose-source odom only (given: {args.pose_source})')
     knots = getattr(args, 'chord_knots', None)
     if knots is not None and not matching and args.pose_source != 'scan':
-        raise CliError('--chord-knots applies to scan matching only: add --scan-matching (or '
-                       '--pose-source scan)')
+        # (fit and plot have no --scan-matching: they match scans in scan mode only)
+        add = ('--scan-matching (or --pose-source scan)' if hasattr(args, 'scan_matching')
+               else '--pose-source scan')
+        raise CliError(f'--chord-knots applies to scan matching only: add {add}')
     mount, flip = _mount(args.laser_mount)
     source = args.pose_source or 'tf'           # (replay: None until _node_file)
     fixed = args.fixed_frame
@@ -903,8 +905,8 @@ def read_beams_any(path: str, args, range_max: float = None) -> tuple:
     if kind in ('points', 'carmen'):
         # The recording options place a bag's or a drive's scans; a log's records carry their
         # corrected laser poses, a point file none: given here, they would change nothing.
-        given = [f'--{name.replace("_", "-")}' for name, default in POSE_ARGS
-                 if getattr(args, name, default) != default]
+        given = [f'--{name.replace("_", "-")}' for name, default in POSE_ARGS + (
+            ('chord_knots', None),) if getattr(args, name, default) != default]
         if given:
             what = ('a point file' if kind == 'points' else
                     'a CARMEN log (its corrected laser poses place its scans; replay it for '

@@ -242,9 +242,16 @@ def test_recording_options_that_would_change_nothing_are_refused(tmp_path, capsy
     for path, extra, needle in (
             (str(pts), ['--laser-mount', '1,2,0'], '--laser-mount does not apply to a point file'),
             (log, ['--pose-source', 'odom', '--scan-topic', '/x'],
-             '--pose-source and --scan-topic do not apply to a CARMEN log')):
+             '--pose-source and --scan-topic do not apply to a CARMEN log'),
+            # (a review of 2026-12-02: --chord-knots was ignored on a log or a point file)
+            (log, ['--chord-knots', 'arc'], '--chord-knots does not apply to a CARMEN log'),
+            (str(pts), ['--chord-knots', 'median'], '--chord-knots does not apply to a point')):
         code, err, out, _ = run_cli([path, *extra], tmp_path, capsys)
         assert code == 2 and needle in err and not out.exists(), err
+    # fit has no --scan-matching: its advice is the option it has
+    code, err, out, _ = run_cli(['sim:office', '--chord-knots', 'arc'], tmp_path, capsys)
+    assert code == 2 and err.endswith('--chord-knots applies to scan matching only: add '
+                                      '--pose-source scan') and not out.exists(), err
 
 
 def test_a_log_skips_bad_records_with_reasons_a_person_reads(tmp_path):
