@@ -1179,14 +1179,17 @@ def number(lo: float = None, hi: float = None, lo_open: bool = False, kind=float
     Refuses nan, inf and out-of-range values with one line naming the bound.
     """
     what = 'an integer' if kind is int else 'a number'
+
+    def shown(bound) -> str:        # an integer's bounds in full (not 4.29497e+09)
+        return str(int(bound)) if kind is int and float(bound).is_integer() else f'{bound:g}'
     if lo == 0 and lo_open and hi is None:
         rule = f'a positive {"integer" if kind is int else "number"}'
     elif lo is not None and hi is not None:
-        rule = f'{what} in [{lo:g}, {hi:g}]'
+        rule = f'{what} in [{shown(lo)}, {shown(hi)}]'
     elif lo is not None:
-        rule = f'{what} {">" if lo_open else ">="} {lo:g}'
+        rule = f'{what} {">" if lo_open else ">="} {shown(lo)}'
     else:
-        rule = f'{what} <= {hi:g}' if hi is not None else f'a finite {what[2:]}'
+        rule = f'{what} <= {shown(hi)}' if hi is not None else f'a finite {what[2:]}'
 
     def parse(text: str):
         try:

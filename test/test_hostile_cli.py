@@ -609,6 +609,9 @@ OPTION_CASES = [
      '--clock-hz must be a positive number'),
     ('demo --noise nan', ['demo', '--offline', '-o', '{out}', '--noise', 'nan'],
      '--noise must be a number in [0, 10]'),
+    # an integer's bound in full (it said 4.29497e+09: a review of 2026-12-02)
+    ('convert --odom-drift abc', ['convert', '{room}', '-o', '{dir}/bag', '--odom-drift', 'abc'],
+     "--odom-drift must be an integer in [0, 4294967295], got 'abc'"),
     # no command: the commands were not named (new-user audit)
     ('no command', [], 'the following arguments are required: command (one of: fit, demo, '
      'replay, plot, export, play, record-map, convert; COMMAND --help says more)'),
