@@ -74,10 +74,15 @@ def fit_window_asked(path: str = None, overrides: list = ()) -> bool:
     return window is not None and window != -1
 
 
-def load_incremental_config(path: str = None, overrides: list = ()):
-    """Return the mapper configuration of ``--config`` and ``--set`` (see ``config``)."""
+def load_incremental_config(path: str = None, overrides: list = (), also=()):
+    """
+    Return the mapper configuration of ``--config`` and ``--set`` (see ``config``).
+
+    ``also``: the node parameters ``--set`` takes besides (named with the mapper's keys when a
+    key is unknown).
+    """
     from .config import load_mapper_config
-    return load_mapper_config(path, overrides)
+    return load_mapper_config(path, overrides, also)
 
 
 def read_input(path: str, range_max: float = None, progress: bool = True) -> tuple:
@@ -674,6 +679,14 @@ def _seen_through(stats: dict, args, range_noise: float = 0.0) -> str:
 LASER_PARAMS = ('laser_x', 'laser_y', 'laser_yaw', 'laser_upside_down')
 
 
+def _node_set_specs() -> dict:
+    """Return {name: spec} of the node's scalar parameters ``replay --set`` takes."""
+    from .config import REPLAY_READS
+    from .params import NODE_PARAMS
+    return {spec.name: spec for spec in NODE_PARAMS if spec.name in REPLAY_READS
+            and not isinstance(spec.default, (list, tuple))}
+
+
 def _node_sets(items: list) -> tuple:
     """
     Split ``replay --set`` items: (node parameters of ``config.REPLAY_READS``, the rest).
@@ -682,10 +695,8 @@ def _node_sets(items: list) -> tuple:
     ``--set odom_frame=wheel_odom``) are typed by the parameter table; every other item is the
     mapper's (``load_incremental_config``), which refuses what it does not know.
     """
-    from .config import REPLAY_READS, typed_value
-    from .params import NODE_PARAMS
-    specs = {spec.name: spec for spec in NODE_PARAMS if spec.name in REPLAY_READS
-             and not isinstance(spec.default, (list, tuple))}
+    from .config import typed_value
+    specs = _node_set_specs()
     node, rest = {}, []
     for item in items:
         key, eq, value = item.partition('=')
@@ -831,7 +842,7 @@ def _node_differs(args, session) -> list:
 def cmd_replay(args) -> int:
     from .replay import run_replay
     node_sets, core_sets = _node_sets(args.set)
-    config = load_incremental_config(args.config, core_sets)
+    config = load_incremental_config(args.config, core_sets, _node_set_specs())
     try:
         _node_file(args, node_sets)
     except ValueError as exc:           # ConfigError: one line naming the file

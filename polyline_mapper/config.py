@@ -297,12 +297,15 @@ def _known(group: str, values: dict, path: str) -> None:
 
 
 def read_values(path: str = None, overrides: Iterable[str] = (),
-                groups: Iterable[str] = GROUPS, extra: Iterable[str] = ()) -> dict:
+                groups: Iterable[str] = GROUPS, extra: Iterable[str] = (),
+                also: Iterable[str] = ()) -> dict:
     """
     Read a config file and ``key=value`` overrides; return {field name: typed value}.
 
     Only the table's entries of ``groups`` (and the field names ``extra`` of other groups) are
-    accepted; anything else is a ConfigError that lists the accepted keys.
+    accepted; anything else is a ConfigError that lists the accepted keys, with the nearest as
+    "did you mean". ``also``: keys the caller takes itself (``replay --set``'s node
+    parameters), listed and suggested with them.
     """
     keys = table(groups)
     keys.update({k: v for k, v in table().items() if k in set(extra)})
@@ -332,8 +335,12 @@ def read_values(path: str = None, overrides: Iterable[str] = (),
         raw[key] = (value, f'--set {item}')
     unknown = sorted(k for k in raw if k not in keys)
     if unknown:
-        raise ConfigError(f'{raw[unknown[0]][1]}: unknown key {unknown[0]!r} (keys: '
-                          f'{", ".join(sorted(keys))})')
+        import difflib
+        names = sorted(set(keys) | set(also))
+        near = difflib.get_close_matches(unknown[0], names, n=1)
+        raise ConfigError(f'{raw[unknown[0]][1]}: unknown key {unknown[0]!r} ('
+                          f'{f"did you mean {near[0]}? " if near else ""}keys: '
+                          f'{", ".join(names)})')
     return {k: typed_value(keys[k], v, origin) for k, (v, origin) in raw.items()}
 
 
@@ -376,9 +383,14 @@ def load_fit_options(path: str = None, overrides: Iterable[str] = ()) -> tuple:
         raise ConfigError(f'bad config: {exc}') from None
 
 
-def load_mapper_config(path: str = None, overrides: Iterable[str] = ()) -> IncrementalConfig:
-    """Return the incremental mapper's IncrementalConfig from a config file and overrides."""
-    values = read_values(path, overrides)
+def load_mapper_config(path: str = None, overrides: Iterable[str] = (),
+                       also: Iterable[str] = ()) -> IncrementalConfig:
+    """
+    Return the incremental mapper's IncrementalConfig from a config file and overrides.
+
+    ``also``: the other keys the caller's ``--set`` takes (``read_values``).
+    """
+    values = read_values(path, overrides, also=also)
     inc_keys = table(('incremental',))
     inc = {k: values.pop(k) for k in list(values) if k in inc_keys}
     try:

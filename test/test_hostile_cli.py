@@ -619,6 +619,14 @@ OPTION_CASES = [
     ('demo --set misspelt', ['demo', '-o', '{out}', '--set', 'scan_matchng=true'],
      '--set scan_matchng=true: the node has no parameter scan_matchng (did you mean '
      'scan_matching?)'),
+    # replay --set takes node parameters too: they were missing from the keys it listed, and
+    # no key was suggested (a review of 2026-12-02)
+    ('replay --set misspelt', ['replay', 'sim:office', '-o', '{out}', '--set',
+                               'scan_matchng=true'],
+     "--set scan_matchng=true: unknown key 'scan_matchng' (did you mean scan_matching? keys: "
+     'buffer_scans, cell, chord_knots,'),
+    ('fit --set misspelt', ['fit', '{pts}', '-o', '{out}', '--set', 'kapa=2'],
+     "--set kapa=2: unknown key 'kapa' (did you mean kappa? keys: "),
     ('sim step 1e-9 m', ['fit', 'sim:office,step=1e-9', '-o', '{out}'],   # asked for 15 GB
      'step must be a number of metres in [0.01, 10]'),
     ('sim turn 1e-9 rad', ['replay', 'sim:hall,turn=1e-9', '-o', '{out}'],
