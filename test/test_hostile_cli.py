@@ -398,6 +398,17 @@ def test_a_ctrl_c_while_the_program_loads_is_one_line():
     assert "'polyline_mapper_node = polyline_mapper.console:node_main'" in setup
 
 
+@pytest.mark.parametrize('flag', ['--help', '-h'])
+def test_the_node_answers_help_without_starting(capsys, flag):
+    # A review (2026-12-02): rclpy ignores arguments that are not ROS arguments, so
+    # `polyline_mapper_node --help` started the mapper and showed no help.
+    from polyline_mapper.console import node_main
+    assert node_main(['polyline_mapper_node', flag, '--ros-args', '-p', 'x:=1']) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith('usage: polyline_mapper_node [--ros-args') and err == ''
+    assert 'config/polyline_mapper.yaml' in out and 'ros2 param describe' in out
+
+
 @pytest.mark.parametrize('text, needle', [
     ('smemsf:\n\tsigma: 0.01\n', "at line 2, column 1: found character '\\t' that cannot start"),
     ('smemsf:\n  sigma 0.01\n  kappa: [1, 2\n', 'at line 3, column 8: mapping values are '
