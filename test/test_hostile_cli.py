@@ -756,9 +756,10 @@ def test_points_without_a_segment_give_a_valid_empty_map(ws, capsys, points, rea
 
 def test_dense_noise_gives_segments_and_a_warning_that_most_points_are_off_them(ws, capsys):
     # 3000 uniform random points in a 10 m square: 14 segments covering 18 % of the points then
-    # (23 and 26 % on 2026-12-02), written without a word, though the README promised a warning for random noise (new-user
-    # audit). A wall's points (2 cm noise), or a room's with 8 cm noise (80 % within 0.10 m,
-    # four walls found: an audit of the warning), do not warn.
+    # (23 and 26 % on 2026-12-02), written without a word, though the README promised a
+    # warning for random noise (new-user audit). A wall's points (2 cm noise), or a room's
+    # with 8 cm noise (80 % within 0.10 m, four walls found: an audit of the warning), do not
+    # warn.
     rng = np.random.default_rng(0)
     src = os.path.join(ws['dir'], 'noise.npy')
     np.save(src, rng.uniform(0.0, 10.0, (3000, 2)))
