@@ -175,12 +175,19 @@ def test_a_link_to_an_input_is_the_input(ws, capsys, link):
 def test_a_read_only_input_is_told_as_an_input(ws, capsys):
     # A review (2026-12-02): a read-only dataset named as the output was refused as a read-only
     # file, "make it writable or remove it first": advice to delete the user's data.
+    # The same for a read-only file inside an input bag (a review of the first fix).
     os.chmod(ws['room'], 0o444)
+    os.chmod(ws['db3'], 0o444)
     before = snapshot(ws['dir'])
-    for argv in (['fit', ws['room'], '-o', ws['room']], ['replay', ws['room'], '-o', ws['room']]):
+    for argv, needle in (
+            (['fit', ws['room'], '-o', ws['room']], 'is an input of this run; refusing to '
+             'write over it'),
+            (['replay', ws['room'], '-o', ws['room']], 'is an input of this run'),
+            (['replay', ws['bag'], '-o', ws['db3']], 'lies inside the input folder'),
+            (['fit', ws['bag'], '-o', ws['db3']], 'lies inside the input folder')):
         code, err, _ = run(argv + ['-q'], capsys)
         assert code == 2
-        assert_one_line(err, 'is an input of this run; refusing to write over it')
+        assert_one_line(err, needle)
         assert 'remove it' not in err[0]
     assert snapshot(ws['dir']) == before
 

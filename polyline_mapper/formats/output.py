@@ -86,10 +86,12 @@ def check_output(path, inputs: Iterable = ()) -> str:
         kind = _kind(st.st_mode)
         if kind is not None:
             raise OutputError(f'{name}: is {kind}, not a regular file; refusing to replace it')
-        # An input first: a read-only input's own message advised removing it (a review).
+        # An input first (the file itself, or one inside an input folder): a read-only
+        # input's own message advised removing it (two reviews, 2026-12-02).
         for src in _inputs(inputs):
             if os.path.samefile(src, target):
                 raise OutputError(f'{name}: is an input of this run; refusing to write over it')
+        _check_inside(name, target, inputs)
         if not os.access(target, os.W_OK) or not st.st_mode & stat.S_IWUSR:
             raise OutputError(f'{name}: read-only file (mode {stat.S_IMODE(st.st_mode):04o}); '
                               'refusing to replace it (make it writable or remove it first)')
@@ -97,14 +99,19 @@ def check_output(path, inputs: Iterable = ()) -> str:
     return target
 
 
-def _check_place(name, target: str, inputs: Iterable) -> None:
-    """Refuse a target inside an input folder, or whose first existing ancestor is no folder."""
+def _check_inside(name, target: str, inputs: Iterable) -> None:
+    """Refuse a target inside an input folder."""
     for src in _inputs(inputs):
         if os.path.isdir(src):
             folder = os.path.realpath(src)
             if os.path.commonpath([folder, target]) == folder:
                 raise OutputError(f'{name}: lies inside the input folder {src}; refusing to '
                                   'write into it')
+
+
+def _check_place(name, target: str, inputs: Iterable) -> None:
+    """Refuse a target inside an input folder, or whose first existing ancestor is no folder."""
+    _check_inside(name, target, inputs)
     folder = os.path.dirname(target)
     while not os.path.exists(folder):
         folder = os.path.dirname(folder)
