@@ -28,8 +28,8 @@ usage: polyline_mapper_node [--ros-args [-p NAME:=VALUE ...] [--params-file FILE
 The polyline_mapper ROS 2 node: maps LaserScan messages (scan) into polylines, published as
 polyline_mapper_msgs/PolylineMap (polyline_map), visualization_msgs/MarkerArray
 (polyline_map/markers) and nav_msgs/OccupancyGrid (map). Every parameter with its default:
-config/polyline_mapper.yaml (installed in share/polyline_mapper/config/) and the README's
-"Running the node"; each one's description and range, while it runs:
+config/polyline_mapper.yaml in the source (share/polyline_mapper/config/ in a colcon
+install); each one's description and range, while it runs:
 ros2 param describe /polyline_mapper_node NAME. It takes no options of its own: ROS arguments
 only, after --ros-args.
 """
