@@ -1044,6 +1044,11 @@ def _recorded_pose_args(args, stats: dict) -> tuple:
         taken['scan_topic'] = stats['scan_topic']
     if stats.get('scan_time_offset'):
         taken['scan_time_offset'] = stats['scan_time_offset']
+    if (stats.get('chord_knots') and stats['pose_source'] == 'scan'
+            and getattr(args, 'chord_knots', None) is None):
+        # scan mode registers the scans by matching them (a review: an arc map's bag was
+        # registered with median knots, 401 of its 405 scans)
+        taken['chord_knots'] = stats['chord_knots']
     flags = ' '.join(f'--{name.replace("_", "-")} {value}' for name, value in taken.items()
                      if value is not None and (name, value) not in POSE_ARGS)
     return argparse.Namespace(**{**vars(args), **taken}), (

@@ -278,6 +278,8 @@ def run_replay(path: str, config: IncrementalConfig = None, options: SessionOpti
               seconds=round(time.perf_counter() - t0, 3))
     if options.scan_time_offset:
         st['scan_time_offset'] = options.scan_time_offset
+    if options.scan_matching and options.chord_knots != SessionOptions.chord_knots:
+        st['chord_knots'] = options.chord_knots     # (they place the scans: plot --points)
     warnings = list(source.warnings) + [f'{text} ({n} time{"s" if n > 1 else ""})'
                                         for n, text in noted.values()]
     if mapping and session.used and not len(value.segments) and session.mapper.sigma is None:

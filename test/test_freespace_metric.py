@@ -295,6 +295,19 @@ def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
     # another recording than the map's input: its own options (tf) as before
     other = write_bag(tmp_path / 'other', drive_messages(drive, tf=False, static=False))
     assert main(['plot', str(mp), '--points', other, '-o', str(tmp_path / 'o.png'), '-q']) == 2
+    # in scan mode the chord knots place the scans too: a map made with --chord-knots arc was
+    # registered with the default, median (a review of 2026-12-02: 401 of a bag's 405 scans)
+    arc = tmp_path / 'arc.json'
+    assert main(['replay', bag, '--pose-source', 'scan', '--chord-knots', 'arc', '-o', str(arc),
+                 '-q']) == 0
+    astats = json.loads(arc.read_text())['stats']
+    assert astats['chord_knots'] == 'arc' and 'chord_knots' not in stats
+    capsys.readouterr()
+    out = plotted_as_judged(['plot', str(arc), '--points', bag, '--free-space', '-o',
+                             str(tmp_path / 'arc.png')], astats, capsys)
+    n = astats['scans_used']
+    assert (f"({n} of {n} scans, posed as when mapped: --pose-source scan --scan-topic /scan "
+            '--chord-knots arc)') in out, out
 
 
 def test_passing_beams_flags_each_beam_that_passes_through_any_segment():
