@@ -306,7 +306,7 @@ def test_plot_poses_a_bag_as_its_map_did_when_not_told(tmp_path, capsys):
     out = plotted_as_judged(['plot', str(arc), '--points', bag, '--free-space', '-o',
                              str(tmp_path / 'arc.png')], astats, capsys)
     n = astats['scans_used']
-    assert (f"({n} of {n} scans, posed as when mapped: --pose-source scan --scan-topic /scan "
+    assert (f'({n} of {n} scans, posed as when mapped: --pose-source scan --scan-topic /scan '
             '--chord-knots arc)') in out, out
 
 
