@@ -86,16 +86,16 @@ def check_output(path, inputs: Iterable = ()) -> str:
         kind = _kind(st.st_mode)
         if kind is not None:
             raise OutputError(f'{name}: is {kind}, not a regular file; refusing to replace it')
-        # An input first (the file itself, or one inside an input folder): a read-only
-        # input's own message advised removing it (two reviews, 2026-12-02).
         for src in _inputs(inputs):
             if os.path.samefile(src, target):
                 raise OutputError(f'{name}: is an input of this run; refusing to write over it')
-        _check_inside(name, target, inputs)
-        if not os.access(target, os.W_OK) or not st.st_mode & stat.S_IWUSR:
-            raise OutputError(f'{name}: read-only file (mode {stat.S_IMODE(st.st_mode):04o}); '
-                              'refusing to replace it (make it writable or remove it first)')
-    _check_place(name, target, inputs)
+    # An input (the file itself, or one inside an input folder) before a read-only file: a
+    # read-only input's own message advised removing it (two reviews, 2026-12-02).
+    _check_inside(name, target, inputs)
+    if st is not None and (not os.access(target, os.W_OK) or not st.st_mode & stat.S_IWUSR):
+        raise OutputError(f'{name}: read-only file (mode {stat.S_IMODE(st.st_mode):04o}); '
+                          'refusing to replace it (make it writable or remove it first)')
+    _check_folder(name, target)
     return target
 
 
@@ -109,9 +109,8 @@ def _check_inside(name, target: str, inputs: Iterable) -> None:
                                   'write into it')
 
 
-def _check_place(name, target: str, inputs: Iterable) -> None:
-    """Refuse a target inside an input folder, or whose first existing ancestor is no folder."""
-    _check_inside(name, target, inputs)
+def _check_folder(name, target: str) -> None:
+    """Refuse a target whose first existing ancestor is no folder, or one it cannot write."""
     folder = os.path.dirname(target)
     while not os.path.exists(folder):
         folder = os.path.dirname(folder)
@@ -157,7 +156,8 @@ def check_new_folder(path, inputs: Iterable = ()) -> str:
     if os.path.lexists(path):
         raise OutputError(f'{path}: exists already (a bag is written to a new folder)')
     target = os.path.realpath(path)
-    _check_place(path, target, inputs)
+    _check_inside(path, target, inputs)
+    _check_folder(path, target)
     return target
 
 
