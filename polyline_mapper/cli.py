@@ -1137,11 +1137,14 @@ def cmd_export(args) -> int:
         omitted = (data.value.stats or {}).get('grid_omitted')
         link = (f' (a link to {os.path.realpath(args.output)})'
                 if os.path.islink(args.output) else '')
+        what = ('the stored planner map' if data.grid is not None else
+                'the map has no segment: one unknown cell, no free space without a wall'
+                if not len(data.value) else
+                'no planner map stored' + (f' (it was too large for the map file: {omitted})'
+                                           if omitted else '')
+                + ': segments occupied, the rest unknown')
         print(f'wrote {args.output}{link} and {map_yaml_image(args.output)[0]}: the map_server '
-              'pair (' + ('the stored planner map' if data.grid is not None else
-                          'no planner map stored'
-                          + (f' (it was too large for the map file: {omitted})' if omitted
-                             else '') + ': segments occupied, the rest unknown') + ')')
+              f'pair ({what})')
     elif not args.quiet:
         print(f'wrote {args.output}: {fmt}, {len(data.value.polylines)} polylines, '
               f'{len(data.value)} segments')

@@ -126,6 +126,36 @@ def test_a_map_without_a_grid_exports_its_segments_occupied_and_the_rest_unknown
     assert (cells == OCCUPIED).sum() <= (4 + 3) / 0.05 + 4
 
 
+def test_a_map_without_a_segment_gives_a_planner_no_free_space(tmp_path, capsys):
+    # An export audit: a map saved during the mapper's first updates (the noise scale is
+    # estimated over 5, no segment yet) stored its traced free space, 42,393 free cells of the
+    # office and no wall, and export wrote it for map_server: free space a planner crosses.
+    # The node publishes no grid before its first segment; the files now say the same.
+    out = tmp_path / 'few.json'
+    assert main(['replay', 'sim:office', '--every', '100', '-o', str(out), '-q']) == 0
+    data = json.loads(out.read_text())
+    assert data['segments'] == [] and data['stats']['scans_used'] >= 3 and 'grid' not in data
+    # An older file with such a grid: read without it, exported with every cell unknown.
+    from polyline_mapper.core.grid import GridMap
+    from polyline_mapper.formats.mapjson import grid_to_dict
+    free = GridMap(np.zeros((40, 60), dtype=np.int8), 0.05, (-1.0, -1.0))
+    data['grid'] = grid_to_dict(free)
+    old = tmp_path / 'old.json'
+    old.write_text(json.dumps(data))
+    assert read_map(old).grid is None
+    assert main(['export', str(old), '-o', str(tmp_path / 'old.yaml')]) == 0
+    assert 'the map has no segment: one unknown cell' in capsys.readouterr().out
+    cells, _ = load_like_map_server(str(tmp_path / 'old.yaml'))
+    assert cells.tolist() == [[UNKNOWN]]
+    # A map with a segment keeps its stored grid, free cells and all.
+    data['segments'] = [[0.0, 0.0, 1.0, 0.0]]
+    data['polylines'], data['closed'] = [[[0.0, 0.0], [1.0, 0.0]]], [False]
+    data.pop('support', None)
+    one = tmp_path / 'one.json'
+    one.write_text(json.dumps(data))
+    assert (read_map(one).grid.data == FREE).sum() == 40 * 60
+
+
 def test_bad_grid_entries_and_refused_outputs_are_one_line_errors(replayed, tmp_path, capsys):
     _, src = replayed
     good = json.loads(src.read_text())

@@ -19,7 +19,8 @@ Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
   free_thresh must stay at or below 0.196 (with 0.25, the value map_saver writes, unknown
   cells would load as free). The grid is the one stored in the map (``replay``, the node's
   ``~/save_map``); a map without one gives its segments' cells occupied and all else unknown,
-  at ``GRID_RESOLUTION``.
+  at ``GRID_RESOLUTION``; a map without a segment gives one unknown cell (its traced free space
+  alone is no map a planner can use).
 - The trajectory (``--trajectory``; a map from ``replay`` holds one: one row per scan used, the
   base frame's pose in the map frame at the scan's header stamp): CSV ``t,x,y,yaw`` (seconds,
   metres, radians), or the TUM RGB-D format (``.tum``: ``timestamp tx ty tz qx qy qz qw`` per
@@ -181,9 +182,11 @@ def planner_grid(data: dict, resolution: float = None) -> GridMap:
     Return the planner map of a map dict: its stored ``grid``, else its segments rasterised.
 
     ``resolution`` (m): the cell size of the rasterised segments (default ``GRID_RESOLUTION``);
-    a map that stores its grid has its own (ValueError when another is asked for).
+    a map that stores its grid has its own (ValueError when another is asked for). A map
+    without a segment gives all cells unknown, whatever it stores (``usable_grid``).
     """
-    if data.get('grid') is not None:
+    segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
+    if data.get('grid') is not None and len(segs):        # (as ``usable_grid``)
         grid = grid_from_dict(data['grid'])
         if resolution is not None and resolution != grid.resolution:
             raise ValueError(f'the map stores its planner grid at {grid.resolution:g} m; a '
@@ -193,7 +196,6 @@ def planner_grid(data: dict, resolution: float = None) -> GridMap:
         res = check_resolution(GRID_RESOLUTION if resolution is None else float(resolution))
     except ValueError as exc:
         raise ValueError(f'{exc} (export --resolution M)') from None
-    segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
     try:
         return rasterise(segs, res)
     except ValueError as exc:

@@ -11,8 +11,9 @@ values.
 ``grid`` (optional, written by ``replay`` and the node's ``~/save_map``) is the planner map
 (``core.grid.GridMap``): ``{"resolution": m, "origin": [x, y], "width": W, "height": H,
 "cells": [value, count, ...]}``, the cells (-1 unknown, 0 free, 100 occupied; row-major from
-the lower-left cell, as nav_msgs/OccupancyGrid) run-length encoded. Readers that do not know it
-ignore it; ``read_map`` checks it and returns it as ``MapFile.grid``.
+the lower-left cell, as nav_msgs/OccupancyGrid) run-length encoded; never with a map without a
+segment (``usable_grid``). Readers that do not know it ignore it; ``read_map`` checks it and
+returns it as ``MapFile.grid``.
 
 ``write_map`` writes a ``core.mapvalue.MapValue`` through ``formats.output`` (never over an
 input, a device or a folder; all or nothing). ``read_map`` checks a file completely (size,
@@ -52,6 +53,7 @@ __all__ = ['SCHEMA_VERSION', 'COORD_DECIMALS', 'MapFile', 'map_value_to_dict', '
            'dumps_map', 'stored_segments',
            'write_map', 'write_json_atomic', 'write_text_atomic', 'read_map', 'OutputError',
            'OutputSet', 'json_safe', 'map_value_from_dict', 'grid_to_dict', 'grid_from_dict',
+           'usable_grid',
            'check_edges', 'EDGE_TOLERANCE']
 
 
@@ -79,7 +81,8 @@ def map_value_to_dict(value: MapValue, config: dict = None, grid: GridMap = None
     Return the JSON-ready dict of a map (the file's content, keys in the file's order).
 
     ``config``: the flat configuration the map was made with (optional); ``grid``: its planner
-    map (optional, ``core.grid.GridMap``). The map's ``stamp``
+    map (optional, ``core.grid.GridMap``; not stored for a map without a segment, see
+    ``usable_grid``). The map's ``stamp``
     goes into ``stats['stamp']`` (seconds, unless the stats have one). Support is left out
     when it is unknown (all NaN, e.g. a map read from a file without it).
     """
@@ -94,7 +97,7 @@ def map_value_to_dict(value: MapValue, config: dict = None, grid: GridMap = None
         t = value.trajectory
         out['trajectory'] = np.column_stack([np.round(t[:, 0], 6), np.round(t[:, 1:3], 4),
                                              _yaw_rounded(t[:, 3])]).tolist()
-    if grid is not None:
+    if usable_grid(grid, value.segments) is not None:
         entry = grid_to_dict(grid)
         if len(entry['cells']) // 2 <= MAX_GRID_RUNS:
             out['grid'] = entry
@@ -102,6 +105,19 @@ def map_value_to_dict(value: MapValue, config: dict = None, grid: GridMap = None
             out['stats']['grid_omitted'] = (f"{len(entry['cells']) // 2} runs, more than "
                                             f'{MAX_GRID_RUNS}')
     return out
+
+
+def usable_grid(grid, segments):
+    """
+    Return ``grid``, the planner map of a map with ``segments``, or None when it has no segment.
+
+    A map without a segment has no wall: its grid is traced free space alone, which a planner
+    that allows unknown cells crosses. The node publishes no grid before its first segment;
+    neither is one stored with such a map, nor read from (or exported from) an older file
+    that has one (an export audit: a map saved during the first updates, 0 segments and 42,393
+    free cells, loaded in map_server as free space).
+    """
+    return grid if len(segments) else None
 
 
 def _yaw_rounded(yaw: np.ndarray) -> np.ndarray:
@@ -319,7 +335,7 @@ def read_map(path) -> MapFile:
     out = MapFile(data)
     out['segments_array'] = value.segments
     out.value = value
-    out.grid = grid
+    out.grid = usable_grid(grid, value.segments)
     return out
 
 
