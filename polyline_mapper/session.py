@@ -3803,8 +3803,9 @@ class MappingSession:
                               [p.copy() for p in loaded.polylines], list(loaded.closed))
             sigma, r = loaded.stats.get('sigma', sigma), loaded.stats.get('r', r)
         stats = self.stats()
+        # (the window used: the configuration's -1 is resolved by the pose source)
         stats.update(segments=len(geo.segments), polylines=len(geo.polylines), sigma=sigma,
-                     r=r)
+                     r=r, free_space_window=self.mapper.config.free_space_window)
         keep = self.options.keep_points or bool(trajectory and self.options.scan_matching)
         with self._lock:
             traj = np.array(self._trajectory, dtype=np.float64).reshape(-1, 4) if keep else None

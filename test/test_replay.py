@@ -372,6 +372,10 @@ def test_a_scan_matched_odometry_replay_is_in_the_map_frame(tmp_path, rotated):
         assert main(['replay', bag, '-o', str(out), '--pose-source', 'odom', '-q'] + extra) == 0
         data = read_map(str(out))
         assert data['frame_id'] == frame and data['stats']['fixed_frame'] == frame, extra
+        # the free-space window: -1 ('by the pose source') as configured, the one used in the
+        # stats (an export audit: the file did not say whether the evidence was on)
+        assert data['config']['free_space_window'] == -1
+        assert data['stats']['free_space_window'] == (0 if extra else 10), extra
         maps[frame] = data
     assert maps['map']['segments'] == maps['world']['segments']
     assert maps['map']['trajectory'] == maps['world']['trajectory']
