@@ -72,6 +72,12 @@ def test_svg_parses_with_y_up_and_a_scale_bar(fitted, tmp_path):
     metres = float(re.match(r'([\d.]+) m', text.text).group(1))
     assert metres in (1, 2, 5) and float(line.get('x2')) - float(line.get('x1')) == \
         pytest.approx(50 * metres, abs=0.2)
+    # A frame_id with characters XML cannot hold (an export audit: U+FFFE made the file not
+    # well-formed) is written with U+FFFD in their place, the markup escaped.
+    from polyline_mapper.formats.export import to_svg
+    odd = dict(data, frame_id='map\ufffe\x01<&>\U0001f916')
+    title = ET.fromstring(to_svg(odd).encode('utf-8')).find(SVG + 'title').text
+    assert title.startswith('map\ufffd\ufffd<&>\U0001f916: ')
 
 
 def test_csv_has_one_row_per_segment(fitted, tmp_path, capsys):

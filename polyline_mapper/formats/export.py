@@ -31,6 +31,7 @@ Map JSON -> GeoJSON, SVG and CSV, for GIS tools, drawings and spreadsheets.
 import io
 import json
 import os
+import re
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -77,6 +78,15 @@ def _scale_bar_length(width_m: float) -> float:
     return max(m * exp for m in (1, 2, 5) if m * exp <= target)
 
 
+_NOT_XML = re.compile('[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]')
+"""Characters XML 1.0 does not allow in a document (its ``Char`` production)."""
+
+
+def _xml_text(text: str) -> str:
+    """Return ``text`` escaped for XML, each character XML cannot hold replaced by U+FFFD."""
+    return escape(_NOT_XML.sub('\ufffd', text))
+
+
 def to_svg(data: dict, scale: float = 50.0, margin: float = 0.5) -> str:
     """
     Return an SVG drawing of a map's polylines with y up and a scale bar.
@@ -103,7 +113,7 @@ def to_svg(data: dict, scale: float = 50.0, margin: float = 0.5) -> str:
               f'<svg xmlns="http://www.w3.org/2000/svg" width="{width * scale:.1f}" '
               f'height="{height * scale:.1f}" viewBox="0 0 {width * scale:.1f} '
               f'{height * scale:.1f}">\n'
-              f'<title>{escape(str(data.get("frame_id", "map")))}: {len(polys)} polylines, '
+              f'<title>{_xml_text(str(data.get("frame_id", "map")))}: {len(polys)} polylines, '
               f'{len(segs)} segments (1 m = {scale:g} px, y up)</title>\n'
               '<rect width="100%" height="100%" fill="white"/>\n'
               '<g fill="none" stroke="#1f77b4" stroke-width="2" stroke-linejoin="round" '
