@@ -59,7 +59,7 @@ import numpy as np
 
 from .core.cleanup import seen_through
 from .core.freespace import passing_beams
-from .core.geometry import in_box, is_number, se2_compose, se2_inverse, wrap_angle
+from .core.geometry import config_of, in_box, is_number, se2_compose, se2_inverse, wrap_angle
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
@@ -1862,6 +1862,48 @@ def _not_seen_through(segs: np.ndarray, support: np.ndarray, recent: np.ndarray,
     return segs[keep], support[keep], recent[kept], kept
 
 
+RECORD_TYPES = (Scan, Transform, Odometry, PoseEstimate, Skipped)
+"""What ``MappingSession.add`` takes (``formats.records``)."""
+
+
+def _check_record(record) -> None:
+    """
+    Raise TypeError / ValueError (one line) when ``record`` cannot be one of ``RECORD_TYPES``.
+
+    Only its kind and the shapes of a scan's stamp and pose: values (NaN, a range beyond
+    range_max, a stamp out of order) are the data's, skipped and counted in their turn. Before,
+    ``add(None)`` was dropped without a word, and a Scan whose pose was (x, y) stopped every
+    later ``step`` on the same unpacking error (an API audit).
+    """
+    if not isinstance(record, RECORD_TYPES):
+        raise TypeError(f'MappingSession.add takes Scan, Transform, Odometry, PoseEstimate or '
+                        f'Skipped records (polyline_mapper.formats.records), got '
+                        f'{type(record).__name__}')
+    if not isinstance(record, Scan):
+        return
+    for name in ('stamp', 'angle_min', 'angle_increment', 'range_min', 'range_max',
+                 'time_increment', 'scan_time') + (('angle_max',) if record.angle_max is not None
+                                                   else ()):
+        value = getattr(record, name)
+        if not (isinstance(value, (int, float, np.integer, np.floating))
+                and not isinstance(value, (bool, np.bool_))):
+            raise TypeError(f'Scan.{name} must be a number, got {value!r}')
+    try:
+        np.asarray(record.ranges, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f'Scan.ranges must be numbers (metres), got {record.ranges!r:.80}') \
+            from None
+    if not isinstance(record.frame_id, str):
+        raise TypeError(f'Scan.frame_id must be a str, got {record.frame_id!r}')
+    if record.pose is not None:
+        try:
+            pose = np.asarray(record.pose, dtype=np.float64)
+        except (TypeError, ValueError):
+            pose = None
+        if pose is None or pose.shape != (3,):
+            raise ValueError(f'Scan.pose must be None or (x, y, yaw), got {record.pose!r}')
+
+
 class MappingSession:
     """
     Records in, one map out: pose resolution, queue and give-up, grouping, timing, shedding.
@@ -1888,8 +1930,8 @@ class MappingSession:
                  clock: Optional[Callable[[], float]] = None,
                  warn: Optional[Callable[[str, str], object]] = None,
                  info: Optional[Callable[[str], object]] = None):
-        self.options = options or SessionOptions()
-        self._config = config or IncrementalConfig()
+        self.options = config_of(options, SessionOptions, 'options')
+        self._config = config_of(config, IncrementalConfig)
         """The mapper's configuration as given (``free_space_window`` -1: by the pose source)."""
         self.mapper = IncrementalMapper(self._config.resolved(self.options.scan_matching))
         self.grid = (None if self.options.grid_resolution is None
@@ -2240,7 +2282,16 @@ class MappingSession:
         self.add_many((record,))
 
     def add_many(self, records: Iterable) -> None:
-        """Take several records at once (one TFMessage: one lock)."""
+        """
+        Take several records at once (one TFMessage: one lock).
+
+        Raises TypeError / ValueError (one line, nothing of the batch taken) for what is no
+        record (``_check_record``): a programming error, not bad data, which is counted and
+        skipped.
+        """
+        records = list(records)
+        for record in records:
+            _check_record(record)
         notes = []
         with self._cv:
             for record in records:

@@ -52,6 +52,48 @@ def test_a_loaded_maps_noise_scale_is_a_number_numpy_or_not():
     assert SMEMSFConfig(sigma=np.float32(0.01)).sigma == pytest.approx(0.01)
 
 
+def test_a_configuration_or_an_argument_of_the_wrong_type_is_named():
+    # An API audit: fit(points, {'sigma': 0.01}) failed on "'dict' object has no attribute
+    # 'seed'", IncrementalMapper(SMEMSFConfig()) on "... no attribute 'resolved'", and fit's
+    # free_space_window='x' in a comparison deep inside.
+    from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
+    from polyline_mapper.session import MappingSession
+    pts = np.random.default_rng(0).normal(size=(100, 2))
+    for call, words in (
+            (lambda: fit(pts, {'sigma': 0.01}), 'config must be of type SMEMSFConfig'),
+            (lambda: IncrementalMapper(SMEMSFConfig()),
+             'config must be of type IncrementalConfig'),
+            (lambda: MappingSession(SMEMSFConfig()), 'config must be of type IncrementalConfig'),
+            (lambda: MappingSession(options={}), 'options must be of type SessionOptions'),
+            (lambda: fit(pts, free_space_window='x'), 'free_space_window must be an integer'),
+            (lambda: fit(pts, free_space_window=2.5), 'free_space_window must be an integer'),
+            (lambda: fit(pts, free_space_hit_margin='x'), 'free_space_hit_margin must be')):
+        with pytest.raises(TypeError) as caught:
+            call()
+        assert str(caught.value).startswith(words), caught.value
+    assert IncrementalMapper(IncrementalConfig(noise_updates=2)).config.noise_updates == 2
+
+
+def test_a_map_the_reader_would_refuse_is_not_written(tmp_path):
+    # An API audit: write_map wrote a MapValue with a segment and no polylines, which read_map
+    # then refused; write_map(FitResult) failed on "no attribute 'items'".
+    from polyline_mapper.core.mapvalue import MapValue
+    from polyline_mapper.formats.mapjson import read_map, write_map
+    out = tmp_path / 'm.json'
+    with pytest.raises(ValueError, match='"polylines" disagree with "segments"'):
+        write_map(out, MapValue(np.array([[[0.0, 0.0], [1.0, 0.0]]]), [1.0], [], []))
+    assert not out.exists()
+    result = fit(np.c_[np.linspace(0.0, 2.0, 200), np.zeros(200)])
+    with pytest.raises(TypeError, match=r'got FitResult \(MapValue.from_fit\(result\) makes one'):
+        write_map(out, result)
+    write_map(out, MapValue.from_fit(result))
+    assert len(read_map(out).value) == len(result.segments) == 1
+    with pytest.raises(ValueError, match=r'segments must be \(K, 2, 2\) or \(K, 4\)'):
+        MapValue(np.zeros((3, 3)), [], [], [])
+    with pytest.raises(ValueError, match=r'trajectory must be \(P, 4\)'):
+        MapValue(np.zeros((0, 2, 2)), [], [], [], trajectory=np.zeros((3, 3)))
+
+
 def test_unknown_config_key_named():
     with pytest.raises(ValueError, match='sigmaa'):
         SMEMSFConfig.from_dict({'sigmaa': 0.1})

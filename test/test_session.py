@@ -442,6 +442,36 @@ def test_a_pose_beyond_any_real_map_is_a_counted_skip_not_a_crash(office_drive):
     assert np.abs(session.map_value().segments).max() < 100
 
 
+def test_what_is_no_record_is_refused_at_add_and_the_session_maps_on():
+    # An API audit: a Scan whose pose was (x, y) was queued, then every later step() raised
+    # the same unpacking error and nothing more was mapped; add(None) was dropped without a
+    # word. Now add() refuses them in one line and takes nothing of the batch.
+    session = MappingSession(IncrementalConfig(noise_updates=1))
+    ranges = np.full(181, 2.0, dtype=np.float32)
+
+    def scan(stamp=1.0, **kw):
+        return Scan(**{'stamp': stamp, 'frame_id': 'laser', 'angle_min': -1.5708,
+                       'angle_increment': 0.0174533, 'range_min': 0.1, 'range_max': 30.0,
+                       'ranges': ranges, 'pose': (0.0, 0.0, 0.0), **kw})
+    for bad, error, words in (
+            (scan(pose=(0.0, 0.0)), ValueError, 'Scan.pose must be None or (x, y, yaw)'),
+            (scan(pose='abc'), ValueError, 'Scan.pose must be None or (x, y, yaw)'),
+            (scan(stamp='x'), TypeError, 'Scan.stamp must be a number'),
+            (scan(range_max='x'), TypeError, 'Scan.range_max must be a number'),
+            (scan(ranges='abc'), TypeError, 'Scan.ranges must be numbers'),
+            (scan(frame_id=3), TypeError, 'Scan.frame_id must be a str'),
+            (None, TypeError, 'takes Scan, Transform, Odometry, PoseEstimate or Skipped'),
+            ({'stamp': 1.0}, TypeError, 'got dict')):
+        with pytest.raises(error) as caught:
+            session.add_many([scan(0.5), bad])
+        assert words in str(caught.value) and '\n' not in str(caught.value)
+    assert session.received == 0
+    for k in range(4):
+        session.add(scan(1.0 + k))
+        session.step()
+    assert session.used == 4 and session.map_value().segments.size
+
+
 def test_a_scan_whose_intensities_do_not_fit_its_ranges_is_skipped_by_every_tool(office_drive):
     # The node dropped such scans before the session saw them, replay and fit mapped them (a
     # new-user audit): one check in the session now serves both.

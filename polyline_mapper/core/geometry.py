@@ -53,6 +53,21 @@ def as_points(points, name: str = 'points') -> np.ndarray:
     return arr
 
 
+def config_of(value, kind: type, name: str = 'config'):
+    """
+    Return ``value`` if it is a ``kind`` (None: ``kind()``, the defaults); else TypeError.
+
+    A dict or another configuration class passed by mistake failed later on a missing
+    attribute (``'dict' object has no attribute 'seed'``, an API audit).
+    """
+    if value is None:
+        return kind()
+    if not isinstance(value, kind):
+        raise TypeError(f'{name} must be of type {kind.__name__} (or None: the defaults), got '
+                        f'{type(value).__name__}')
+    return value
+
+
 def is_number(value) -> bool:
     """
     Whether ``value`` is one finite real number (numpy scalars too, booleans not).

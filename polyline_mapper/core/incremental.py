@@ -87,7 +87,7 @@ from typing import Optional
 import numpy as np
 
 from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
-from .geometry import as_points, in_box, is_number, lengths, sample_segments
+from .geometry import as_points, config_of, in_box, is_number, lengths, sample_segments
 from .index import near_points, PointIndex, SegmentGrid
 from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
@@ -326,7 +326,7 @@ class IncrementalMapper:
     def __init__(self, config: IncrementalConfig = None):
         # free_space_window -1 (auto): the evidence on; a session that matches the scans
         # resolves it first (MappingSession, ``IncrementalConfig.resolved``).
-        self.config = (config or IncrementalConfig()).resolved()
+        self.config = config_of(config, IncrementalConfig).resolved()
         self._seg = np.zeros((64, 2, 2))
         self._sup = np.zeros(64)
         self._alive = np.zeros(64, dtype=bool)

@@ -44,7 +44,11 @@ class MapValue:
 
     def __post_init__(self):
         """Check that the arrays agree (segments and support, polylines and closed flags)."""
-        self.segments = np.asarray(self.segments, dtype=np.float64).reshape(-1, 2, 2)
+        segments = np.asarray(self.segments, dtype=np.float64)
+        if segments.size % 4 or segments.ndim > 1 and segments.shape[-1] not in (2, 4):
+            raise ValueError(f'segments must be (K, 2, 2) or (K, 4) numbers, got shape '
+                             f'{segments.shape}')
+        self.segments = segments.reshape(-1, 2, 2)
         self.support = np.asarray(self.support, dtype=np.float64).reshape(-1)
         if len(self.support) != len(self.segments):
             raise ValueError(f'support has {len(self.support)} values for '
@@ -53,7 +57,11 @@ class MapValue:
             raise ValueError(f'closed has {len(self.closed)} flags for '
                              f'{len(self.polylines)} polylines')
         if self.trajectory is not None:
-            self.trajectory = np.asarray(self.trajectory, dtype=np.float64).reshape(-1, 4)
+            trajectory = np.asarray(self.trajectory, dtype=np.float64)
+            if trajectory.size % 4 or trajectory.ndim > 1 and trajectory.shape[-1] != 4:
+                raise ValueError(f'trajectory must be (P, 4) numbers (t, x, y, yaw), got shape '
+                                 f'{trajectory.shape}')
+            self.trajectory = trajectory.reshape(-1, 4)
             if not np.isfinite(self.trajectory).all():
                 raise ValueError('trajectory has NaN or inf')
 

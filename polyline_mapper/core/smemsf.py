@@ -34,7 +34,7 @@ import numpy as np
 
 from .cleanup import as_origins, beam_evidence, origin_runs
 from .emsf import emsf_step, extend_for
-from .geometry import as_points, as_segments, is_number, lengths
+from .geometry import as_points, as_segments, config_of, is_number, lengths
 from .index import piece_pairs, PointIndex
 from .merge import merge_segments
 from .noise import estimate_noise, median
@@ -461,9 +461,15 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
 
     """
     t0 = time.perf_counter()
-    config = config or SMEMSFConfig()
+    config = config_of(config, SMEMSFConfig)
     pts, weights = check_fit_input(points, weights)
     origins = as_origins(origins, len(pts))
+    if not isinstance(free_space_window, (int, np.integer)) or isinstance(free_space_window,
+                                                                          (bool, np.bool_)):
+        raise TypeError(f'free_space_window must be an integer, got {free_space_window!r}')
+    if not is_number(free_space_hit_margin):
+        raise TypeError('free_space_hit_margin must be a finite number >= 0, got '
+                        f'{free_space_hit_margin!r}')
     if origins is not None and not (free_space_window >= 1 or free_space_window == 0):
         raise ValueError(f'free_space_window must be >= 1 (or 0: no evidence) with origins, '
                          f'got {free_space_window!r}')

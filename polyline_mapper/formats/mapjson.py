@@ -219,9 +219,16 @@ def write_map(path, value, config: dict = None, inputs: Iterable = (),
     ``grid``: the planner map to store with a MapValue (optional).
 
     Through ``formats.output``: refuses (OutputError, a ValueError) an input, a device, a folder,
-    a read-only file; keeps the mode of a file it replaces; all or nothing.
+    a read-only file; keeps the mode of a file it replaces; all or nothing. A map ``read_map``
+    would refuse (polylines that disagree with the segments, say) is not written: ValueError
+    (one line; an API audit wrote a map with segments and no polylines, unreadable after).
     """
+    if not isinstance(value, (MapValue, dict)):
+        raise TypeError(f'write_map takes a MapValue or a map dict, got {type(value).__name__}'
+                        + (' (MapValue.from_fit(result) makes one)'
+                           if type(value).__name__ == 'FitResult' else ''))
     data = map_value_to_dict(value, config, grid) if isinstance(value, MapValue) else value
+    map_value_from_dict(data)                       # the reader's checks, before any byte
     write_text_atomic(path, dumps_map(data), inputs)
     return data
 
