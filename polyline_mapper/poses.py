@@ -288,7 +288,8 @@ class TransformBuffer2D:
     >>> buf = TransformBuffer2D()
     >>> buf.set_transform('base_link', 'laser', 0.0, (0.2, 0, 0.3), (0, 0, 0, 1), static=True)
     >>> buf.set_transform('odom', 'base_link', 1.0, (1, 2, 0), quaternion_from_yaw(0.5))
-    >>> buf.lookup('odom', 'laser', 1.0)          # (x, y, yaw) of the laser in odom
+    >>> buf.lookup('odom', 'laser', 1.0).round(3).tolist()    # (x, y, yaw) of the laser in odom
+    [1.176, 2.096, 0.5]
     """
 
     def __init__(self, cache_seconds: float = 30.0, max_entries: int = 10000,

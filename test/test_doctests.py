@@ -1,18 +1,24 @@
-"""The docstring examples of the numeric core run as tests."""
+"""The docstring examples of the package (all but its rclpy shell, ``ros``) run as tests."""
 
 import doctest
 import importlib
 import pkgutil
 
+import polyline_mapper
 import polyline_mapper.core
 import pytest
 
-MODULES = sorted(m.name for m in pkgutil.iter_modules(polyline_mapper.core.__path__))
+# Every module outside ``polyline_mapper.ros``: until 2026-12-02 only the core's ran, and two
+# examples elsewhere had gone wrong (an API audit: poses.TransformBuffer2D showed no output
+# for a lookup, formats.bag.BagReader opened a bag that does not exist).
+MODULES = sorted(
+    m.name for m in pkgutil.walk_packages(polyline_mapper.__path__, 'polyline_mapper.')
+    if not m.name.startswith('polyline_mapper.ros'))
 
 
 @pytest.mark.parametrize('name', MODULES)
-def test_docstring_examples_of_the_core_run(name):
-    module = importlib.import_module(f'polyline_mapper.core.{name}')
+def test_docstring_examples_of_the_package_run(name):
+    module = importlib.import_module(name)
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
     assert result.failed == 0, f'{result.failed} of {result.attempted} examples failed'
 

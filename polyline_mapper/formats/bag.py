@@ -103,10 +103,12 @@ class BagReader:
     """
     Stream the scans, odometry and transforms of a bag as plain records.
 
-    >>> with BagReader('run.mcap') as bag:
-    ...     print(bag.scan_topic, bag.scan_count)
-    ...     for record in bag.records():
-    ...         ...
+    For example, of a bag ``run.mcap`` of your own::
+
+        with BagReader('run.mcap') as bag:
+            print(bag.scan_topic, bag.scan_count)
+            for record in bag.records():
+                ...
 
     Parameters
     ----------
