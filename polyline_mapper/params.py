@@ -27,9 +27,9 @@ import math
 import os
 import textwrap
 
-from .core.incremental import IncrementalConfig
+from .core.incremental import IncrementalConfig, RANGES as INCREMENTAL_RANGES
 from .core.register import CHORD_KNOTS, DEFAULT_CHORD_KNOTS
-from .core.smemsf import SMEMSFConfig
+from .core.smemsf import RANGES as SMEMSF_RANGES, SMEMSFConfig
 
 
 @dataclass(frozen=True)
@@ -179,50 +179,10 @@ NODE_PARAMS = (
               'one, unchanged).'),
 )
 
-# Closed hulls of what IncrementalConfig / SMEMSFConfig accept (they validate exactly, naming
-# the field); these ranges are what rqt and `ros2 param describe` show.
-_BIG = 1e6
-CORE_RANGES = {
-    'incremental.buffer_scans': (1, 1000),
-    'incremental.iterations': (1, 100),
-    'incremental.margin': (0.0, 100.0),
-    'incremental.virtual_cap': (0.0, _BIG),
-    'incremental.cell': (0.01, 1000.0),
-    'incremental.noise_updates': (1, 10000),
-    'incremental.sigma_window': (1, 100000),
-    'incremental.clear_max_length': (0.0, 100.0),
-    'incremental.free_space_window': (-1, 100000),
-    'incremental.free_space_ghosts': (0, 10 ** 7),
-    'incremental.free_space_hit_margin': (0.0, 1.0),
-    'incremental.free_space_memory': (0.0, 10.0),
-    'incremental.min_mapping_range': (0.0, _BIG),
-    'incremental.max_mapping_range': (0.0, _BIG),
-    'incremental.max_scan_points': (16, 10 ** 7),
-    'smemsf.sigma': (0.0, 10.0),
-    'smemsf.range_noise': (0.0, 1.0),
-    'smemsf.sigma_min': (0.0, 10.0),
-    'smemsf.sigma_start': (0.0, 100.0),
-    'smemsf.shrink_fast': (0.0, 1.0),
-    'smemsf.shrink_slow': (0.0, 1.0),
-    'smemsf.kappa': (0.0, 100.0),
-    'smemsf.r_over_sigma': (0.0, 100.0),
-    'smemsf.split_fraction': (0.0, 1.0),
-    'smemsf.gap_p': (0.0, 1.0),
-    'smemsf.merge_theta_ref': (0.0, 180.0),
-    'smemsf.merge_threshold': (0.0, _BIG),
-    'smemsf.merge_reach': (0.0, 1000.0),
-    'smemsf.min_support': (2.0, _BIG),
-    'smemsf.min_density': (0.0, _BIG),
-    'smemsf.tail_fraction': (0.0, 1.0),
-    'smemsf.seed_cell': (0.0, 1000.0),
-    'smemsf.seed_thickness': (0.0, 1000.0),
-    'smemsf.max_iterations': (1, 100000),
-    'smemsf.tol': (0.0, 1.0),
-    'smemsf.noise_radius': (0.0, 100.0),
-    'smemsf.join_over_r': (0.0, 1000.0),
-    'smemsf.init_count': (1, 100000),
-    'smemsf.seed': (0, 2 ** 31 - 1),
-}
+# Closed hulls of what IncrementalConfig / SMEMSFConfig accept (they check them, then the exact
+# rules, naming the field); these ranges are what rqt and `ros2 param describe` show.
+CORE_RANGES = {**{f'incremental.{k}': v for k, v in INCREMENTAL_RANGES.items()},
+               **{f'smemsf.{k}': v for k, v in SMEMSF_RANGES.items()}}
 CORE_CHOICES = {'smemsf.init': ('diagonals', 'single', 'random')}
 
 

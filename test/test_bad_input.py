@@ -33,10 +33,35 @@ def test_fit_rejects_bad_points(pts, why):
     # (a TypeError from np.isfinite, and True taken as 1: an audit)
     ({'sigma': 'abc'}, "sigma must be None or a finite number > 0, got 'abc'"),
     ({'kappa': True}, 'kappa must be a finite number > 0, got True'),
+    # Outside the ranges the node's parameters hold to, or not numbers: raw errors later in
+    # the fit, or no segment without a word (an API audit)
+    ({'tail_fraction': 'x'}, r"tail_fraction must be a finite number in \[0.0, 1.0\], got 'x'"),
+    ({'tail_fraction': 2}, 'tail_fraction must be a finite number in'),
+    ({'min_support': float('nan')}, 'min_support must be a finite number in'),
+    ({'seed': -1}, r'seed must be an integer in \[0, 2147483647\], got -1'),
+    ({'seed': 1.5}, 'seed must be an integer'), ({'kappa': 1e300}, 'kappa must be a finite'),
+    ({'r_over_sigma': 1e-300}, r'r_over_sigma must be a finite number in \[0.1, 100.0\]'),
+    ({'shrink_fast': 'x'}, 'shrink_fast must be a finite number'),
+    ({'max_iterations': 'x'}, 'max_iterations must be an integer'),
+    ({'sigma': 11.0}, 'sigma must be at most 10 m, got 11.0'),
 ])
 def test_config_rejects_bad_values_with_reason(kwargs, why):
     with pytest.raises(ValueError, match=why):
         SMEMSFConfig(**kwargs)
+
+
+@pytest.mark.parametrize('kwargs, why', [
+    ({'buffer_scans': 1e300}, r'buffer_scans must be an integer in \[1, 1000\], got 1e\+300'),
+    ({'margin': 'x'}, "margin must be a finite number >= 0, got 'x'"),
+    ({'cell': 1e9}, 'cell must be a finite number in'),
+])
+def test_the_incremental_config_rejects_bad_values_with_reason(kwargs, why):
+    from polyline_mapper.core.incremental import IncrementalConfig
+    with pytest.raises(ValueError, match=why):
+        IncrementalConfig(**kwargs)
+    # whole floats (a YAML file's 20.0) are taken as integers
+    assert IncrementalConfig(buffer_scans=3.0).buffer_scans == 3
+    assert type(SMEMSFConfig(max_iterations=2e1).max_iterations) is int
 
 
 def test_a_loaded_maps_noise_scale_is_a_number_numpy_or_not():

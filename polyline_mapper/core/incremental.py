@@ -92,7 +92,8 @@ from .index import near_points, PointIndex, SegmentGrid
 from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
-from .smemsf import beams_of, range_noise_of, smemsf_iteration, SMEMSFConfig
+from .smemsf import (beams_of, BIG, check_in_ranges, range_noise_of, smemsf_iteration,
+                     SMEMSFConfig)
 from .split import (accumulate_evidence, carry_evidence, cut_squares, free_squares,
                     square_centres, square_layout)
 from ..scan import scan_to_points
@@ -149,6 +150,20 @@ def crowding(segments: np.ndarray, cell: float = 1.0, step: float = 0.05) -> tup
     top = int(np.argmax(np.maximum(count / LOAD_CELL_SEGMENTS, metres / LOAD_CELL_LENGTH)))
     corner = (cells[top] // 2 ** 31 - 2 ** 30, cells[top] % 2 ** 31 - 2 ** 30)
     return int(count[top]), float(metres[top]), tuple(float(c * cell) for c in corner)
+
+
+RANGES = {
+    'buffer_scans': (1, 1000), 'iterations': (1, 100), 'margin': (0.0, 100.0),
+    'virtual_cap': (0.0, BIG), 'cell': (0.01, 1000.0), 'noise_updates': (1, 10000),
+    'sigma_window': (1, 100000), 'clear_max_length': (0.0, 100.0),
+    'free_space_window': (-1, 100000), 'free_space_ghosts': (0, 10 ** 7),
+    'free_space_hit_margin': (0.0, 1.0), 'free_space_memory': (0.0, 10.0),
+    'min_mapping_range': (0.0, BIG), 'max_mapping_range': (0.0, BIG),
+    'max_scan_points': (16, 10 ** 7),
+}
+"""Closed hull (lo, hi) of each number ``IncrementalConfig`` accepts (as ``smemsf.RANGES``)."""
+INTEGERS = ('buffer_scans', 'iterations', 'noise_updates', 'sigma_window', 'free_space_window',
+            'free_space_ghosts', 'max_scan_points')
 
 
 @dataclass
@@ -228,19 +243,21 @@ class IncrementalConfig:
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
+        self.smemsf = config_of(self.smemsf, SMEMSFConfig, 'smemsf')
         for name, lo in (('buffer_scans', 1), ('iterations', 1), ('noise_updates', 1),
                          ('sigma_window', 1), ('max_scan_points', 16),
                          ('free_space_window', -1), ('free_space_ghosts', 0)):
             v = getattr(self, name)
-            if int(v) != v or v < lo:
+            if not is_number(v) or int(v) != v or v < lo:
                 raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
         for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 0.01),
                          ('clear_max_length', 0.0), ('min_mapping_range', 0.0),
                          ('max_mapping_range', 1e-9),
                          ('free_space_hit_margin', 0.0), ('free_space_memory', 0.0)):
             v = getattr(self, name)
-            if not (np.isfinite(v) and v >= lo):
+            if not (is_number(v) and v >= lo):
                 raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
+        check_in_ranges(self, RANGES, INTEGERS)
         if self.min_mapping_range >= self.max_mapping_range:
             raise ValueError(f'min_mapping_range must be below max_mapping_range '
                              f'({self.max_mapping_range:g} m), got {self.min_mapping_range!r}')

@@ -53,6 +53,45 @@ CSAIL 2.95 -> 2.87 / 2.52 -> 2.43, infinite corridor 4.53 -> 4.40 / 4.37 -> 4.25
 4.48 -> 4.43 / 4.05 -> 3.94, coverage rose on all eight; 6 rounds did no better than 3."""
 
 
+BIG = 1e6
+"""The upper end of ``RANGES`` for quantities without a natural one."""
+RANGES = {
+    'sigma': (0.0, 10.0), 'range_noise': (0.0, 1.0), 'sigma_min': (0.0, 10.0),
+    'sigma_start': (0.0, 100.0), 'shrink_fast': (0.0, 1.0), 'shrink_slow': (0.0, 1.0),
+    'kappa': (0.0, 100.0), 'r_over_sigma': (0.1, 100.0), 'split_fraction': (0.0, 1.0),
+    'gap_p': (0.0, 1.0), 'merge_theta_ref': (0.0, 180.0), 'merge_threshold': (0.0, BIG),
+    'merge_reach': (0.0, 1000.0), 'min_support': (2.0, BIG), 'min_density': (0.0, BIG),
+    'tail_fraction': (0.0, 1.0), 'seed_cell': (0.0, 1000.0), 'seed_thickness': (0.0, 1000.0),
+    'max_iterations': (1, 100000), 'tol': (0.0, 1.0), 'noise_radius': (0.0, 100.0),
+    'join_over_r': (0.0, 1000.0), 'init_count': (1, 100000), 'seed': (0, 2 ** 31 - 1),
+}
+"""
+Closed hull (lo, hi) of each number ``SMEMSFConfig`` accepts: its checks refuse what lies
+outside, then apply the exact rules (kappa > 0 ...). The node's parameter descriptors show them
+(``params.CORE_RANGES``). Before 2026-12-02 only the node and the command line held to the upper
+ends: kappa 1e300 failed deep in the fit on an OverflowError, r_over_sigma 1e-300 on a negative
+count (an API audit; r below a tenth of sigma has no use: LSS squares of 0.2 sigma).
+"""
+
+
+def check_in_ranges(config, ranges: dict, integers=()) -> None:
+    """
+    Raise ValueError naming the first field of ``config`` that is not a number in its range.
+
+    ``ranges``: name -> (lo, hi), closed; None passes (an optional field). Fields in
+    ``integers`` must be whole numbers (a whole float, 20.0 from a YAML file, becomes an int).
+    """
+    for name, (lo, hi) in ranges.items():
+        v = getattr(config, name)
+        if v is None:
+            continue
+        kind = 'an integer' if name in integers else 'a finite number'
+        if not (is_number(v) and lo <= v <= hi) or name in integers and int(v) != v:
+            raise ValueError(f'{name} must be {kind} in [{lo!r}, {hi!r}], got {v!r}')
+        if name in integers:
+            setattr(config, name, int(v))
+
+
 @dataclass
 class SMEMSFConfig:
     """
@@ -136,6 +175,10 @@ class SMEMSFConfig:
             v = getattr(self, name)
             if v is not None and not (is_number(v) and v > 0):
                 raise ValueError(f'{name} must be None or a finite number > 0, got {v!r}')
+            if v is not None and v > RANGES[name][1]:
+                raise ValueError(f'{name} must be at most {RANGES[name][1]:g} m, got {v!r}')
+        rest = {k: v for k, v in RANGES.items() if k not in ('sigma', 'sigma_start')}
+        check_in_ranges(self, rest, ('max_iterations', 'init_count', 'seed'))
         for name in ('shrink_fast', 'shrink_slow'):
             v = getattr(self, name)
             if not 0 < v < 1:
