@@ -56,6 +56,8 @@ def fingerprint(data: dict) -> dict:
 def cases(datasets: pathlib.Path, quick: bool) -> list:
     """Return (name, argv after ``polyline-mapper``, input to convert first or None)."""
     logs = LOGS[:2] if quick else LOGS
+    if (datasets / 'radish').is_dir():      # the datasets folder, as every other script takes
+        datasets = datasets / 'radish'
     out = []
     for log in logs:
         path = str(datasets / f'{log}.log.gz')
@@ -112,7 +114,11 @@ def main() -> int:
     """Parse the arguments and run or compare."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('-o', '--output', help='write the fingerprints here (JSON)')
-    ap.add_argument('--datasets', default=str(REPO.parent / 'shared' / 'datasets' / 'radish'))
+    ap.add_argument('--datasets', default=os.environ.get(
+        'POLYLINE_MAPPER_DATASETS', str(REPO.parent / 'shared' / 'datasets')),
+        help='the datasets folder (its radish/ logs), as the other scripts take it; its '
+             'radish/ folder itself is taken too (default: $POLYLINE_MAPPER_DATASETS, else '
+             '../shared/datasets)')
     ap.add_argument('--quick', action='store_true', help='only the Intel and CSAIL logs')
     ap.add_argument('--compare', nargs=2, metavar=('BEFORE', 'AFTER'))
     args = ap.parse_args()
