@@ -119,6 +119,41 @@ def test_a_map_the_reader_would_refuse_is_not_written(tmp_path):
         MapValue(np.zeros((0, 2, 2)), [], [], [], trajectory=np.zeros((3, 3)))
 
 
+def test_core_and_simulator_arguments_beyond_use_are_one_line_errors():
+    # An API audit: these gave an IndexError / AxisError, a grid 4.6e17 m away, minutes of
+    # work or gigabytes asked for, NaN ranges, or a silent skip the session calls an error.
+    from polyline_mapper.core import assemble_polylines, IncrementalMapper, map_metrics
+    from polyline_mapper.core.grid import rasterise
+    from polyline_mapper.core.register import match_scan
+    from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
+    segs = np.array([[[0.0, 0.0], [4.0, 0.0]], [[4.0, 0.0], [4.0, 3.0]]])
+    pts = np.c_[np.linspace(0.0, 4.0, 50), np.zeros(50)]
+    nan = np.full((1, 2, 2), np.nan)
+    world = office_floor()
+    angles, ranges = np.linspace(-1.0, 1.0, 100), np.full(100, 2.0)
+    for call, words in (
+            (lambda: map_metrics(pts, segs.reshape(1, 4, 2)), 'segments must have shape'),
+            (lambda: map_metrics(pts, nan), 'segments contains NaN or inf'),
+            (lambda: assemble_polylines(segs.reshape(1, 4, 2), 0.05), 'segments must have'),
+            (lambda: rasterise(nan, 0.05), 'segments contains NaN or inf'),
+            (lambda: match_scan(pts, (0, 0, 0), segs, 0.01, spacing=0), 'spacing must be'),
+            (lambda: match_scan(pts, (0, 0, 0), segs, 0.01, spacing=1e-7), 'more than 1e+07'),
+            (lambda: IncrementalMapper().update_scan(ranges, angles, (0, 0, 0), range_min=5.0,
+                                                     range_max=1.0), 'range_min and range_max'),
+            (lambda: simulate_drive(world, step=0), 'step must be a number > 0'),
+            (lambda: simulate_drive(world, step=1e-9), 'more than 1e+06'),
+            (lambda: simulate_drive(world, rate=0), 'rate must be a number > 0'),
+            (lambda: simulate_drive(world, waypoints=[]), 'waypoints must be at least 2'),
+            (lambda: LaserSpec(noise=float('nan')), 'need noise >= 0')):
+        with pytest.raises(ValueError) as caught:
+            call()
+        assert words in str(caught.value) and '\n' not in str(caught.value), caught.value
+    # the forms they take still work: (K, 4) segments, lists, an empty point list
+    assert map_metrics(pts, segs.reshape(-1, 4).tolist())['coverage_0_10m'] == 1.0
+    assert len(assemble_polylines(segs.reshape(-1, 4), 0.05).polylines) == 1
+    assert IncrementalMapper().update([]).skipped == 'no valid points'
+
+
 def test_unknown_config_key_named():
     with pytest.raises(ValueError, match='sigmaa'):
         SMEMSFConfig.from_dict({'sigmaa': 0.1})

@@ -29,6 +29,8 @@ import math
 
 import numpy as np
 
+from .geometry import as_segments
+
 UNKNOWN = -1
 FREE = 0
 OCCUPIED = 100
@@ -414,7 +416,7 @@ def rasterise(segments, resolution: float, max_cells: int = DEFAULT_MAX_CELLS) -
     when it would need more than ``max_cells`` cells (pick a coarser resolution).
     """
     res = check_resolution(resolution)
-    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    segs = as_segments(segments)
     if not len(segs):
         return GridMap(np.full((1, 1), UNKNOWN, dtype=np.int8), res, (0.0, 0.0))
     pts = segs.reshape(-1, 2)

@@ -477,8 +477,14 @@ class IncrementalMapper:
         NaN, inf and out-of-range readings are dropped (REP 117), and so are readings closer
         than ``min_mapping_range`` or at or beyond ``max_mapping_range`` (the range limits are
         max(range_min, min_mapping_range) and min(range_max, max_mapping_range)).
-        Raises ValueError on mismatched lengths or a bad pose, leaving the map unchanged.
+        Raises ValueError on mismatched lengths, a bad pose or range limits no LaserScan has
+        (as the session's ``bad scan: range_limits``), leaving the map unchanged.
         """
+        top_ok = is_number(range_max) or (isinstance(range_max, (float, np.floating))
+                                          and range_max == np.inf)
+        if not (is_number(range_min) and range_min >= 0 and top_ok and range_max > range_min):
+            raise ValueError(f'range_min and range_max must be 0 <= range_min < range_max, got '
+                             f'{range_min!r} and {range_max!r}')
         low = max(float(range_min), self.config.min_mapping_range)
         top = min(float(range_max), self.config.max_mapping_range)
         return self.update(scan_to_points(ranges, angles, pose, low, top),
@@ -509,7 +515,7 @@ class IncrementalMapper:
         points farther than ``COORD_LIMIT`` from the frame's origin, leaving the map unchanged.
         """
         t0 = time.perf_counter()
-        pts = as_points(points)
+        pts = as_points(points) if np.size(points) else np.zeros((0, 2))    # ([] too)
         origins = as_origins(origin, len(pts))
         pts, origins, beyond = self._in_range(pts, origins)
         if len(pts) and np.abs(pts).max() > COORD_LIMIT:

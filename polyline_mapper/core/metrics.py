@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .geometry import se2_compose, se2_inverse, wrap_angle
+from .geometry import as_points, as_segments, se2_compose, se2_inverse, wrap_angle
 from .index import nearest_distance, PointIndex
 from .register import scan_chords, transform
 
@@ -19,6 +19,8 @@ def map_metrics(points: np.ndarray, segments: np.ndarray, index: PointIndex = No
     of the map, 0..1) and ``compression`` (points / (2 x segments)).
 
     """
+    points = as_points(points) if np.size(points) else np.zeros((0, 2))   # (bad input: one line)
+    segments = as_segments(segments)
     n, k = len(points), len(segments)
     out = {'points': int(n), 'segments': int(k)}
     if n == 0 or k == 0:

@@ -5,6 +5,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .geometry import as_segments
 from .merge import noise_stubs
 
 
@@ -123,7 +124,7 @@ def assemble_polylines(segments: np.ndarray, join: float,
     (1, [True])
 
     """
-    segments = np.array(segments, dtype=np.float64, copy=True)
+    segments = as_segments(segments).copy()
     k = len(segments)
     if k == 0:
         return Chains(segments, [], [])

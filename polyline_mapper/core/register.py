@@ -53,8 +53,8 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt, median_filter
 from scipy.spatial import cKDTree
 
-from .geometry import (as_points, as_segments, sample_segments, se2_compose, se2_inverse,
-                       wrap_angle)
+from .geometry import (as_points, as_segments, is_number, sample_segments, se2_compose,
+                       se2_inverse, wrap_angle)
 from .noise import median
 
 
@@ -182,6 +182,11 @@ class ScanMatch(NamedTuple):
     held: int = 0
     """Weakly constrained directions kept at the prediction because the match disagreed with it
     beyond ``WEAK_SIGMAS`` (``prediction_cov``); counted in ``degenerate`` too."""
+
+
+MAX_SAMPLES = 1e7
+"""``match_scan``: the most segment samples it builds (the incremental mapper's
+``LOAD_LENGTH_LIMIT``, 100 km, at the default 5 cm is 2e6)."""
 
 
 def transform(points: np.ndarray, pose) -> np.ndarray:
@@ -439,6 +444,12 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
     prior = np.diag(np.square(_finite('prior_std', prior_std, (3,), positive=True)))
     if not (np.isfinite(sigma) and sigma > 0):
         raise ValueError(f'sigma must be a finite number > 0, got {sigma!r}')
+    if not (is_number(spacing) and spacing > 0):
+        raise ValueError(f'spacing must be a finite number > 0 (m), got {spacing!r}')
+    samples = float(np.hypot(*(segs[:, 1] - segs[:, 0]).T).sum()) / spacing
+    if samples > MAX_SAMPLES:       # (an API audit: spacing 1e-7 m ran for minutes)
+        raise ValueError(f'the segments sampled every {spacing:g} m give {samples:.3g} samples, '
+                         f'more than {MAX_SAMPLES:g}: a larger spacing, or fewer segments')
     if prediction_cov is not None:
         prediction_cov = _finite('prediction_cov', prediction_cov, (3, 3))
     if chord_cov is not None:

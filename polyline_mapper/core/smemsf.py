@@ -157,7 +157,10 @@ class SMEMSFConfig:
     init_count: int = 20
     """Number of segments for init='random'."""
     seed: int = 0
-    """Seed for every random choice (noise-estimate subsample, random init)."""
+    """Seed for the batch fit's random choices (noise-estimate subsample, random init). The
+    incremental mapper does not use it: its noise estimates are seeded by their count, so a
+    replay gives the same map whatever the seed (an API audit found the old text claiming
+    "every random choice")."""
 
     def __post_init__(self):
         """Reject values that cannot work, naming the field and the reason."""

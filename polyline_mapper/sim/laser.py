@@ -39,7 +39,8 @@ class LaserSpec:
             raise ValueError(f'fov must be in (0, 2 pi], got {self.fov!r}')
         if not 0 <= self.range_min < self.range_max:
             raise ValueError('need 0 <= range_min < range_max')
-        if self.noise < 0 or not 0 <= self.dropout < 1 or not 0 <= self.noise_share < 1:
+        if (not (np.isfinite(self.noise) and self.noise >= 0) or not 0 <= self.dropout < 1
+                or not 0 <= self.noise_share < 1):
             raise ValueError('need noise >= 0, 0 <= noise_share < 1 and 0 <= dropout < 1')
 
     @property
@@ -181,6 +182,8 @@ def simulate_drive(world: World, spec: LaserSpec = None, step: float = 0.25, rat
     (linearly, between the scans' poses) at that time. 0: every beam from the scan's pose.
     """
     spec = spec or LaserSpec()
+    if not (np.isfinite(rate) and rate > 0):
+        raise ValueError(f'rate must be a number > 0 (Hz), got {rate!r}')
     if not (np.isfinite(scan_time) and scan_time >= 0):
         raise ValueError(f'scan_time must be a finite number >= 0 (s), got {scan_time!r}')
     rng = np.random.default_rng(rng)

@@ -204,6 +204,10 @@ class World:
         return d
 
 
+MAX_POSES = 1e6
+"""The most poses ``path_poses`` lays (an API audit: a step of 1e-9 m asked for 45 GiB)."""
+
+
 def path_poses(waypoints, step: float, turn: float = None) -> np.ndarray:
     """
     Poses every ``step`` metres along a polyline of waypoints, heading along the path.
@@ -218,6 +222,14 @@ def path_poses(waypoints, step: float, turn: float = None) -> np.ndarray:
 
     """
     wp = np.asarray(waypoints, dtype=np.float64)
+    if wp.ndim != 2 or wp.shape[1] != 2 or len(wp) < 2 or not np.isfinite(wp).all():
+        raise ValueError(f'waypoints must be at least 2 finite (x, y), got shape {wp.shape}')
+    if not (np.isfinite(step) and step > 0):
+        raise ValueError(f'step must be a number > 0 (m), got {step!r}')
+    poses = float(np.hypot(*np.diff(wp, axis=0).T).sum()) / step
+    if poses > MAX_POSES:
+        raise ValueError(f'step {step!r} m gives about {poses:.3g} poses along the '
+                         f'{poses * step:.1f} m path, more than {MAX_POSES:g}')
     if turn is not None and not (np.isfinite(turn) and turn > 0):
         raise ValueError(f'turn must be a number > 0 (rad), got {turn!r}')
     out = []
