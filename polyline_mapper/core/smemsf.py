@@ -513,7 +513,8 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     if not isinstance(free_space_window, (int, np.integer)) or isinstance(free_space_window,
                                                                           (bool, np.bool_)):
         raise TypeError(f'free_space_window must be an integer, got {free_space_window!r}')
-    if not is_number(free_space_hit_margin):
+    if not isinstance(free_space_hit_margin, (int, float, np.integer, np.floating)) or isinstance(
+            free_space_hit_margin, (bool, np.bool_)):      # (NaN, inf: the ValueError below)
         raise TypeError('free_space_hit_margin must be a finite number >= 0, got '
                         f'{free_space_hit_margin!r}')
     if origins is not None and not (free_space_window >= 1 or free_space_window == 0):
