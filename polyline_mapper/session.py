@@ -59,7 +59,8 @@ import numpy as np
 
 from .core.cleanup import seen_through
 from .core.freespace import passing_beams
-from .core.geometry import config_of, in_box, is_number, se2_compose, se2_inverse, wrap_angle
+from .core.geometry import (config_of, in_box, is_number, is_real, se2_compose, se2_inverse,
+                            wrap_angle)
 from .core.grid import check_resolution, FreeSpaceGrid, GridMap
 from .core.incremental import IncrementalConfig, IncrementalMapper
 from .core.mapvalue import MapValue
@@ -1885,8 +1886,7 @@ def _check_record(record) -> None:
                  'time_increment', 'scan_time') + (('angle_max',) if record.angle_max is not None
                                                    else ()):
         value = getattr(record, name)
-        if not (isinstance(value, (int, float, np.integer, np.floating))
-                and not isinstance(value, (bool, np.bool_))):
+        if not is_real(value):
             raise TypeError(f'Scan.{name} must be a number, got {value!r}')
     try:
         np.asarray(record.ranges, dtype=np.float64)

@@ -68,6 +68,17 @@ def config_of(value, kind: type, name: str = 'config'):
     return value
 
 
+def is_real(value) -> bool:
+    """
+    Whether ``value`` is one real number, finite or not (numpy scalars too, booleans not).
+
+    >>> is_real(np.float32(0.01)), is_real(True), is_real('0.1'), is_real(float('nan'))
+    (True, False, False, True)
+    """
+    return (isinstance(value, (int, float, np.integer, np.floating))
+            and not isinstance(value, (bool, np.bool_)))
+
+
 def is_number(value) -> bool:
     """
     Whether ``value`` is one finite real number (numpy scalars too, booleans not).
@@ -75,8 +86,7 @@ def is_number(value) -> bool:
     >>> is_number(np.float32(0.01)), is_number(True), is_number('0.1'), is_number(float('inf'))
     (True, False, False, False)
     """
-    return (isinstance(value, (int, float, np.integer, np.floating))
-            and not isinstance(value, (bool, np.bool_)) and bool(np.isfinite(value)))
+    return is_real(value) and bool(np.isfinite(value))
 
 
 def as_segments(segments, name: str = 'segments') -> np.ndarray:

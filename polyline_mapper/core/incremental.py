@@ -87,7 +87,8 @@ from typing import Optional
 import numpy as np
 
 from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen_through
-from .geometry import as_points, config_of, in_box, is_number, lengths, sample_segments
+from .geometry import (as_points, config_of, in_box, is_number, is_real, lengths,
+                       sample_segments)
 from .index import near_points, PointIndex, SegmentGrid
 from .memory import BeamMemory, CLEAR
 from .noise import estimate_noise, median, scan_spacing
@@ -480,9 +481,8 @@ class IncrementalMapper:
         Raises ValueError on mismatched lengths, a bad pose or range limits no LaserScan has
         (as the session's ``bad scan: range_limits``), leaving the map unchanged.
         """
-        top_ok = is_number(range_max) or (isinstance(range_max, (float, np.floating))
-                                          and range_max == np.inf)
-        if not (is_number(range_min) and range_min >= 0 and top_ok and range_max > range_min):
+        if not (is_number(range_min) and range_min >= 0 and is_real(range_max)
+                and range_max > range_min):         # (inf passes, NaN does not)
             raise ValueError(f'range_min and range_max must be 0 <= range_min < range_max, got '
                              f'{range_min!r} and {range_max!r}')
         low = max(float(range_min), self.config.min_mapping_range)

@@ -53,8 +53,8 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt, median_filter
 from scipy.spatial import cKDTree
 
-from .geometry import (as_points, as_segments, is_number, sample_segments, se2_compose,
-                       se2_inverse, wrap_angle)
+from .geometry import (as_points, as_segments, is_number, lengths, sample_segments,
+                       se2_compose, se2_inverse, wrap_angle)
 from .noise import median
 
 
@@ -446,7 +446,7 @@ def match_scan(points, prediction, segments, sigma: float, iterations: int = 15,
         raise ValueError(f'sigma must be a finite number > 0, got {sigma!r}')
     if not (is_number(spacing) and spacing > 0):
         raise ValueError(f'spacing must be a finite number > 0 (m), got {spacing!r}')
-    samples = float(np.hypot(*(segs[:, 1] - segs[:, 0]).T).sum()) / spacing
+    samples = float(lengths(segs).sum()) / spacing
     if samples > MAX_SAMPLES:       # (an API audit: spacing 1e-7 m ran for minutes)
         raise ValueError(f'the segments sampled every {spacing:g} m give {samples:.3g} samples, '
                          f'more than {MAX_SAMPLES:g}: a larger spacing, or fewer segments')

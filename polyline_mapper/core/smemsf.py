@@ -34,7 +34,7 @@ import numpy as np
 
 from .cleanup import as_origins, beam_evidence, origin_runs
 from .emsf import emsf_step, extend_for
-from .geometry import as_points, as_segments, config_of, is_number, lengths
+from .geometry import as_points, as_segments, config_of, is_number, is_real, lengths
 from .index import piece_pairs, PointIndex
 from .merge import merge_segments
 from .noise import estimate_noise, median
@@ -193,20 +193,10 @@ class SMEMSFConfig:
             raise ValueError(f'split_fraction must be in [0, 1), got {self.split_fraction!r}')
         if not self.gap_p < 1:
             raise ValueError(f'gap_p must be in (0, 1), got {self.gap_p!r}')
-        if not (is_number(self.range_noise) and 0 <= self.range_noise <= 1):
-            raise ValueError(f'range_noise must be a share of the range in [0, 1], got '
-                             f'{self.range_noise!r}')
-        if not (np.isfinite(self.min_density) and self.min_density >= 0):
-            raise ValueError(f'min_density must be a finite number >= 0, got {self.min_density!r}')
-        if self.min_support < 2:
-            raise ValueError(f'min_support must be >= 2 points, got {self.min_support!r}')
-        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
-            raise ValueError(f'max_iterations must be an integer >= 1, '
-                             f'got {self.max_iterations!r}')
+        # (range_noise, min_density, min_support, max_iterations, init_count: their ranges,
+        # checked above, are their whole rule)
         if self.init not in ('diagonals', 'single', 'random'):
             raise ValueError(f"init must be 'diagonals', 'single' or 'random', got {self.init!r}")
-        if int(self.init_count) != self.init_count or self.init_count < 1:
-            raise ValueError(f'init_count must be an integer >= 1, got {self.init_count!r}')
 
     @classmethod
     def from_dict(cls, values: dict) -> 'SMEMSFConfig':
@@ -513,8 +503,7 @@ def fit(points, config: SMEMSFConfig = None, init=None, weights=None,
     if not isinstance(free_space_window, (int, np.integer)) or isinstance(free_space_window,
                                                                           (bool, np.bool_)):
         raise TypeError(f'free_space_window must be an integer, got {free_space_window!r}')
-    if not isinstance(free_space_hit_margin, (int, float, np.integer, np.floating)) or isinstance(
-            free_space_hit_margin, (bool, np.bool_)):      # (NaN, inf: the ValueError below)
+    if not is_real(free_space_hit_margin):              # (NaN, inf: the ValueError below)
         raise TypeError('free_space_hit_margin must be a finite number >= 0, got '
                         f'{free_space_hit_margin!r}')
     if origins is not None and not (free_space_window >= 1 or free_space_window == 0):

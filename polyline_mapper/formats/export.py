@@ -36,7 +36,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .mapjson import grid_from_dict, map_value_from_dict, MapFile
+from .mapjson import grid_from_dict, map_value_from_dict, MapFile, usable_grid
 from .output import OutputSet, write_text_atomic
 from ..core.grid import check_resolution, FREE, GridMap, OCCUPIED, rasterise
 
@@ -196,7 +196,7 @@ def planner_grid(data: dict, resolution: float = None) -> GridMap:
     without a segment gives all cells unknown, whatever it stores (``usable_grid``).
     """
     segs = np.asarray(data.get('segments', []), dtype=float).reshape(-1, 2, 2)
-    if data.get('grid') is not None and len(segs):        # (as ``usable_grid``)
+    if usable_grid(data.get('grid'), segs) is not None:
         grid = grid_from_dict(data['grid'])
         if resolution is not None and resolution != grid.resolution:
             raise ValueError(f'the map stores its planner grid at {grid.resolution:g} m; a '
