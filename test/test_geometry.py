@@ -2,7 +2,8 @@
 
 import numpy as np
 from polyline_mapper.core.geometry import as_points, lengths, project, sample_segments
-from polyline_mapper.core.index import in_sorted, nearest_distance, piece_pairs, PointIndex
+from polyline_mapper.core.index import (in_sorted, nearest_distance, piece_pairs, PIECE_SCAN,
+                                        PointIndex)
 import pytest
 
 
@@ -112,3 +113,36 @@ def test_nearest_distance_in_point_chunks_is_exact_and_bounds_memory(office_fit)
         tracemalloc.stop()
     np.testing.assert_array_equal(out[0][0], out[1][0])
     assert len(pts) > 20 * 4000 and peaks[1] < peaks[0] / 4, peaks
+
+
+@pytest.mark.parametrize('tiled', [False, True])
+def test_piece_pairs_many_pieces_per_parent(tiled):
+    # Parents cut into more pieces than PIECE_SCAN: their pairs are searched along the parent,
+    # not tested against every piece. Overlapping pieces of random lengths (a long piece before
+    # short ones), or disjoint tiles with gaps as LSS leaves them, in shuffled order; against
+    # brute force on the pieces.
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(0, 10, (3000, 2))
+    segs = rng.uniform(0, 10, (4, 2, 2))
+    length = lengths(segs)
+    u = (segs[:, 1] - segs[:, 0]) / length[:, None]
+    n = 5 * PIECE_SCAN
+    parent = np.repeat(np.arange(4), n)
+    if tiled:
+        cut = np.sort(rng.uniform(0, 1, (4, 2 * n)), axis=1) * length[:, None]
+        t0, t1 = cut[:, 0::2].ravel(), cut[:, 1::2].ravel()
+    else:
+        t0 = rng.uniform(-0.1, 0.9, 4 * n) * length[parent]
+        t1 = t0 + rng.exponential(0.05, 4 * n) * length[parent]
+        t1[::n] = t0[::n] + 0.8 * length[parent[::n]]
+    shuffle = rng.permutation(4 * n)
+    parent, t0, t1 = parent[shuffle], t0[shuffle], t1[shuffle]
+    pieces = segs[parent, :1] + np.stack([t0, t1], axis=1)[:, :, None] * u[parent, None]
+    radius = 0.2
+    reach = radius + max(0.0, -t0.min(), (t1 - length[parent]).max())   # past parents' ends
+    p = piece_pairs(PointIndex(pts).pairs(segs, reach), parent, t0, t1 - t0, radius)
+    d = brute_distance(pts, pieces)
+    got = list(zip(p.pt.tolist(), p.seg.tolist()))
+    assert len(got) == len(set(got)), 'pairs must be unique'
+    assert set(got) == set(zip(*np.nonzero(d <= radius)))
+    np.testing.assert_allclose(p.dist, d[p.pt, p.seg], atol=1e-12)

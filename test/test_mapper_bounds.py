@@ -14,6 +14,7 @@ from polyline_mapper.core.cleanup import corner_chords, seen_through
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.index import PointIndex, SegmentGrid
 from polyline_mapper.core.noise import scan_spacing
+from polyline_mapper.core.smemsf import fit
 from polyline_mapper.scan import scan_to_points
 from polyline_mapper.sim import LaserSpec, office_floor, simulate_drive
 import pytest
@@ -252,3 +253,17 @@ def test_clearing_and_corner_chords_work_in_blocks_of_bounded_memory(monkeypatch
     finally:
         tracemalloc.stop()
     assert flags.all() and peak < 24 * 2 ** 20, f'{peak / 2 ** 20:.1f} MiB'
+
+
+def test_fit_memory_follows_pairs_on_a_long_cut_line():
+    # 5000 points 2 m apart along a 10 km line: LSS cuts it into about 5000 pieces. Every pair
+    # used to be tested against every piece of its parent (25 M rows, 1.2 GB peak RSS); the
+    # pieces a point can reach are now searched along the line.
+    pts = np.c_[np.linspace(0.0, 10_000.0, 5000), np.zeros(5000)]
+    tracemalloc.start()
+    try:
+        fit(pts)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 100e6, f'fit peaked at {peak / 1e6:.0f} MB'
