@@ -25,6 +25,18 @@ def test_fit_rejects_bad_points(pts, why):
         fit(pts)
 
 
+@pytest.mark.parametrize('weights, why', [
+    # (names no argument before: "could not convert string to float: 'a'" - an API audit)
+    (['a', 'b', 'c'], r'weights must be 3 finite values >= 0; a list of them does not convert'),
+    ({'a': 1}, r'weights must be 3 finite values >= 0; a dict of them does not convert'),
+    ([1.0, 2.0], r'weights must be 3 finite values >= 0$'),
+    ([1.0, -1.0, 1.0], r'weights must be 3 finite values >= 0$'),
+])
+def test_fit_rejects_bad_weights_naming_them(weights, why):
+    with pytest.raises(ValueError, match=why):
+        fit(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.1]]), weights=weights)
+
+
 @pytest.mark.parametrize('kwargs, why', [
     ({'kappa': 0}, 'kappa'), ({'sigma': -1.0}, 'sigma'), ({'shrink_fast': 1.5}, 'shrink_fast'),
     ({'shrink_fast': 0.9, 'shrink_slow': 0.7}, 'shrink_fast'), ({'init': 'magic'}, 'init'),

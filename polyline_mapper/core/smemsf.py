@@ -318,7 +318,12 @@ def check_fit_input(points, weights=None) -> tuple:
     if len(pts) < 2:
         raise ValueError(f'need at least 2 points to fit segments, got {len(pts)}')
     if weights is not None:
-        weights = np.asarray(weights, dtype=np.float64)
+        try:
+            weights = np.asarray(weights, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            kind = type(weights).__name__
+            raise ValueError(f'weights must be {len(pts)} finite values >= 0; a {kind} of them '
+                             'does not convert to numbers') from exc
         if weights.shape != (len(pts),) or not np.isfinite(weights).all() or (weights < 0).any():
             raise ValueError(f'weights must be {len(pts)} finite values >= 0')
     span = pts.max(axis=0) - pts.min(axis=0)
