@@ -188,14 +188,39 @@ def save_map(data, points, out_json: str = None, out_png: str = None, title: str
             out.put(out_json, text)
 
 
-def no_segment_reason(n_points: int, config: SMEMSFConfig, sigma: float) -> str:
-    """Say why a batch fit of ``n_points`` valid points found no segment."""
+def no_segment_reason(n_points: int, config: SMEMSFConfig, sigma: float,
+                      spacing: float = None) -> str:
+    """
+    Say why a batch fit of ``n_points`` valid points found no segment.
+
+    ``spacing``: the points' median nearest-neighbour distance (m); wider than a square (2r)
+    at the final ``sigma``, the density test cannot pass, and the reason names the noise scale
+    that would let it (points 1 m apart along walls gave no segment and no hint why).
+    """
     if n_points < config.min_support:
         return (f'{n_points} points are fewer than min_support ({config.min_support:g}), the '
                 'least a segment needs')
-    return (f'no structure: every candidate segment in the {n_points} points fell below '
-            f'min_support ({config.min_support:g} points) or min_density '
-            f'({config.min_density:g} per 2r) at sigma {sigma * 100:.2f} cm')
+    reason = (f'no structure: every candidate segment in the {n_points} points fell below '
+              f'min_support ({config.min_support:g} points) or min_density '
+              f'({config.min_density:g} per 2r) at sigma {sigma * 100:.2f} cm')
+    two_r = 2.0 * config.r_over_sigma * sigma
+    if spacing is not None and spacing > two_r:
+        least = spacing / (2.0 * config.r_over_sigma)         # 2r = the spacing
+        step = 10.0 ** np.floor(np.log10(least))
+        need = float(f'{np.ceil(least / step * (1 - 1e-12)) * step:.1g}')   # one digit, up
+        reason += (f'; the points lie a median {spacing:.3g} m apart, wider than 2r '
+                   f'({two_r * 100:.2f} cm): if they sample walls that sparsely, give their '
+                   f'noise scale, e.g. --set sigma={need:g}')
+    return reason
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from a point to its nearest other point (m); nan for fewer than 2."""
+    if len(points) < 2:
+        return float('nan')
+    from scipy.spatial import cKDTree
+    d, _ = cKDTree(points).query(points, k=2)
+    return float(np.median(d[:, 1]))
 
 
 def summary_line(path: str, stats: dict, plot: str = None) -> str:
@@ -219,10 +244,11 @@ def free_space_text(stats: dict) -> str:
     return text(stats)
 
 
-def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig) -> None:
+def _warn_if_empty(source: str, stats: dict, config: SMEMSFConfig, points: np.ndarray) -> None:
     if not stats['segments']:
-        print(f'polyline-mapper: warning: {source}: no segment found '
-              f"({no_segment_reason(stats['points'], config, stats['sigma'])}); wrote an "
+        reason = no_segment_reason(stats['points'], config, stats['sigma'],
+                                   median_spacing(points))
+        print(f'polyline-mapper: warning: {source}: no segment found ({reason}); wrote an '
               'empty map', file=sys.stderr)
 
 
@@ -308,7 +334,7 @@ def cmd_fit(args) -> int:
                                  'free_space_beams': result.beams,
                                  'free_squares': result.free_squares},
                           inputs=inputs, origins=origins)
-    _warn_if_empty(args.input, stats, config)
+    _warn_if_empty(args.input, stats, config, points)
     if origins is not None:
         disagree = _seen_through(stats, args, config.range_noise)
         if disagree:
@@ -349,7 +375,7 @@ def cmd_demo(args) -> int:
                           truth=world.walls, extra={'input': 'simulated office floor',
                                                     'scans': int(len(drive.poses))},
                           inputs=[args.config], origins=origins)
-    _warn_if_empty('simulated office floor', stats, config)
+    _warn_if_empty('simulated office floor', stats, config, points)
     if not args.quiet:
         print(summary_line(args.output, stats, args.plot))
     return 0

@@ -761,6 +761,28 @@ def test_points_without_a_segment_give_a_valid_empty_map(ws, capsys, points, rea
     assert os.path.getsize(ws['png']) > 1000
 
 
+def test_walls_sampled_sparsely_give_a_warning_naming_the_noise_scale_that_fits_them(ws, capsys):
+    # A 40 x 30 m room's walls sampled every 1.7 m (2 cm noise): sigma falls to its floor, every
+    # square (2r = 2.5 cm) is emptier than min_density, no segment. The warning said only
+    # that (an API audit); it now names the spacing and a sigma whose 2r spans it, and that
+    # sigma gives the four walls.
+    rng = np.random.default_rng(0)
+    s = np.arange(0.0, 140.0, 1.0)
+    corners = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0], [0.0, 30.0], [0.0, 0.0]])
+    at = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(corners, axis=0), axis=1)])
+    room = np.c_[np.interp(s, at, corners[:, 0]), np.interp(s, at, corners[:, 1])]
+    src = os.path.join(ws['dir'], 'sparse.npy')
+    np.save(src, 1.7 * (room + rng.normal(0.0, 0.02, room.shape)))
+    code, err, out = run(['fit', src, '-o', ws['out']], capsys)
+    assert code == 0 and 'an empty map (0 segments)' in out, (err, out)
+    assert len(err) == 1 and 'no segment found' in err[0], err
+    hint = re.search(r'the points lie a median ([0-9.]+) m apart, wider than 2r \(2.50 cm\): .*'
+                     r'e\.g\. --set sigma=([0-9.]+)\)', err[0])
+    assert hint and abs(float(hint.group(1)) - 1.7) < 0.05, err
+    code, err, out = run(['fit', src, '-o', ws['out'], '--set', f'sigma={hint.group(2)}'], capsys)
+    assert code == 0 and err == [] and '4 segments' in out and 'coverage 99' in out, (err, out)
+
+
 def test_dense_noise_gives_segments_and_a_warning_that_most_points_are_off_them(ws, capsys):
     # 3000 uniform random points in a 10 m square: 14 segments covering 18 % of the points then
     # (23 and 26 % on 2026-12-02), written without a word, though the README promised a
