@@ -64,8 +64,10 @@ def test_config_rejects_bad_values_with_reason(kwargs, why):
 
 @pytest.mark.parametrize('kwargs, why', [
     ({'buffer_scans': 1e300}, r'buffer_scans must be an integer in \[1, 1000\], got 1e\+300'),
-    ({'margin': 'x'}, "margin must be a finite number >= 0, got 'x'"),
+    ({'margin': 'x'}, r"margin must be a finite number in \[0.0, 100.0\], got 'x'"),
     ({'cell': 1e9}, 'cell must be a finite number in'),
+    ({'virtual_cap': 0.0}, r'virtual_cap must be a finite number >= 1e-09, got 0.0'),
+    ({'max_mapping_range': 0}, r'max_mapping_range must be a finite number >= 1e-09, got 0'),
 ])
 def test_the_incremental_config_rejects_bad_values_with_reason(kwargs, why):
     from polyline_mapper.core.incremental import IncrementalConfig

@@ -245,20 +245,11 @@ class IncrementalConfig:
     def __post_init__(self):
         """Reject values that cannot work, naming the field."""
         self.smemsf = config_of(self.smemsf, SMEMSFConfig, 'smemsf')
-        for name, lo in (('buffer_scans', 1), ('iterations', 1), ('noise_updates', 1),
-                         ('sigma_window', 1), ('max_scan_points', 16),
-                         ('free_space_window', -1), ('free_space_ghosts', 0)):
-            v = getattr(self, name)
-            if not is_number(v) or int(v) != v or v < lo:
-                raise ValueError(f'{name} must be an integer >= {lo}, got {v!r}')
-        for name, lo in (('margin', 0.0), ('virtual_cap', 1e-9), ('cell', 0.01),
-                         ('clear_max_length', 0.0), ('min_mapping_range', 0.0),
-                         ('max_mapping_range', 1e-9),
-                         ('free_space_hit_margin', 0.0), ('free_space_memory', 0.0)):
-            v = getattr(self, name)
-            if not (is_number(v) and v >= lo):
-                raise ValueError(f'{name} must be a finite number >= {lo:g}, got {v!r}')
         check_in_ranges(self, RANGES, INTEGERS)
+        for name in ('virtual_cap', 'max_mapping_range'):      # no 0 (the hulls' lower end)
+            if getattr(self, name) < 1e-9:
+                raise ValueError(f'{name} must be a finite number >= 1e-09, got '
+                                 f'{getattr(self, name)!r}')
         if self.min_mapping_range >= self.max_mapping_range:
             raise ValueError(f'min_mapping_range must be below max_mapping_range '
                              f'({self.max_mapping_range:g} m), got {self.min_mapping_range!r}')
