@@ -4,6 +4,7 @@ A person walking ahead of the robot: the transient chords' hold, and the chord l
 Usage (from the repository root, after ``bash tools/dev.sh setup``)::
 
     .venv/bin/python benchmarks/walker_chords.py [--seeds 1 2 3 4 5 6 7 8] [--chord-knots arc]
+        [--recent-scans 6]
 
 The simulated dynamic office of ``walker_ahead.py`` (true poses, scan matching, the session as
 ``test_imperfect_poses`` drives it), every seed mapped with the chords of the last scans
@@ -21,9 +22,10 @@ matching runs by default) and ``evidence`` (the evidence per square alone), as t
 One row per setting, extent and length: the median, mean and largest RMS position error over
 the seeds, how many of them keep the walls F1 >= 0.95, and the lowest F1. Writes the table
 into benchmarks/README.md (between the ``walker-chords`` markers) and the rows to
-results/walker_chords.json with ``--chord-knots arc`` (the session's default before 2026-11-30);
-with ``median`` (the default) between the ``walker-chords-median`` markers and to
-results/walker_chords_median.json.
+results/walker_chords.json with ``--chord-knots arc --recent-scans 6`` (the session's defaults
+before 2026-11-30); with the defaults (median knots, ``session.RECENT_SCANS`` recent scans)
+between the ``walker-chords-median`` markers and to results/walker_chords_median.json. Other
+combinations print their rows and write neither.
 """
 
 import argparse
@@ -51,14 +53,22 @@ def main() -> int:
     ap.add_argument('--chord-knots', choices=register.CHORD_KNOTS, default='median',
                     help="the session's chord_knots (default: the session's default, median; "
                     'arc writes the walker-chords block)')
+    ap.add_argument('--recent-scans', type=int, default=session.RECENT_SCANS,
+                    help='keyframes whose chords each scan is matched to beside the map '
+                    f'(session.RECENT_SCANS, default {session.RECENT_SCANS}; 6 with arc writes '
+                    'the walker-chords block)')
     args = ap.parse_args()
-    name = 'walker_chords' + ('' if args.chord_knots == 'arc' else '_median')
+    if args.recent_scans < 1:
+        ap.error(f'--recent-scans must be >= 1, got {args.recent_scans}')
+    name = {('arc', 6): 'walker_chords', ('median', session.RECENT_SCANS): 'walker_chords_median'
+            }.get((args.chord_knots, args.recent_scans))
     meta = stamp('.venv/bin/python benchmarks/walker_chords.py ' + ' '.join(sys.argv[1:]))
     drives = {seed: make_drive('sim:office_dynamic', seed) for seed in args.seeds}
     extents = (register.CHORD_MIN_EXTENT, 0.0)
     jobs = [(setting, extent, length) for setting in ('off', 'evidence') for extent in extents
             for length in LENGTHS]
-    chords, extent0 = session.scan_chords, session.CHORD_MIN_EXTENT
+    chords, extent0, recent0 = session.scan_chords, session.CHORD_MIN_EXTENT, session.RECENT_SCANS
+    session.RECENT_SCANS = args.recent_scans
     rows = []
     bar = tqdm(total=len(jobs) * len(drives), unit='drive', file=sys.stderr)
     try:
@@ -72,7 +82,7 @@ def main() -> int:
             rms = np.array([r['rms_m'] for r in runs])
             f1 = np.array([r['f1'] for r in runs])
             rows.append({'setting': setting, 'min_extent': extent, 'length': length,
-                         'chord_knots': args.chord_knots,
+                         'chord_knots': args.chord_knots, 'recent_scans': args.recent_scans,
                          'seeds': list(drives), 'rms_m': rms.tolist(), 'f1': f1.tolist(),
                          'median_m': round(float(np.median(rms)), 4),
                          'mean_m': round(float(rms.mean()), 4),
@@ -81,7 +91,12 @@ def main() -> int:
             print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     finally:
         session.scan_chords, session.CHORD_MIN_EXTENT = chords, extent0
+        session.RECENT_SCANS = recent0
         bar.close()
+    if name is None:
+        print(f'{args.chord_knots} knots with {args.recent_scans} recent scans: no README block '
+              'or results file is of this combination; the rows are above', file=sys.stderr)
+        return 0
     write_results(name, meta, rows)
     lines = table_header(meta, ['setting', 'min extent (m)', 'chord length (m)',
                                 'RMS median / mean / largest (m)',
