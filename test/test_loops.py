@@ -6,7 +6,7 @@ from polyline_mapper.core.loops import BAND, chain, corrections, Edge, find_loop
 from polyline_mapper.poses import se2_compose
 from polyline_mapper.sim import LaserSpec, office_floor
 from polyline_mapper.sim.laser import simulate_scan
-from polyline_mapper.sim.world import path_poses
+from polyline_mapper.sim.world import path_poses, World
 
 LOOP_COV = np.diag([0.02 ** 2, 0.02 ** 2, 0.01 ** 2])
 
@@ -112,3 +112,18 @@ def test_find_loops_takes_a_true_return_and_refuses_another_room():
     assert np.hypot(*(relative(poses[0], poses[2]) - relative(start, back))[:2]) > 0.2
     for elsewhere in ((17.0, 9.5, 1.0), (8.0, 6.0, 0.0)):
         assert find_loops(poses, first + [_scan(world, elsewhere, rng)], 0.01) == []
+
+
+def test_find_loops_refuses_a_return_that_a_featureless_corridor_cannot_place():
+    # A loop must constrain every direction (module docstring): back in a straight corridor
+    # whose ends lie beyond the laser's reach, the match along it is degenerate, so the 0.2 m
+    # the trajectory drifted along the corridor is neither confirmed nor corrected: no loop.
+    # (Without the degeneracy test, a mutation audit's mutant, the loop is taken.)
+    walls = np.array([[[-100.0, 0.0], [100.0, 0.0]], [[-100.0, 2.0], [100.0, 2.0]]])
+    world, rng = World(walls), np.random.default_rng(4)
+    start, far, back = (np.array([0.0, 1.0, 0.0]), np.array([20.0, 1.0, 0.0]),
+                        np.array([0.3, 1.0, 0.0]))
+    poses = np.array([start, far, se2_compose(back, (0.2, 0.0, 0.0))])
+    scans = [_scan(world, p, rng) for p in (start, far, back)]
+    assert min(len(s) for s in scans) > 500
+    assert find_loops(poses, scans, 0.01) == []
