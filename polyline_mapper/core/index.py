@@ -279,9 +279,10 @@ def piece_pairs(p: Pairs, parent: np.ndarray, start: np.ndarray, length: np.ndar
     n_seg = int(max(parent.max(initial=-1), p.seg.max(initial=-1))) + 1
     count = np.bincount(parent, minlength=n_seg)
     first = np.cumsum(count) - count              # where each segment's pieces start in order
+    n = count.take(p.seg)                          # pieces of each pair's parent
     lo = first.take(p.seg)
-    hi = lo + count.take(p.seg)
-    many = np.flatnonzero(count.take(p.seg) > PIECE_SCAN)
+    hi = lo + n
+    many = np.flatnonzero(n > PIECE_SCAN)
     if many.size:
         s = start.take(order)
         end = _group_running_max(s + length.take(order), parent.take(order))
