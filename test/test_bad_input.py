@@ -66,8 +66,10 @@ def test_config_rejects_bad_values_with_reason(kwargs, why):
     ({'buffer_scans': 1e300}, r'buffer_scans must be an integer in \[1, 1000\], got 1e\+300'),
     ({'margin': 'x'}, r"margin must be a finite number in \[0.0, 100.0\], got 'x'"),
     ({'cell': 1e9}, 'cell must be a finite number in'),
-    ({'virtual_cap': 0.0}, r'virtual_cap must be a finite number >= 1e-09, got 0.0'),
-    ({'max_mapping_range': 0}, r'max_mapping_range must be a finite number >= 1e-09, got 0'),
+    ({'virtual_cap': 0.0}, r'virtual_cap must be a finite number in \[1e-09, 1000000.0\], '
+     r'got 0.0'),
+    ({'max_mapping_range': 0}, r'max_mapping_range must be a finite number in \[1e-09, '
+     r'1000000.0\], got 0'),
 ])
 def test_the_incremental_config_rejects_bad_values_with_reason(kwargs, why):
     from polyline_mapper.core.incremental import IncrementalConfig

@@ -155,11 +155,11 @@ def crowding(segments: np.ndarray, cell: float = 1.0, step: float = 0.05) -> tup
 
 RANGES = {
     'buffer_scans': (1, 1000), 'iterations': (1, 100), 'margin': (0.0, 100.0),
-    'virtual_cap': (0.0, BIG), 'cell': (0.01, 1000.0), 'noise_updates': (1, 10000),
+    'virtual_cap': (1e-9, BIG), 'cell': (0.01, 1000.0), 'noise_updates': (1, 10000),
     'sigma_window': (1, 100000), 'clear_max_length': (0.0, 100.0),
     'free_space_window': (-1, 100000), 'free_space_ghosts': (0, 10 ** 7),
     'free_space_hit_margin': (0.0, 1.0), 'free_space_memory': (0.0, 10.0),
-    'min_mapping_range': (0.0, BIG), 'max_mapping_range': (0.0, BIG),
+    'min_mapping_range': (0.0, BIG), 'max_mapping_range': (1e-9, BIG),
     'max_scan_points': (16, 10 ** 7),
 }
 """Closed hull (lo, hi) of each number ``IncrementalConfig`` accepts (as ``smemsf.RANGES``)."""
@@ -246,10 +246,6 @@ class IncrementalConfig:
         """Reject values that cannot work, naming the field."""
         self.smemsf = config_of(self.smemsf, SMEMSFConfig, 'smemsf')
         check_in_ranges(self, RANGES, INTEGERS)
-        for name in ('virtual_cap', 'max_mapping_range'):      # no 0 (the hulls' lower end)
-            if getattr(self, name) < 1e-9:
-                raise ValueError(f'{name} must be a finite number >= 1e-09, got '
-                                 f'{getattr(self, name)!r}')
         if self.min_mapping_range >= self.max_mapping_range:
             raise ValueError(f'min_mapping_range must be below max_mapping_range '
                              f'({self.max_mapping_range:g} m), got {self.min_mapping_range!r}')
