@@ -262,6 +262,60 @@ def test_the_prediction_gives_way_only_to_a_start_scoring_clearly_higher():
     np.testing.assert_allclose(m.pose, [0.0, 1.0, 0.0], atol=1e-3)
 
 
+def rotated(xy, angle):
+    """``xy`` (N, 2) turned by ``angle`` (rad) about the origin."""
+    c, s = np.cos(angle), np.sin(angle)
+    return xy @ np.array([[c, s], [-s, c]])
+
+
+@pytest.mark.parametrize('n_turned, turned', [(42, False), (48, True)])
+def test_the_heading_search_leaves_the_prediction_only_for_a_turn_scoring_1_1_times_more(
+        n_turned, turned):
+    # register.TURN_MARGIN: 40 points on a wall at the predicted heading; 42 (1.05 x) or 48
+    # (1.2 x) on a second wall that the map holds 0.15 rad turned (mutant 1.0: 42 turn it)
+    x = 5.0 + 3.0 * np.linspace(0.0, 1.0, 40)
+    pts = np.concatenate([np.c_[5.0 + 3.0 * np.linspace(1.0, 0.0, n_turned),
+                                np.full(n_turned, -1.0)], np.c_[x, np.full(40, 1.0)]])
+    walls = np.stack([[[4.5, 1.0], [8.5, 1.0]],
+                      rotated(np.array([[4.5, -1.0], [8.5, -1.0]]), 0.15)])
+    m = match_scan(pts, np.zeros(3), walls, sigma=0.01)
+    assert m.ok
+    np.testing.assert_allclose(m.pose, [0.0, 0.0, 0.15 if turned else 0.0], atol=1e-3)
+
+
+@pytest.mark.parametrize('counts, moved', [((21, 34, 45), False), ((21, 24, 55), True)])
+def test_a_relocalized_pose_needs_1_5_times_the_share_on_the_map(counts, moved):
+    # register.RELOCALIZE_GAIN: a long wall matches at either pose, a face at x = 3 at the
+    # prediction, one at x = 6 (the map's x = 7) 1 m on. 55 % against 66 % (1.2 x) keeps the
+    # prediction, 45 % against 76 % (1.7 x) moves (mutant 1.0: 1.2 x moves)
+    n_w, n_a, n_b = counts
+    pts = np.concatenate([np.c_[np.linspace(-4.0, 4.0, n_w), np.full(n_w, -2.0)],
+                          np.c_[np.full(n_a, 3.0), np.linspace(0.0, 1.5, n_a)],
+                          np.c_[np.full(n_b, 6.0), np.linspace(2.0, 3.5, n_b)]])
+    walls = np.array([[[-20.0, -2.0], [20.0, -2.0]], [[3.0, -0.2], [3.0, 1.7]],
+                      [[7.0, 1.8], [7.0, 3.7]]])
+    m = match_scan(pts, np.zeros(3), walls, sigma=0.01, relocalize=1.5)
+    assert m.ok and m.relocalized == moved
+    np.testing.assert_allclose(m.pose, [1.0 if moved else 0.0, 0.0, 0.0], atol=1e-3)
+
+
+def test_the_default_kernel_keeps_a_radiator_before_a_quarter_of_a_wall_from_pulling_the_match():
+    # register.match_scan: Cauchy kernel 2 sigma by default. A quarter of one wall's points
+    # lie 3.5 sigma in front of it; the match stays within half a sigma (mutants 4 and 6 sigma:
+    # 1.2-1.6 sigma off over 20 seeds; the default 0.28-0.38 sigma)
+    rng = np.random.default_rng(0)
+    sigma, n = 0.02, 120
+    x = np.full(n, 4.0)
+    x[:n // 4] -= 3.5 * sigma
+    pts = np.concatenate([np.c_[x, rng.uniform(-2.0, 2.0, n)],
+                          np.c_[rng.uniform(-2.0, 4.0, n), np.full(n, 3.0)]])
+    pts += rng.normal(0.0, 0.005, pts.shape)
+    walls = np.array([[[4.0, -2.5], [4.0, 3.0]], [[-2.5, 3.0], [4.0, 3.0]]])
+    m = match_scan(pts, np.array([0.03, -0.02, 0.0]), walls, sigma=sigma)
+    assert m.ok
+    assert np.hypot(*m.pose[:2]) < 0.5 * sigma and abs(m.pose[2]) < 0.002
+
+
 def test_poses_searched_after_a_gap_are_distinct():
     # register.search_after_gap: at least 0.5 m or 0.3 rad apart (mutant: 0.05 m / 0.03 rad)
     room = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]],
