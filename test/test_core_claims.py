@@ -15,6 +15,7 @@ from polyline_mapper.core.grid import rasterise, UNKNOWN
 from polyline_mapper.core.incremental import IncrementalConfig, IncrementalMapper
 from polyline_mapper.core.index import PointIndex
 from polyline_mapper.core.loops import chain, corrections
+from polyline_mapper.core.memory import clearly_free
 from polyline_mapper.core.merge import merge_segments, noise_stubs
 from polyline_mapper.core.metrics import map_metrics, trajectory_error, twin_fraction
 from polyline_mapper.core.noise import scan_spacing
@@ -96,6 +97,13 @@ def test_pieces_the_free_space_cut_leaves_need_min_support():
     out, sup, cut = free_space_cut(seg, np.array([6.0]), pts, origins, r=0.05, tol=0.03,
                                    min_support=4.0)
     assert cut == 8 and len(out) == 0 and len(sup) == 0
+
+
+def test_a_new_square_starts_from_its_cell_only_where_passes_are_twice_the_hits():
+    # memory.CLEAR: passes 1.5 x the hits seed nothing (mutant 1.0: they do); nothing stored
+    # (0, 0) starts at nothing either way
+    counts = np.array([[2.0, 3.0], [2.0, 4.0], [0.0, 0.5], [0.0, 0.0], [1.0, 0.0]])
+    assert clearly_free(counts).tolist() == [False, True, True, True, False]
 
 
 # -- EM and the fit ------------------------------------------------------------------------

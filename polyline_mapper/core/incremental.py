@@ -90,7 +90,7 @@ from .cleanup import as_origins, beam_evidence, corner_chords, origin_runs, seen
 from .geometry import (as_points, config_of, in_box, is_number, is_real, lengths,
                        sample_segments)
 from .index import near_points, PointIndex, SegmentGrid
-from .memory import BeamMemory, CLEAR
+from .memory import BeamMemory, clearly_free
 from .noise import estimate_noise, median, scan_spacing
 from .polylines import map_geometry, MapGeometry
 from .smemsf import (beams_of, BIG, check_in_ranges, range_noise_of, smemsf_iteration,
@@ -737,7 +737,7 @@ class IncrementalMapper:
             # A new square starts from what the beams saw of its place before it stood there.
             centre, direction = square_centres(segs, n_sub[:n_new])
             prior = self._memory.lookup(centre[fresh], direction[fresh])
-            clear = prior[:, 1] >= CLEAR * prior[:, 0]
+            clear = clearly_free(prior)
             sel = np.flatnonzero(fresh)[clear]
             counts[sel] = prior[clear]
         for a, b, o in views:

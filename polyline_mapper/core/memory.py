@@ -15,9 +15,9 @@ return and *passes* the cells it crosses before that, up to the same noise margi
 pass (``tol`` + ``range_tol`` x range short of its return); passes are kept per beam direction
 (``BINS`` bins over a half turn). A square that the map gains with nothing to carry over
 (``split.carry_evidence`` found no old square) starts from the counts of the cell its centre lies
-in when that cell is clearly free (``lookup``, ``CLEAR``), so a wall drawn through space seen free
-is cut by the next beams, and a new object in that space (a box put down) needs as many hits as
-the cell holds passes (a few looks) before it stays.
+in when that cell is clearly free (``lookup``, ``clearly_free``), so a wall drawn through space
+seen free is cut by the next beams, and a new object in that space (a box put down) needs as
+many hits as the cell holds passes (a few looks) before it stays.
 
 Memory: 9 float16 (18 bytes) per cell, in chunks of ``CHUNK`` x ``CHUNK`` cells allocated only
 where beams went, never more than ``max_cells`` cells (samples beyond are left out and counted in
@@ -57,6 +57,11 @@ are searched in the sorted chunk keys instead."""
 DEFAULT_MAX_CELLS = 2 ** 24
 """Most cells stored (16.8 M: 300 MiB at 18 bytes a cell, a 410 m square at 0.1 m). Beams beyond
 are left out, counted in ``clipped``."""
+
+
+def clearly_free(counts: np.ndarray) -> np.ndarray:
+    """Rows of [hits, passes] (M, 2) a new square starts from: passes >= ``CLEAR`` x hits."""
+    return counts[:, 1] >= CLEAR * counts[:, 0]
 
 
 def _chunk_key(col: np.ndarray, row: np.ndarray) -> np.ndarray:
