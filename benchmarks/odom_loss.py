@@ -29,7 +29,10 @@ Scores: the largest position and heading error of the scans' poses (the session'
 against the drive's), the largest distance of the map from the world's walls (samples every
 2 cm, as ``test/rosnode.wall_errors``), the walls' F1 (``baselines.walls.wall_scores``) and the
 contradicted share (``freespace.judge``, the session's beams). Writes the table into
-benchmarks/README.md (between the ``odom-loss`` markers) and the rows to results/odom_loss.json.
+benchmarks/README.md (between the ``odom-loss`` markers) and the rows to results/odom_loss.json;
+the rows also count the segments more than ``FAR`` from every wall (``far_segments``), those
+of them whose middle lies within the walls' bounding box (``far_inside``), and the beams that
+pass through and end on each of those (``far_inside_passes``, ``far_inside_ends``).
 """
 
 import argparse
@@ -39,9 +42,9 @@ from multiprocessing import Pool
 import sys
 
 from baselines.walls import wall_scores
-from common import (contradicted, drive_truth, stamp, table_header, write_readme,
-                    write_results)
+from common import drive_truth, stamp, table_header, write_readme, write_results
 import numpy as np
+from polyline_mapper.core.freespace import judge
 from polyline_mapper.core.geometry import sample_segments, wrap_angle
 from polyline_mapper.formats.records import Odometry, Transform
 from polyline_mapper.recordings import drive_messages, flat_records, make_drive
@@ -54,6 +57,8 @@ OPTIONS = {'odom': SessionOptions(pose_source='odom', fixed_frame='odom', mount=
                                   keep_points=True, grid_resolution=None),
            'tf': SessionOptions(pose_source='tf', keep_points=True, grid_resolution=None)}
 """The session's options per odometry source (``--sources``)."""
+FAR = 0.15
+"""Metres: a segment farther than this from every wall is counted in the row's ``far_*``."""
 
 
 def odometry_of(record, source: str) -> bool:
@@ -93,15 +98,26 @@ def one(drive, records: list, loss: float, seed: int, matching: bool = False,
     err = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
     turn = np.abs(wrap_angle(traj[:, 3] - truth[:, 2]))
     world = drive.world
-    samples, _ = sample_segments(value.segments, 0.02)
+    samples, owner = sample_segments(value.segments, 0.02)
+    off = world.distance(samples)
     walls = wall_scores(value.segments, world.walls, world.distance, points=drive.points())
-    free = contradicted(value.segments, session.points(), session.origins())
+    verdict = judge(value.segments, session.points(), session.origins())
+    # The segments more than FAR off a wall; "inside": their middle within the walls' box.
+    stray = np.zeros(len(value.segments))
+    np.maximum.at(stray, owner, off)
+    far = np.flatnonzero(stray > FAR)
+    box = np.asarray(world.walls, dtype=np.float64).reshape(-1, 2)
+    middle = value.segments[far].mean(axis=1)
+    inside = far[np.all((middle > box.min(axis=0)) & (middle < box.max(axis=0)), axis=1)]
     return {'scans': int(len(traj)), 'dropped': dropped,
             'pose_max_cm': round(100 * float(err.max()), 2),
             'heading_max_deg': round(float(np.degrees(turn.max())), 2),
-            'stray_m': round(float(world.distance(samples).max()), 3),
+            'stray_m': round(float(off.max()), 3),
             'f1': round(walls['f1'], 3), 'segments': int(len(value.segments)),
-            'contradicted_pct': round(free['contradicted_pct'], 2)}
+            'contradicted_pct': round(100 * verdict.share, 2),
+            'far_segments': int(len(far)), 'far_inside': int(len(inside)),
+            'far_inside_passes': verdict.passes[inside].tolist(),
+            'far_inside_ends': verdict.ends[inside].tolist()}
 
 
 def run(job: dict) -> dict:
