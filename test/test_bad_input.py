@@ -131,6 +131,8 @@ def test_a_map_the_reader_would_refuse_is_not_written(tmp_path):
     assert len(read_map(out).value) == len(result.segments) == 1
     with pytest.raises(ValueError, match=r'segments must be \(K, 2, 2\) or \(K, 4\)'):
         MapValue(np.zeros((3, 3)), [], [], [])
+    with pytest.raises(ValueError, match='segments contains NaN or inf'):    # (as trajectory)
+        MapValue(np.array([[[0.0, 0.0], [np.nan, 0.0]]]), [1.0], [], [])
     with pytest.raises(ValueError, match=r'trajectory must be \(P, 4\)'):
         MapValue(np.zeros((0, 2, 2)), [], [], [], trajectory=np.zeros((3, 3)))
 

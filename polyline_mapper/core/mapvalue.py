@@ -12,6 +12,8 @@ from typing import Optional
 
 import numpy as np
 
+from .geometry import as_segments
+
 
 @dataclass
 class MapValue:
@@ -43,12 +45,12 @@ class MapValue:
     map, where the mapper placed it (None when not recorded)."""
 
     def __post_init__(self):
-        """Check that the arrays agree (segments and support, polylines and closed flags)."""
+        """Check the arrays: finite segments and trajectory, support and flags that agree."""
         segments = np.asarray(self.segments, dtype=np.float64)
         if segments.size % 4 or segments.ndim > 1 and segments.shape[-1] not in (2, 4):
             raise ValueError(f'segments must be (K, 2, 2) or (K, 4) numbers, got shape '
                              f'{segments.shape}')
-        self.segments = segments.reshape(-1, 2, 2)
+        self.segments = as_segments(segments.reshape(-1, 2, 2))    # (and finite)
         self.support = np.asarray(self.support, dtype=np.float64).reshape(-1)
         if len(self.support) != len(self.segments):
             raise ValueError(f'support has {len(self.support)} values for '
